@@ -1,0 +1,192 @@
+//! Graduated Non-Convexity with the truncated-least-squares cost.
+//!
+//! Yang, Antonante, Tzoumas, Carlone, "Graduated Non-Convexity for Robust Spatial Perception:
+//! From Non-Minimal Solvers to Global Outlier Rejection", RA-L 2020, Sec. III and Prop. 4 (TLS).
+
+use mapmerge_geometry::LieGroup;
+use mapmerge_posegraph::{EdgeId, EdgeKind, PoseGraph};
+use serde::{Deserialize, Serialize};
+
+use crate::error::SolveError;
+use crate::optimizer::{OptimizerInfo, OptimizerParams, Session};
+use crate::problem::Problem;
+use crate::robust::RobustKernel;
+
+/// Parameters of [`optimize_gnc`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GncParams {
+    /// The weighted least-squares solver run at every step (its `robust` must be `None`).
+    pub inner: OptimizerParams,
+    /// `c̄²`: an edge whose squared Mahalanobis error exceeds this is an outlier. Default: the
+    /// 0.99 quantile of χ² with D degrees of freedom (11.34 in 2D, 16.81 in 3D).
+    pub inlier_threshold_chi2: Option<f64>,
+    /// `μ ← μ · mu_factor` per step (paper: 1.4).
+    pub mu_factor: f64,
+    /// At most this many GNC steps (default 100).
+    pub max_steps: usize,
+    /// Stop when `Σ w(1 − w)` falls below this (weights are binary; default 1e-6).
+    pub binary_tolerance: f64,
+    /// Odometry edges are trusted and never down-weighted (default true, as in vertigo).
+    pub odometry_is_inlier: bool,
+}
+
+impl Default for GncParams {
+    fn default() -> Self {
+        Self {
+            inner: OptimizerParams { max_iterations: 30, relative_decrease_tolerance: 1e-6, ..Default::default() },
+            inlier_threshold_chi2: None,
+            mu_factor: 1.4,
+            max_steps: 100,
+            binary_tolerance: 1e-6,
+            odometry_is_inlier: true,
+        }
+    }
+}
+
+/// The 0.99 quantile of χ² with `dof` degrees of freedom (Wilson–Hilferty beyond the table).
+pub fn chi2_quantile_99(dof: usize) -> f64 {
+    const TABLE: [f64; 6] = [6.635, 9.210, 11.345, 13.277, 15.086, 16.812];
+    match dof {
+        1..=6 => TABLE[dof - 1],
+        _ => {
+            let k = dof as f64;
+            let z = 2.326_347_874;
+            let h = 2.0 / (9.0 * k);
+            k * (1.0 - h + z * h.sqrt()).powi(3)
+        }
+    }
+}
+
+/// What GNC did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GncInfo {
+    /// GNC steps taken (each a weighted least-squares solve).
+    pub steps: usize,
+    /// The last `μ`.
+    pub final_mu: f64,
+    /// The inlier threshold `c̄²` used.
+    pub threshold_chi2: f64,
+    /// Final weight of every edge, in edge-id order.
+    pub weights: Vec<(EdgeId, f64)>,
+    /// Edges rejected as outliers (final weight < 0.5).
+    pub rejected: Vec<EdgeId>,
+    /// Chi2 of all edges, outliers included, at the result.
+    pub chi2_all_edges: f64,
+    /// The final least-squares polish over the inliers (its `final_chi2` excludes outliers).
+    pub optimizer: OptimizerInfo,
+    /// Inner optimizer iterations summed over all steps.
+    pub inner_iterations: usize,
+}
+
+/// TLS weight for squared error `s` (Yang et al. 2020, Prop. 4).
+fn tls_weight(s: f64, threshold: f64, mu: f64) -> f64 {
+    if s >= (mu + 1.0) / mu * threshold {
+        0.0
+    } else if s <= mu / (mu + 1.0) * threshold {
+        1.0
+    } else {
+        (threshold.sqrt() / s.sqrt() * (mu * (mu + 1.0)).sqrt() - mu).clamp(0.0, 1.0)
+    }
+}
+
+/// Robust optimisation of `graph` by GNC-TLS. Rejected edges stay in the graph; the result
+/// lists them.
+pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
+    graph: &mut PoseGraph<G, D>,
+    params: &GncParams,
+) -> Result<GncInfo, SolveError> {
+    params.inner.validate()?;
+    if params.inner.robust != RobustKernel::None {
+        return Err(SolveError::InvalidParameter("GNC's inner solver must not use a robust kernel".into()));
+    }
+    let threshold = params.inlier_threshold_chi2.unwrap_or_else(|| chi2_quantile_99(D));
+    if !(threshold.is_finite() && threshold > 0.0 && params.mu_factor > 1.0) {
+        return Err(SolveError::InvalidParameter("GNC threshold must be > 0 and mu_factor > 1".into()));
+    }
+    let mut problem = Problem::compile(graph)?;
+    let mut session = Session::new(&problem)?;
+    let trusted: Vec<bool> = problem
+        .edges
+        .iter()
+        .map(|e| e.is_prior || (params.odometry_is_inlier && e.kind == EdgeKind::Odometry))
+        .collect();
+    let mut weights = vec![1.0; problem.edges.len()];
+    // Step 0: the non-robust solution.
+    let first = session.run(&mut problem, &weights, &params.inner, |_| {});
+    let mut inner_iterations = first.iterations.len();
+    let chi2_of = |problem: &Problem<G, D>| -> Vec<f64> {
+        problem.edges.iter().map(|e| Problem::edge_chi2(e, &problem.poses)).collect()
+    };
+    let mut residuals = chi2_of(&problem);
+    let max_untrusted = residuals
+        .iter()
+        .zip(&trusted)
+        .filter(|(_, t)| !**t)
+        .fold(0.0f64, |m, (s, _)| m.max(*s));
+    let mut mu = if 2.0 * max_untrusted > threshold {
+        threshold / (2.0 * max_untrusted - threshold)
+    } else {
+        f64::INFINITY
+    };
+    let mut steps = 0;
+    while mu.is_finite() && steps < params.max_steps {
+        steps += 1;
+        for ((w, s), t) in weights.iter_mut().zip(&residuals).zip(&trusted) {
+            *w = if *t { 1.0 } else { tls_weight(*s, threshold, mu) };
+        }
+        let run = session.run(&mut problem, &weights, &params.inner, |_| {});
+        inner_iterations += run.iterations.len();
+        residuals = chi2_of(&problem);
+        let non_binary: f64 = weights.iter().map(|w| w * (1.0 - w)).sum();
+        if non_binary < params.binary_tolerance {
+            break;
+        }
+        mu *= params.mu_factor;
+    }
+    // Final binary decision and a full least-squares polish over the inliers.
+    for ((w, s), t) in weights.iter_mut().zip(&residuals).zip(&trusted) {
+        let soft = if *t { 1.0 } else if mu.is_finite() { tls_weight(*s, threshold, mu) } else { 1.0 };
+        *w = if soft >= 0.5 { 1.0 } else { 0.0 };
+    }
+    let polish_params = OptimizerParams { max_iterations: 100.max(params.inner.max_iterations), relative_decrease_tolerance: 1e-9, ..params.inner };
+    let optimizer = session.run(&mut problem, &weights, &polish_params, |_| {});
+    inner_iterations += optimizer.iterations.len();
+    let all = vec![1.0; problem.edges.len()];
+    let (chi2_all_edges, _) = problem.cost(&problem.poses, &all, &RobustKernel::None);
+    problem.write_back(graph);
+    let rejected = problem.edges.iter().zip(&weights).filter(|(_, w)| **w < 0.5).map(|(e, _)| e.id).collect();
+    Ok(GncInfo {
+        steps,
+        final_mu: mu,
+        threshold_chi2: threshold,
+        weights: problem.edges.iter().zip(&weights).map(|(e, w)| (e.id, *w)).collect(),
+        rejected,
+        chi2_all_edges,
+        optimizer,
+        inner_iterations,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tls_weights_span_zero_to_one() {
+        let c2 = 10.0;
+        assert_eq!(tls_weight(1.0, c2, 1.0), 1.0);
+        assert_eq!(tls_weight(100.0, c2, 1.0), 0.0);
+        let mid = tls_weight(c2, c2, 1.0);
+        assert!(mid > 0.0 && mid < 1.0);
+        // As μ grows the transition band shrinks to the threshold.
+        assert_eq!(tls_weight(c2 * 0.99, c2, 1e4), 1.0);
+        assert_eq!(tls_weight(c2 * 1.01, c2, 1e4), 0.0);
+    }
+
+    #[test]
+    fn chi2_quantiles() {
+        assert!((chi2_quantile_99(3) - 11.345).abs() < 1e-3);
+        assert!((chi2_quantile_99(10) - 23.209).abs() < 0.1);
+    }
+}
