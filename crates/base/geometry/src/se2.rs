@@ -4,11 +4,11 @@ use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::lie::LieGroup;
-
-/// Below this angle (rad) the series expansions replace the closed forms.
-const SMALL_ANGLE_RAD: f64 = 1e-5;
+use crate::trig::{half_cot_half, one_minus_cos_over_t2, sinc, t_minus_sin_over_t3};
 
 /// A planar pose `a_from_b`: rotation by `theta_rad`, then translation `(x_m, y_m)`.
+///
+/// Struct literals and deserialisation may leave `theta_rad` unwrapped; every operation wraps.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Se2 {
     /// Translation x (m).
@@ -33,21 +33,14 @@ pub fn wrap_angle_rad(angle_rad: f64) -> f64 {
     }
 }
 
-/// `(sin θ / θ, (1 - cos θ) / θ)`, with series near zero.
-fn sinc_cosc(theta: f64) -> (f64, f64) {
-    if theta.abs() < SMALL_ANGLE_RAD {
-        let t2 = theta * theta;
-        (1.0 - t2 / 6.0, theta / 2.0 - theta * t2 / 24.0)
-    } else {
-        let (s, c) = theta.sin_cos();
-        (s / theta, (1.0 - c) / theta)
-    }
-}
-
 impl Se2 {
     /// A pose from translation (m) and heading (rad); the heading is wrapped.
     pub fn new(x_m: f64, y_m: f64, theta_rad: f64) -> Self {
-        Self { x_m, y_m, theta_rad: wrap_angle_rad(theta_rad) }
+        Self {
+            x_m,
+            y_m,
+            theta_rad: wrap_angle_rad(theta_rad),
+        }
     }
     /// Translation as a vector (m).
     pub fn translation(&self) -> Vector2<f64> {
@@ -71,7 +64,11 @@ impl Se2 {
 
 impl LieGroup<3> for Se2 {
     fn identity() -> Self {
-        Self { x_m: 0.0, y_m: 0.0, theta_rad: 0.0 }
+        Self {
+            x_m: 0.0,
+            y_m: 0.0,
+            theta_rad: 0.0,
+        }
     }
 
     fn compose(&self, other: &Self) -> Self {
@@ -92,75 +89,57 @@ impl LieGroup<3> for Se2 {
         }
     }
 
+    // Solà et al., eq. 156: t = V(θ) v with V = [[sin θ/θ, -(1-cos θ)/θ], [(1-cos θ)/θ, sin θ/θ]].
     fn exp(xi: &Vector3<f64>) -> Self {
         let theta = xi[2];
-        let (a, b) = sinc_cosc(theta);
+        let (a, b) = (sinc(theta), theta * one_minus_cos_over_t2(theta));
         Self::new(a * xi[0] - b * xi[1], b * xi[0] + a * xi[1], theta)
     }
 
+    // Solà et al., App. C (inverse of eq. 156): v = V(θ)⁻¹ t,
+    // V⁻¹ = [[h, θ/2], [-θ/2, h]] with h = (θ/2) cot(θ/2), finite up to |θ| = π.
     fn log(&self) -> Vector3<f64> {
-        let theta = self.theta_rad;
-        let (a, b) = sinc_cosc(theta);
-        let det = a * a + b * b;
+        let theta = wrap_angle_rad(self.theta_rad);
+        let (h, half) = (half_cot_half(theta), 0.5 * theta);
         Vector3::new(
-            (a * self.x_m + b * self.y_m) / det,
-            (-b * self.x_m + a * self.y_m) / det,
+            h * self.x_m + half * self.y_m,
+            -half * self.x_m + h * self.y_m,
             theta,
         )
     }
 
+    // Solà et al., App. C: Ad = [[R, [y, -x]ᵀ], [0, 1]] (GTSAM Pose2::AdjointMap).
     fn adjoint(&self) -> Matrix3<f64> {
         let (s, c) = self.theta_rad.sin_cos();
         Matrix3::new(c, -s, self.y_m, s, c, -self.x_m, 0.0, 0.0, 1.0)
     }
 
-    // Solà, Deray, Atchuthan, "A micro Lie theory", eq. (163).
+    // Solà et al., eq. 163, written with cancellation-free coefficients:
+    // Jr = [[sin θ/θ, (1-cos θ)/θ, ρ1 (θ-sin θ)/θ² - ρ2 (1-cos θ)/θ²],
+    //       [-(1-cos θ)/θ, sin θ/θ, ρ1 (1-cos θ)/θ² + ρ2 (θ-sin θ)/θ²], [0, 0, 1]].
     fn right_jacobian(xi: &Vector3<f64>) -> Matrix3<f64> {
         let (r1, r2, theta) = (xi[0], xi[1], xi[2]);
-        if theta.abs() < SMALL_ANGLE_RAD {
-            let t2 = theta * theta;
-            return Matrix3::new(
-                1.0 - t2 / 6.0,
-                theta / 2.0,
-                -r2 / 2.0 + r1 * theta / 6.0,
-                -theta / 2.0,
-                1.0 - t2 / 6.0,
-                r1 / 2.0 + r2 * theta / 6.0,
-                0.0,
-                0.0,
-                1.0,
-            );
-        }
-        let (s, c) = theta.sin_cos();
-        let t2 = theta * theta;
-        Matrix3::new(
-            s / theta,
-            (1.0 - c) / theta,
-            (theta * r1 - r2 + r2 * c - r1 * s) / t2,
-            (c - 1.0) / theta,
-            s / theta,
-            (r1 + theta * r2 - r1 * c - r2 * s) / t2,
-            0.0,
-            0.0,
-            1.0,
-        )
+        let a = sinc(theta);
+        let c = one_minus_cos_over_t2(theta);
+        let b = theta * c;
+        let d = theta * t_minus_sin_over_t3(theta);
+        Matrix3::new(a, b, r1 * d - r2 * c, -b, a, r1 * c + r2 * d, 0.0, 0.0, 1.0)
     }
 
+    // Jr = [[A, u], [0, 1]] ⇒ Jr⁻¹ = [[A⁻¹, -A⁻¹ u], [0, 1]], with A⁻¹ = [[h, -θ/2], [θ/2, h]].
     fn right_jacobian_inverse(xi: &Vector3<f64>) -> Matrix3<f64> {
-        // Block upper-triangular [[A, b], [0, 1]]: inverse is [[A⁻¹, -A⁻¹ b], [0, 1]].
-        let jr = Self::right_jacobian(xi);
-        let a = jr.fixed_view::<2, 2>(0, 0).into_owned();
-        let b = jr.fixed_view::<2, 1>(0, 2).into_owned();
-        let det = a[(0, 0)] * a[(1, 1)] - a[(0, 1)] * a[(1, 0)];
-        let a_inv = Matrix2::new(a[(1, 1)], -a[(0, 1)], -a[(1, 0)], a[(0, 0)]) / det;
-        let top = -a_inv * b;
+        let (r1, r2, theta) = (xi[0], xi[1], xi[2]);
+        let (h, half) = (half_cot_half(theta), 0.5 * theta);
+        let c = one_minus_cos_over_t2(theta);
+        let d = theta * t_minus_sin_over_t3(theta);
+        let (u1, u2) = (r1 * d - r2 * c, r1 * c + r2 * d);
         Matrix3::new(
-            a_inv[(0, 0)],
-            a_inv[(0, 1)],
-            top[0],
-            a_inv[(1, 0)],
-            a_inv[(1, 1)],
-            top[1],
+            h,
+            -half,
+            -(h * u1 - half * u2),
+            half,
+            h,
+            -(half * u1 + h * u2),
             0.0,
             0.0,
             1.0,
@@ -168,16 +147,63 @@ impl LieGroup<3> for Se2 {
     }
 
     fn error_coordinates(&self) -> Vector3<f64> {
-        Vector3::new(self.x_m, self.y_m, self.theta_rad)
+        Vector3::new(self.x_m, self.y_m, wrap_angle_rad(self.theta_rad))
     }
 
     fn error_coordinates_jacobian(&self) -> Matrix3<f64> {
-        // (x, y, θ) of self · Exp(δ) ≈ (t + R δ_v, θ + δ_ω) to first order.
+        // (x, y, θ) of self · Exp(δ) = (t + R V(δθ) δv, θ + δθ) ⇒ [[R, 0], [0, 1]] at δ = 0.
         let (s, c) = self.theta_rad.sin_cos();
         Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
     }
 
     fn is_finite(&self) -> bool {
         self.x_m.is_finite() && self.y_m.is_finite() && self.theta_rad.is_finite()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unwrapped_heading_from_struct_literal_is_wrapped() {
+        // Deserialisation and struct literals bypass `Se2::new`.
+        let raw = Se2 {
+            x_m: 1.0,
+            y_m: -2.0,
+            theta_rad: 4.0,
+        };
+        let wrapped = Se2::new(1.0, -2.0, 4.0);
+        assert!((raw.log() - wrapped.log()).abs().max() < 1e-15);
+        assert!(
+            (raw.error_coordinates() - wrapped.error_coordinates())
+                .abs()
+                .max()
+                < 1e-15
+        );
+        assert!(raw.log()[2] <= core::f64::consts::PI);
+    }
+
+    #[test]
+    fn wrap_angle_maps_into_half_open_interval() {
+        use core::f64::consts::PI;
+        assert_eq!(wrap_angle_rad(-PI), PI);
+        assert_eq!(wrap_angle_rad(PI), PI);
+        assert!((wrap_angle_rad(3.0 * PI + 0.1) - (-PI + 0.1)).abs() < 1e-12);
+        assert!((wrap_angle_rad(-7.0) - (-7.0 + 2.0 * PI)).abs() < 1e-12);
+        assert!(wrap_angle_rad(f64::NAN).is_nan());
+    }
+
+    #[test]
+    fn non_finite_input_gives_non_finite_output_without_panicking() {
+        let xi = Vector3::new(f64::NAN, 0.0, f64::INFINITY);
+        assert!(!Se2::exp(&xi).is_finite());
+        assert!(Se2::right_jacobian_inverse(&xi)
+            .iter()
+            .any(|v| !v.is_finite()));
+        assert!(Se2::new(0.0, f64::NAN, 0.0)
+            .log()
+            .iter()
+            .any(|v| v.is_nan()));
     }
 }
