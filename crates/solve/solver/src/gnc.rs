@@ -105,7 +105,7 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
         return Err(SolveError::InvalidParameter("GNC threshold must be > 0 and mu_factor > 1".into()));
     }
     let mut problem = Problem::compile(graph)?;
-    let mut session = Session::new(&problem)?;
+    let mut session = Session::new(&mut problem)?;
     let trusted: Vec<bool> = problem
         .edges
         .iter()

@@ -21,8 +21,8 @@ pub fn marginal_covariances<G: LieGroup<D>, const D: usize>(
     graph: &PoseGraph<G, D>,
     vertices: &[NodeId],
 ) -> Result<Vec<SMatrix<f64, D, D>>, SolveError> {
-    let problem = Problem::compile(graph)?;
-    let mut session = Session::new(&problem)?;
+    let mut problem = Problem::compile(graph)?;
+    let mut session = Session::new(&mut problem)?;
     let weights = vec![1.0; problem.edges.len()];
     session.linearize(&problem, &weights, &RobustKernel::None);
     let dim = session.normal.dim();
