@@ -43,6 +43,27 @@ pub trait LieGroup<const D: usize>:
     /// True when every stored number is finite.
     fn is_finite(&self) -> bool;
 
+    /// The residual of a relative-pose edge whose inverted measurement is `self`:
+    /// `coords(z⁻¹ · from⁻¹ · to)`. The optimizer's hot path; groups may specialise it.
+    fn relative_error(&self, from: &Self, to: &Self) -> SVector<f64, D> {
+        self.compose(&from.between(to)).error_coordinates()
+    }
+
+    /// [`LieGroup::relative_error`] and its Jacobians with respect to right perturbations of
+    /// `from` and `to`. With `P = from⁻¹·to`, `E = z⁻¹·P` and `C` the error-coordinates
+    /// Jacobian at `E`: `J_to = C`, `J_from = −C · Ad(P⁻¹)`.
+    #[allow(clippy::type_complexity)]
+    fn relative_error_jacobians(
+        &self,
+        from: &Self,
+        to: &Self,
+    ) -> (SVector<f64, D>, SMatrix<f64, D, D>, SMatrix<f64, D, D>) {
+        let predicted = from.between(to);
+        let error = self.compose(&predicted);
+        let c = error.error_coordinates_jacobian();
+        (error.error_coordinates(), -(c * predicted.inverse().adjoint()), c)
+    }
+
     /// `self⁻¹ · other`, the pose of `other` seen from `self`.
     fn between(&self, other: &Self) -> Self {
         self.inverse().compose(other)

@@ -34,7 +34,11 @@ pub struct GncParams {
 impl Default for GncParams {
     fn default() -> Self {
         Self {
-            inner: OptimizerParams { max_iterations: 30, relative_decrease_tolerance: 1e-6, ..Default::default() },
+            inner: OptimizerParams {
+                max_iterations: 30,
+                relative_decrease_tolerance: 1e-6,
+                ..Default::default()
+            },
             inlier_threshold_chi2: None,
             mu_factor: 1.4,
             max_steps: 100,
@@ -98,11 +102,17 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
 ) -> Result<GncInfo, SolveError> {
     params.inner.validate()?;
     if params.inner.robust != RobustKernel::None {
-        return Err(SolveError::InvalidParameter("GNC's inner solver must not use a robust kernel".into()));
+        return Err(SolveError::InvalidParameter(
+            "GNC's inner solver must not use a robust kernel".into(),
+        ));
     }
-    let threshold = params.inlier_threshold_chi2.unwrap_or_else(|| chi2_quantile_99(D));
+    let threshold = params
+        .inlier_threshold_chi2
+        .unwrap_or_else(|| chi2_quantile_99(D));
     if !(threshold.is_finite() && threshold > 0.0 && params.mu_factor > 1.0) {
-        return Err(SolveError::InvalidParameter("GNC threshold must be > 0 and mu_factor > 1".into()));
+        return Err(SolveError::InvalidParameter(
+            "GNC threshold must be > 0 and mu_factor > 1".into(),
+        ));
     }
     let mut problem = Problem::compile(graph)?;
     let mut session = Session::new(&mut problem)?;
@@ -116,7 +126,11 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
     let first = session.run(&mut problem, &weights, &params.inner, |_| {});
     let mut inner_iterations = first.iterations.len();
     let chi2_of = |problem: &Problem<G, D>| -> Vec<f64> {
-        problem.edges.iter().map(|e| Problem::edge_chi2(e, &problem.poses)).collect()
+        problem
+            .edges
+            .iter()
+            .map(|e| Problem::edge_chi2(e, &problem.poses))
+            .collect()
     };
     let mut residuals = chi2_of(&problem);
     let max_untrusted = residuals
@@ -133,7 +147,11 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
     while mu.is_finite() && steps < params.max_steps {
         steps += 1;
         for ((w, s), t) in weights.iter_mut().zip(&residuals).zip(&trusted) {
-            *w = if *t { 1.0 } else { tls_weight(*s, threshold, mu) };
+            *w = if *t {
+                1.0
+            } else {
+                tls_weight(*s, threshold, mu)
+            };
         }
         let run = session.run(&mut problem, &weights, &params.inner, |_| {});
         inner_iterations += run.iterations.len();
@@ -146,21 +164,42 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
     }
     // Final binary decision and a full least-squares polish over the inliers.
     for ((w, s), t) in weights.iter_mut().zip(&residuals).zip(&trusted) {
-        let soft = if *t { 1.0 } else if mu.is_finite() { tls_weight(*s, threshold, mu) } else { 1.0 };
+        let soft = if *t {
+            1.0
+        } else if mu.is_finite() {
+            tls_weight(*s, threshold, mu)
+        } else {
+            1.0
+        };
         *w = if soft >= 0.5 { 1.0 } else { 0.0 };
     }
-    let polish_params = OptimizerParams { max_iterations: 100.max(params.inner.max_iterations), relative_decrease_tolerance: 1e-9, ..params.inner };
+    let polish_params = OptimizerParams {
+        max_iterations: 100.max(params.inner.max_iterations),
+        relative_decrease_tolerance: 1e-9,
+        ..params.inner
+    };
     let optimizer = session.run(&mut problem, &weights, &polish_params, |_| {});
     inner_iterations += optimizer.iterations.len();
     let all = vec![1.0; problem.edges.len()];
     let (chi2_all_edges, _) = problem.cost(&problem.poses, &all, &RobustKernel::None);
     problem.write_back(graph);
-    let rejected = problem.edges.iter().zip(&weights).filter(|(_, w)| **w < 0.5).map(|(e, _)| e.id).collect();
+    let rejected = problem
+        .edges
+        .iter()
+        .zip(&weights)
+        .filter(|(_, w)| **w < 0.5)
+        .map(|(e, _)| e.id)
+        .collect();
     Ok(GncInfo {
         steps,
         final_mu: mu,
         threshold_chi2: threshold,
-        weights: problem.edges.iter().zip(&weights).map(|(e, w)| (e.id, *w)).collect(),
+        weights: problem
+            .edges
+            .iter()
+            .zip(&weights)
+            .map(|(e, w)| (e.id, *w))
+            .collect(),
         rejected,
         chi2_all_edges,
         optimizer,

@@ -35,8 +35,11 @@ pub fn marginal_covariances<G: LieGroup<D>, const D: usize>(
         slots.push(Session::<G, D>::slot_of(&problem, index));
     }
     let mut out = vec![SMatrix::<f64, D, D>::zeros(); vertices.len()];
-    let free: Vec<(usize, usize)> =
-        slots.iter().enumerate().filter_map(|(k, s)| s.map(|s| (k, s))).collect();
+    let free: Vec<(usize, usize)> = slots
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.map(|s| (k, s)))
+        .collect();
     for chunk in free.chunks(VERTICES_PER_SOLVE) {
         let ncols = chunk.len() * D;
         let mut rhs = vec![0.0; dim * ncols];

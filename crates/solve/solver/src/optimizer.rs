@@ -66,7 +66,9 @@ impl Default for OptimizerParams {
 impl OptimizerParams {
     /// Checks every parameter's range.
     pub fn validate(&self) -> Result<(), SolveError> {
-        self.robust.validate().map_err(SolveError::InvalidParameter)?;
+        self.robust
+            .validate()
+            .map_err(SolveError::InvalidParameter)?;
         let positive = [
             ("lambda_initial", self.lambda_initial),
             ("lambda_max", self.lambda_max),
@@ -78,7 +80,10 @@ impl OptimizerParams {
             }
         }
         let non_negative = [
-            ("relative_decrease_tolerance", self.relative_decrease_tolerance),
+            (
+                "relative_decrease_tolerance",
+                self.relative_decrease_tolerance,
+            ),
             ("absolute_tolerance", self.absolute_tolerance),
             ("gradient_tolerance", self.gradient_tolerance),
         ];
@@ -206,7 +211,12 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
             problem
                 .edges
                 .iter()
-                .map(|e| (problem.free_slot[e.from as usize], problem.free_slot[e.to as usize]))
+                .map(|e| {
+                    (
+                        problem.free_slot[e.from as usize],
+                        problem.free_slot[e.to as usize],
+                    )
+                })
                 .collect()
         };
         let new_of_old = fill_reducing_slots(problem.num_free, &slots_of_edges(problem))?;
@@ -216,7 +226,12 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
         let slots: Vec<(u32, u32)> = problem
             .edges
             .iter()
-            .map(|e| (problem.free_slot[e.from as usize], problem.free_slot[e.to as usize]))
+            .map(|e| {
+                (
+                    problem.free_slot[e.from as usize],
+                    problem.free_slot[e.to as usize],
+                )
+            })
             .collect();
         let normal = NormalEquations::new(problem.num_free, &slots)?;
         Ok(Self {
@@ -232,7 +247,12 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
     /// `outer_weight · ρ'(χ²)`.
     pub fn linearize(&mut self, problem: &Problem<G, D>, weights: &[f64], kernel: &RobustKernel) {
         problem.linearize_all(&mut self.linearizations);
-        for ((w, lin), outer) in self.irls_weights.iter_mut().zip(&self.linearizations).zip(weights) {
+        for ((w, lin), outer) in self
+            .irls_weights
+            .iter_mut()
+            .zip(&self.linearizations)
+            .zip(weights)
+        {
             *w = outer * kernel.weight(lin.chi2);
         }
         self.normal.assemble(
@@ -277,9 +297,7 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
                 info.termination = Termination::AbsoluteCost;
                 break;
             }
-            let t0 = Instant::now();
             self.linearize(problem, weights, &kernel);
-            if std::env::var("MM_PROF").is_ok() { eprintln!("linearize {:.4}s", t0.elapsed().as_secs_f64()); }
             let gradient_max = self.normal.gradient_max_abs();
             if gradient_max <= params.gradient_tolerance {
                 info.termination = Termination::Gradient;

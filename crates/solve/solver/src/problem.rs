@@ -70,8 +70,11 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
             poses.push(v.pose);
             fixed.push(v.fixed);
         }
-        let index: BTreeMap<NodeId, u32> =
-            ids.iter().enumerate().map(|(i, id)| (*id, i as u32)).collect();
+        let index: BTreeMap<NodeId, u32> = ids
+            .iter()
+            .enumerate()
+            .map(|(i, id)| (*id, i as u32))
+            .collect();
         let mut edges = Vec::with_capacity(graph.num_edges());
         let mut anchored = fixed.clone();
         for (eid, e) in graph.edges() {
@@ -97,7 +100,9 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
         // Gauge: one anchored vertex per connected component.
         let mut gauge_fixed = Vec::new();
         for component in graph.connected_components() {
-            let has_anchor = component.iter().any(|id| index.get(id).is_some_and(|&i| anchored[i as usize]));
+            let has_anchor = component
+                .iter()
+                .any(|id| index.get(id).is_some_and(|&i| anchored[i as usize]));
             if !has_anchor {
                 if let Some(&i) = component.first().and_then(|id| index.get(id)) {
                     fixed[i as usize] = true;
@@ -113,7 +118,14 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
                 num_free += 1;
             }
         }
-        Ok(Self { ids, poses, free_slot, num_free, edges, gauge_fixed })
+        Ok(Self {
+            ids,
+            poses,
+            free_slot,
+            num_free,
+            edges,
+            gauge_fixed,
+        })
     }
 
     /// Writes the poses back into the graph.
@@ -125,40 +137,41 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
         }
     }
 
-    /// Residual and Jacobians of one edge at `poses`.
-    ///
-    /// `r = coords(z⁻¹ · x_from⁻¹ · x_to)`; with `E` that product and `C = ∂coords(E·Exp δ)/∂δ`:
-    /// `J_to = C`, `J_from = −C · Ad((x_from⁻¹ x_to)⁻¹)`.
+    /// Residual and Jacobians of one edge at `poses`: `r = coords(z⁻¹ · x_from⁻¹ · x_to)`
+    /// ([`LieGroup::relative_error_jacobians`]), or `coords(z⁻¹ · x)` for a prior.
     #[inline]
     pub fn linearize_edge(edge: &CompiledEdge<G, D>, poses: &[G]) -> EdgeLinearization<D> {
-        let x_to = poses[edge.to as usize];
-        let predicted = if edge.is_prior {
-            x_to
+        let x_to = &poses[edge.to as usize];
+        let (residual, jacobian_from, jacobian_to) = if edge.is_prior {
+            let error = edge.measurement_inverse.compose(x_to);
+            (
+                error.error_coordinates(),
+                SMatrix::zeros(),
+                error.error_coordinates_jacobian(),
+            )
         } else {
-            poses[edge.from as usize].between(&x_to)
-        };
-        let error = edge.measurement_inverse.compose(&predicted);
-        let residual = error.error_coordinates();
-        let c = error.error_coordinates_jacobian();
-        let jacobian_from = if edge.is_prior {
-            SMatrix::zeros()
-        } else {
-            -(c * predicted.inverse().adjoint())
+            edge.measurement_inverse
+                .relative_error_jacobians(&poses[edge.from as usize], x_to)
         };
         let chi2 = (residual.transpose() * edge.information * residual)[(0, 0)];
-        EdgeLinearization { residual, jacobian_from, jacobian_to: c, chi2 }
+        EdgeLinearization {
+            residual,
+            jacobian_from,
+            jacobian_to,
+            chi2,
+        }
     }
 
     /// Squared error of one edge at `poses`.
     #[inline]
     pub fn edge_chi2(edge: &CompiledEdge<G, D>, poses: &[G]) -> f64 {
-        let x_to = poses[edge.to as usize];
-        let predicted = if edge.is_prior {
-            x_to
+        let x_to = &poses[edge.to as usize];
+        let r = if edge.is_prior {
+            edge.measurement_inverse.compose(x_to).error_coordinates()
         } else {
-            poses[edge.from as usize].between(&x_to)
+            edge.measurement_inverse
+                .relative_error(&poses[edge.from as usize], x_to)
         };
-        let r = edge.measurement_inverse.compose(&predicted).error_coordinates();
         (r.transpose() * edge.information * r)[(0, 0)]
     }
 
@@ -173,7 +186,11 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
         };
         let add = |a: (f64, f64), b: (f64, f64)| (a.0 + b.0, a.1 + b.1);
         if self.edges.len() < EDGES_PER_TASK {
-            self.edges.iter().zip(weights).map(per_edge).fold((0.0, 0.0), add)
+            self.edges
+                .iter()
+                .zip(weights)
+                .map(per_edge)
+                .fold((0.0, 0.0), add)
         } else {
             self.edges
                 .par_iter()
@@ -249,7 +266,10 @@ mod tests {
                 let rm = Problem::<G, D>::linearize_edge(&edge, &minus).residual;
                 let numeric = (rp - rm) / (2.0 * h);
                 let column = analytic.column(k);
-                assert!((numeric - column).norm() < 1e-6, "jacobian {which} col {k}: {numeric} vs {column}");
+                assert!(
+                    (numeric - column).norm() < 1e-6,
+                    "jacobian {which} col {k}: {numeric} vs {column}"
+                );
             }
         }
     }
@@ -265,9 +285,18 @@ mod tests {
 
     #[test]
     fn se3_edge_jacobians_match_numeric() {
-        let a = Se3::new(UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1), Vector3::new(1.0, 2.0, -0.5));
-        let b = Se3::new(UnitQuaternion::from_euler_angles(-0.4, 0.5, 2.0), Vector3::new(-1.0, 0.3, 0.8));
-        let z = Se3::new(UnitQuaternion::from_euler_angles(0.1, 0.2, 0.6), Vector3::new(0.2, -1.0, 0.4));
+        let a = Se3::new(
+            UnitQuaternion::from_euler_angles(0.3, -0.2, 1.1),
+            Vector3::new(1.0, 2.0, -0.5),
+        );
+        let b = Se3::new(
+            UnitQuaternion::from_euler_angles(-0.4, 0.5, 2.0),
+            Vector3::new(-1.0, 0.3, 0.8),
+        );
+        let z = Se3::new(
+            UnitQuaternion::from_euler_angles(0.1, 0.2, 0.6),
+            Vector3::new(0.2, -1.0, 0.4),
+        );
         check_edge_jacobians(a, b, z, false);
         check_edge_jacobians(a, b, z, true);
     }

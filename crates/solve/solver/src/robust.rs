@@ -114,7 +114,10 @@ mod tests {
             for s in [0.01f64, 0.5, 0.99, 1.7, 3.0, 10.0, 250.0] {
                 let h = 1e-6 * s.max(1.0);
                 let numeric = (k.cost(s + h) - k.cost(s - h)) / (2.0 * h);
-                assert!((numeric - k.weight(s)).abs() < 1e-6, "{k:?} at {s}: {numeric}");
+                assert!(
+                    (numeric - k.weight(s)).abs() < 1e-6,
+                    "{k:?} at {s}: {numeric}"
+                );
             }
         }
     }

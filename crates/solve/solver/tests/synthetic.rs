@@ -14,7 +14,15 @@ use rand_chacha::ChaCha8Rng;
 fn truth_2d(n: usize, rng: &mut ChaCha8Rng) -> Vec<Se2> {
     let mut poses = vec![Se2::identity()];
     for i in 1..n {
-        let turn = if i % 10 == 0 { if rng.random_bool(0.5) { 1.5707963 } else { -1.5707963 } } else { 0.0 };
+        let turn = if i % 10 == 0 {
+            if rng.random_bool(0.5) {
+                1.5707963
+            } else {
+                -1.5707963
+            }
+        } else {
+            0.0
+        };
         let last = poses[i - 1];
         poses.push(last.compose(&Se2::new(1.0, 0.0, turn)));
     }
@@ -40,13 +48,27 @@ fn build<G: LieGroup<D>, const D: usize>(
         let z = noisy(truth[i - 1].between(&truth[i]), sigma, rng);
         est = est.compose(&z);
         g.add_vertex(NodeId(i as u64), Vertex::new(est)).unwrap();
-        g.add_edge(Edge { from: NodeId(i as u64 - 1), to: NodeId(i as u64), measurement: z, information: info, kind: EdgeKind::Odometry }).unwrap();
+        g.add_edge(Edge {
+            from: NodeId(i as u64 - 1),
+            to: NodeId(i as u64),
+            measurement: z,
+            information: info,
+            kind: EdgeKind::Odometry,
+        })
+        .unwrap();
     }
     for i in 0..truth.len() {
         for j in (i + 5)..truth.len() {
             if close(&truth[i], &truth[j]) {
                 let z = noisy(truth[i].between(&truth[j]), sigma, rng);
-                g.add_edge(Edge { from: NodeId(i as u64), to: NodeId(j as u64), measurement: z, information: info, kind: EdgeKind::Loop }).unwrap();
+                g.add_edge(Edge {
+                    from: NodeId(i as u64),
+                    to: NodeId(j as u64),
+                    measurement: z,
+                    information: info,
+                    kind: EdgeKind::Loop,
+                })
+                .unwrap();
             }
         }
     }
@@ -70,9 +92,15 @@ fn exact_measurements_recover_truth_2d() {
     }
     for algorithm in [Algorithm::LevenbergMarquardt, Algorithm::GaussNewton] {
         let mut g = g.clone();
-        let params = OptimizerParams { algorithm, ..Default::default() };
+        let params = OptimizerParams {
+            algorithm,
+            ..Default::default()
+        };
         let info = optimize(&mut g, &params).unwrap();
-        assert!(info.final_chi2 < 1e-10 * info.initial_chi2.max(1.0), "{algorithm:?}: {info:?}");
+        assert!(
+            info.final_chi2 < 1e-10 * info.initial_chi2.max(1.0),
+            "{algorithm:?}: {info:?}"
+        );
         assert_eq!(info.gauge_fixed, vec![NodeId(0)]);
         for (id, v) in g.vertices() {
             let t = truth[id.0 as usize];
@@ -125,7 +153,9 @@ fn exact_and_noisy_3d() {
     let mut g: PoseGraph3 = build(&truth, near, 0.0, &mut rng);
     for (i, (_, v)) in g.vertices_mut().enumerate() {
         if i > 0 {
-            v.pose = v.pose.retract(&Vector6::new(0.01, -0.02, 0.01, 0.05, 0.02, -0.03));
+            v.pose = v
+                .pose
+                .retract(&Vector6::new(0.01, -0.02, 0.01, 0.05, 0.02, -0.03));
         }
     }
     let info = optimize(&mut g, &OptimizerParams::default()).unwrap();
@@ -148,19 +178,47 @@ fn robust_kernels_reduce_the_pull_of_a_false_loop() {
     optimize(&mut reference, &OptimizerParams::default()).unwrap();
     let mut corrupted = clean.clone();
     corrupted
-        .add_edge(Edge { from: NodeId(20), to: NodeId(150), measurement: Se2::new(0.5, 0.0, 0.0), information: Matrix3::identity() * 1e4, kind: EdgeKind::Loop })
+        .add_edge(Edge {
+            from: NodeId(20),
+            to: NodeId(150),
+            measurement: Se2::new(0.5, 0.0, 0.0),
+            information: Matrix3::identity() * 1e4,
+            kind: EdgeKind::Loop,
+        })
         .unwrap();
     let error = |g: &PoseGraph2| -> f64 {
-        g.vertices().map(|(id, v)| (v.pose.translation() - reference.vertex(id).unwrap().pose.translation()).norm()).fold(0.0, f64::max)
+        g.vertices()
+            .map(|(id, v)| {
+                (v.pose.translation() - reference.vertex(id).unwrap().pose.translation()).norm()
+            })
+            .fold(0.0, f64::max)
     };
     let mut plain = corrupted.clone();
     optimize(&mut plain, &OptimizerParams::default()).unwrap();
     let plain_error = error(&plain);
-    assert!(plain_error > 1.0, "the false loop should distort plain least squares: {plain_error}");
-    for robust in [RobustKernel::Huber { delta: 3.4 }, RobustKernel::Cauchy { c: 3.4 }, RobustKernel::Dcs { phi: 1.0 }] {
+    assert!(
+        plain_error > 1.0,
+        "the false loop should distort plain least squares: {plain_error}"
+    );
+    for robust in [
+        RobustKernel::Huber { delta: 3.4 },
+        RobustKernel::Cauchy { c: 3.4 },
+        RobustKernel::Dcs { phi: 1.0 },
+    ] {
         let mut g = corrupted.clone();
-        optimize(&mut g, &OptimizerParams { robust, ..Default::default() }).unwrap();
-        assert!(error(&g) < plain_error, "{robust:?}: {} vs {plain_error}", error(&g));
+        optimize(
+            &mut g,
+            &OptimizerParams {
+                robust,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        assert!(
+            error(&g) < plain_error,
+            "{robust:?}: {} vs {plain_error}",
+            error(&g)
+        );
     }
     let mut g = corrupted.clone();
     let gnc = optimize_gnc(&mut g, &GncParams::default()).unwrap();
@@ -178,9 +236,17 @@ fn marginals_match_a_chain_with_known_covariance() {
     let mut v0 = Vertex::new(Se2::identity());
     v0.fixed = true;
     g.add_vertex(NodeId(0), v0).unwrap();
-    g.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.3))).unwrap();
+    g.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.3)))
+        .unwrap();
     let info = Matrix3::new(100.0, 0.0, 0.0, 0.0, 400.0, 0.0, 0.0, 0.0, 900.0);
-    g.add_edge(Edge { from: NodeId(0), to: NodeId(1), measurement: Se2::new(1.0, 0.0, 0.3), information: info, kind: EdgeKind::Odometry }).unwrap();
+    g.add_edge(Edge {
+        from: NodeId(0),
+        to: NodeId(1),
+        measurement: Se2::new(1.0, 0.0, 0.3),
+        information: info,
+        kind: EdgeKind::Odometry,
+    })
+    .unwrap();
     let cov = marginal_covariances(&g, &[NodeId(0), NodeId(1)]).unwrap();
     assert_eq!(cov[0], Matrix3::zeros());
     // At the optimum the residual Jacobian wrt x1 is R(0)=I-ish; covariance = Ω⁻¹ in x1's frame.
@@ -195,21 +261,50 @@ fn marginals_match_a_chain_with_known_covariance() {
 fn numerical_failure_keeps_last_good_state() {
     // A vertex with no edges and not fixed gives a singular system.
     let mut g = PoseGraph2::new();
-    g.add_vertex(NodeId(0), Vertex::new(Se2::identity())).unwrap();
-    g.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.0))).unwrap();
-    g.add_vertex(NodeId(2), Vertex::new(Se2::new(2.0, 0.0, 0.0))).unwrap();
-    g.add_edge(Edge { from: NodeId(0), to: NodeId(1), measurement: Se2::new(1.1, 0.0, 0.0), information: Matrix3::identity(), kind: EdgeKind::Odometry }).unwrap();
+    g.add_vertex(NodeId(0), Vertex::new(Se2::identity()))
+        .unwrap();
+    g.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.0)))
+        .unwrap();
+    g.add_vertex(NodeId(2), Vertex::new(Se2::new(2.0, 0.0, 0.0)))
+        .unwrap();
+    g.add_edge(Edge {
+        from: NodeId(0),
+        to: NodeId(1),
+        measurement: Se2::new(1.1, 0.0, 0.0),
+        information: Matrix3::identity(),
+        kind: EdgeKind::Odometry,
+    })
+    .unwrap();
     // Vertex 2 is its own component: gauge-fixed, so the problem is well posed.
     let info = optimize(&mut g, &OptimizerParams::default()).unwrap();
     assert!(info.gauge_fixed.contains(&NodeId(2)));
     assert!(info.final_chi2 < 1e-12);
     // Rank-deficient information: only x constrained.
     let mut h = PoseGraph2::new();
-    h.add_vertex(NodeId(0), Vertex::new(Se2::identity())).unwrap();
-    h.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.0))).unwrap();
-    h.add_edge(Edge { from: NodeId(0), to: NodeId(1), measurement: Se2::new(1.5, 0.0, 0.0), information: Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), kind: EdgeKind::Odometry }).unwrap();
+    h.add_vertex(NodeId(0), Vertex::new(Se2::identity()))
+        .unwrap();
+    h.add_vertex(NodeId(1), Vertex::new(Se2::new(1.0, 0.0, 0.0)))
+        .unwrap();
+    h.add_edge(Edge {
+        from: NodeId(0),
+        to: NodeId(1),
+        measurement: Se2::new(1.5, 0.0, 0.0),
+        information: Matrix3::new(1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        kind: EdgeKind::Odometry,
+    })
+    .unwrap();
     let before = h.clone();
-    let info = optimize(&mut h, &OptimizerParams { algorithm: Algorithm::GaussNewton, ..Default::default() }).unwrap();
-    assert!(matches!(info.termination, Termination::NumericalFailure(_)), "{info:?}");
+    let info = optimize(
+        &mut h,
+        &OptimizerParams {
+            algorithm: Algorithm::GaussNewton,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        matches!(info.termination, Termination::NumericalFailure(_)),
+        "{info:?}"
+    );
     assert_eq!(h, before, "the last good state (the input) is kept");
 }
