@@ -46,7 +46,15 @@ impl std::error::Error for BadInput {}
 
 /// Reads a graph file; any failure is bad input (exit code 2), with the reason chain kept.
 pub fn load_graph(path: &std::path::Path) -> anyhow::Result<mapmerge_io::LoadedGraph> {
-    mapmerge_io::read_graph(path).map_err(|err| {
+    load_graph_with(path, &mapmerge_io::ReadParams::default())
+}
+
+/// [`load_graph`] with reader options.
+pub fn load_graph_with(
+    path: &std::path::Path,
+    params: &mapmerge_io::ReadParams,
+) -> anyhow::Result<mapmerge_io::LoadedGraph> {
+    mapmerge_io::read_graph_with(path, params).map_err(|err| {
         let mut message = err.to_string();
         let mut source = std::error::Error::source(&err);
         while let Some(cause) = source {

@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use mapmerge_geometry::LieGroup;
-use mapmerge_io::{write_graph, AnyGraph};
+use mapmerge_io::{write_graph, AnyGraph, BadInformation, ReadParams};
 use mapmerge_posegraph::{EdgeId, PoseGraph};
 use mapmerge_solve::{
     chi2_quantile_99, optimize_gnc, optimize_with_progress, Algorithm, GncParams, IterationStats,
@@ -58,6 +58,16 @@ pub enum AlgorithmChoice {
     Gn,
 }
 
+/// What to do with edges whose information matrix is not positive definite.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum BadInformationChoice {
+    /// Stop with an error naming the line.
+    Reject,
+    /// Keep the diagonal when it is positive (drops correlations; SE-Sync's cubicle needs it).
+    KeepDiagonal,
+}
+
 /// Arguments of `mapmerge optimize`.
 #[derive(Args, Debug)]
 pub struct OptimizeArgs {
@@ -85,6 +95,9 @@ pub struct OptimizeArgs {
     /// Stop when an iteration lowers the cost by less than this fraction.
     #[arg(long, default_value_t = 1e-9)]
     pub relative_tolerance: f64,
+    /// Edges whose information matrix is not positive definite.
+    #[arg(long, value_enum, default_value_t = BadInformationChoice::Reject)]
+    pub bad_information: BadInformationChoice,
     /// Print one JSON object on stdout instead of the human summary.
     #[arg(long)]
     pub json: bool,
@@ -118,6 +131,7 @@ struct Report {
     gauge_fixed: Vec<u64>,
     rejected_edges: Vec<RejectedEdge>,
     gnc_steps: Option<usize>,
+    repaired_edges: usize,
     load_seconds: f64,
     init_seconds: f64,
     optimize_seconds: f64,
@@ -222,7 +236,14 @@ fn initialise<G: LieGroup<D>, const D: usize>(
 /// Runs `mapmerge optimize`.
 pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
     let start = Instant::now();
-    let loaded = crate::load_graph(&args.input)?;
+    let read_params = ReadParams {
+        bad_information: match args.bad_information {
+            BadInformationChoice::Reject => BadInformation::Reject,
+            BadInformationChoice::KeepDiagonal => BadInformation::KeepDiagonal,
+        },
+    };
+    let loaded = crate::load_graph_with(&args.input, &read_params)?;
+    let repaired_edges = loaded.repaired_edges.len();
     let load_seconds = start.elapsed().as_secs_f64();
     let had_vertices = loaded.had_vertices;
     let format = loaded.format;
@@ -253,6 +274,9 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
             args.input.display(),
             dimension
         );
+        if repaired_edges > 0 {
+            eprintln!("kept only the diagonal of {repaired_edges} non-positive-definite information matrices");
+        }
         if let Some(c) = init_chi2 {
             eprintln!(
                 "initialised ({:?}): chi2 {c:.6} in {init_seconds:.3} s",
@@ -287,6 +311,7 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
         gauge_fixed: info.gauge_fixed.iter().map(|id| id.0).collect(),
         rejected_edges,
         gnc_steps: outcome.gnc_steps,
+        repaired_edges,
         load_seconds,
         init_seconds,
         optimize_seconds,

@@ -20,8 +20,7 @@ struct Chi2 {
 }
 
 fn run_2d(name: &str) -> Option<Chi2> {
-    let path = common::data_dir()?.join("g2o/se-sync").join(name);
-    let graph = common::parse_g2o_2d(&common::read_text(&path));
+    let graph = common::load_2d(name)?;
     assert!(
         graph.num_edges() > 1000,
         "{name}: parsed only {} edges",
@@ -54,8 +53,7 @@ fn run_2d(name: &str) -> Option<Chi2> {
 }
 
 fn run_3d(name: &str) -> Option<Chi2> {
-    let path = common::data_dir()?.join("g2o/se-sync").join(name);
-    let graph = common::parse_g2o_3d(&common::read_text(&path));
+    let graph = common::load_3d(name)?;
     assert!(
         graph.num_edges() > 1000,
         "{name}: parsed only {} edges",
@@ -181,10 +179,9 @@ fn lago_beats_odometry_and_the_file_guess_on_city10000() {
 fn anisotropic_rotation_weights_beat_isotropic_ones_on_cubicle() {
     // cubicle's odometry has roll/pitch information 10⁶ and yaw 6.25: a scalar weight makes
     // the uncertain odometry yaw override the loop closures.
-    let Some(dir) = common::data_dir() else {
+    let Some(graph) = common::load_3d("cubicle.g2o.xz") else {
         return;
     };
-    let graph = common::parse_g2o_3d(&common::read_text(&dir.join("g2o/se-sync/cubicle.g2o.xz")));
     let mut chi2 = Vec::new();
     for weighting in [
         RotationWeighting::Information,

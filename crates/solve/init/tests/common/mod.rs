@@ -1,149 +1,36 @@
-//! Shared test helpers: the data-directory lookup, a minimal g2o reader and synthetic graphs.
+//! Shared test helpers: loading the public graphs and building synthetic ones.
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
-use std::path::PathBuf;
-
 use mapmerge_geometry::{LieGroup, Se2, Se3};
+use mapmerge_io::{read_graph_with, AnyGraph, BadInformation, ReadParams};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph, PoseGraph2, PoseGraph3, Vertex};
-use nalgebra::{Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
 
-/// The shared data folder: `$MAPMERGE_DATA`, else `../shared/data` next to the workspace.
-/// Returns `None` (after printing why) when it is missing, so the caller skips; panics instead
-/// under `CI=true`, where data tests must run.
-pub fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("MAPMERGE_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/../../../../shared/data"
-            ))
-        });
-    if dir.is_dir() {
-        return Some(dir);
-    }
-    let why = format!(
-        "data folder {} not found (set MAPMERGE_DATA)",
-        dir.display()
-    );
-    if std::env::var("CI").as_deref() == Ok("true") {
-        panic!("{why}");
-    }
-    eprintln!("skipping: {why}");
-    None
-}
-
-/// The text of a data file, decompressing `.xz` with the `xz` tool.
-pub fn read_text(path: &std::path::Path) -> String {
-    if path.extension().is_some_and(|e| e == "xz") {
-        let out = std::process::Command::new("xz")
-            .arg("-dc")
-            .arg(path)
-            .output()
-            .unwrap_or_else(|e| panic!("running xz on {}: {e}", path.display()));
-        assert!(out.status.success(), "xz -dc {} failed", path.display());
-        String::from_utf8(out.stdout).expect("utf-8")
-    } else {
-        std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+/// A 2D graph from `../shared/data/g2o/se-sync`, or `None` when the data folder is absent
+/// (outside CI). Non-positive-definite information matrices keep their diagonal.
+pub fn load_2d(name: &str) -> Option<PoseGraph2> {
+    match load(name)? {
+        AnyGraph::Planar(g) => Some(g),
+        AnyGraph::Spatial(_) => panic!("{name} is 3D"),
     }
 }
 
-fn numbers(fields: &[&str]) -> Vec<f64> {
-    fields
-        .iter()
-        .map(|f| f.parse::<f64>().expect("number"))
-        .collect()
-}
-
-fn kind(from: u64, to: u64) -> EdgeKind {
-    if to == from + 1 {
-        EdgeKind::Odometry
-    } else {
-        EdgeKind::Loop
+/// A 3D graph from `../shared/data/g2o/se-sync` (see [`load_2d`]).
+pub fn load_3d(name: &str) -> Option<PoseGraph3> {
+    match load(name)? {
+        AnyGraph::Spatial(g) => Some(g),
+        AnyGraph::Planar(_) => panic!("{name} is 2D"),
     }
 }
 
-/// Upper triangle (row-major) into a symmetric matrix, permuting indices by `perm`.
-fn symmetric<const D: usize>(upper: &[f64], perm: [usize; D]) -> nalgebra::SMatrix<f64, D, D> {
-    let mut m = nalgebra::SMatrix::<f64, D, D>::zeros();
-    let mut k = 0;
-    for a in 0..D {
-        for b in a..D {
-            m[(perm[a], perm[b])] = upper[k];
-            m[(perm[b], perm[a])] = upper[k];
-            k += 1;
-        }
-    }
-    m
-}
-
-/// Test-only reader for VERTEX_SE2 / EDGE_SE2.
-pub fn parse_g2o_2d(text: &str) -> PoseGraph2 {
-    let mut g = PoseGraph2::new();
-    for line in text.lines() {
-        let f: Vec<&str> = line.split_whitespace().collect();
-        match f.first() {
-            Some(&"VERTEX_SE2") => {
-                let v = numbers(&f[2..5]);
-                let id = f[1].parse().unwrap();
-                g.add_vertex(NodeId(id), Vertex::new(Se2::new(v[0], v[1], v[2])))
-                    .unwrap();
-            }
-            Some(&"EDGE_SE2") => {
-                let (i, j): (u64, u64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
-                let v = numbers(&f[3..12]);
-                let information = symmetric::<3>(&v[3..9], [0, 1, 2]);
-                g.add_edge(Edge {
-                    from: NodeId(i),
-                    to: NodeId(j),
-                    measurement: Se2::new(v[0], v[1], v[2]),
-                    information,
-                    kind: kind(i, j),
-                })
-                .unwrap();
-            }
-            _ => {}
-        }
-    }
-    g
-}
-
-/// Test-only reader for VERTEX_SE3:QUAT / EDGE_SE3:QUAT; g2o's (t, r) information order is
-/// permuted to our (ω, v).
-pub fn parse_g2o_3d(text: &str) -> PoseGraph3 {
-    let pose = |v: &[f64]| {
-        let q = UnitQuaternion::from_quaternion(Quaternion::new(v[6], v[3], v[4], v[5]));
-        Se3::new(q, Vector3::new(v[0], v[1], v[2]))
+fn load(name: &str) -> Option<AnyGraph> {
+    let path = mapmerge_testkit::shared_data(&format!("g2o/se-sync/{name}"))?;
+    let params = ReadParams {
+        bad_information: BadInformation::KeepDiagonal,
     };
-    let mut g = PoseGraph3::new();
-    for line in text.lines() {
-        let f: Vec<&str> = line.split_whitespace().collect();
-        match f.first() {
-            Some(&"VERTEX_SE3:QUAT") => {
-                let id = f[1].parse().unwrap();
-                g.add_vertex(NodeId(id), Vertex::new(pose(&numbers(&f[2..9]))))
-                    .unwrap();
-            }
-            Some(&"EDGE_SE3:QUAT") => {
-                let (i, j): (u64, u64) = (f[1].parse().unwrap(), f[2].parse().unwrap());
-                let v = numbers(&f[3..31]);
-                let information: Matrix6<f64> = symmetric::<6>(&v[7..28], [3, 4, 5, 0, 1, 2]);
-                g.add_edge(Edge {
-                    from: NodeId(i),
-                    to: NodeId(j),
-                    measurement: pose(&v[0..7]),
-                    information,
-                    kind: kind(i, j),
-                })
-                .unwrap();
-            }
-            _ => {}
-        }
-    }
-    g
+    Some(read_graph_with(&path, &params).unwrap().graph)
 }
 
-/// Largest `‖log(a_k⁻¹ b_k)‖` over all vertices of two graphs with the same ids.
 pub fn max_pose_error<G: LieGroup<D>, const D: usize>(
     a: &PoseGraph<G, D>,
     b: &PoseGraph<G, D>,
@@ -186,7 +73,11 @@ pub fn add_exact_edge<G: LieGroup<D>, const D: usize>(
         to: NodeId(to),
         measurement: a.between(&b),
         information,
-        kind: kind(from, to),
+        kind: if to == from + 1 {
+            EdgeKind::Odometry
+        } else {
+            EdgeKind::Loop
+        },
     })
     .unwrap();
 }
