@@ -332,6 +332,32 @@ fn check_interpolation<const D: usize, G: LieGroup<D>>(
     Ok(())
 }
 
+/// The edge residual `coords(z⁻¹ · a⁻¹ · b)` and its Jacobians, as the optimizer uses them,
+/// against the group operations and numerical differentiation.
+fn check_relative_error<const D: usize, G: LieGroup<D>>(
+    z: &G,
+    a: &G,
+    b: &G,
+) -> Result<(), TestCaseError> {
+    let z_inverse = z.inverse();
+    let generic = z_inverse.compose(&a.between(b)).error_coordinates();
+    let (residual, j_from, j_to) = z_inverse.relative_error_jacobians(a, b);
+    assert_close("relative_error", &z_inverse.relative_error(a, b), &generic, 1e-9)?;
+    assert_close("relative_error_jacobians residual", &residual, &generic, 1e-9)?;
+    let numeric_from = numerical_jacobian(
+        |d: &SVector<f64, D>| z_inverse.relative_error(&a.retract(d), b),
+        &SVector::zeros(),
+        1e-6,
+    );
+    let numeric_to = numerical_jacobian(
+        |d: &SVector<f64, D>| z_inverse.relative_error(a, &b.retract(d)),
+        &SVector::zeros(),
+        1e-6,
+    );
+    assert_close("J_from", &j_from, &numeric_from, 1e-5)?;
+    assert_close("J_to", &j_to, &numeric_to, 1e-5)
+}
+
 // ---------------------------------------------------------------------------------------------
 // SE(2).
 
@@ -393,6 +419,13 @@ proptest! {
     #[test]
     fn se2_interpolation_hits_endpoints_and_halves(a in se2_pose(1e-9), xi in se2_tangent(1e-6)) {
         check_interpolation(&a, &xi)?;
+    }
+
+    #[test]
+    fn se2_closed_form_edge_error_matches_the_generic_one(
+        z in se2_pose(1e-9), a in se2_pose(1e-9), b in se2_pose(1e-9)
+    ) {
+        check_relative_error(&z, &a, &b)?;
     }
 }
 
