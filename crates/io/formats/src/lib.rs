@@ -1,7 +1,8 @@
 //! Readers and writers for pose-graph files (g2o, TORO/HOG-Man) and TUM trajectories.
 //!
 //! Entry points: [`read_graph`] / [`parse_graph`] (format detected from the first data line,
-//! `.xz` decompressed transparently), [`write_graph`] / [`format_graph`], and [`write_tum`].
+//! `.xz` decompressed transparently; `*_with` variants take [`ReadParams`]), [`write_graph`] /
+//! [`format_graph`], and [`write_tum`].
 //! Nothing here panics on input: every problem is an [`IoError`] naming file and line.
 //! See `docs/formats.md` for the exact line layouts and the information-matrix ordering.
 //!

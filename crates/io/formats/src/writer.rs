@@ -1,0 +1,92 @@
+//! Shared writing helpers: number formatting that round-trips, and saving (optionally xz).
+
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
+
+use crate::IoError;
+
+/// xz preset used for `.xz` output (xz's default).
+const XZ_PRESET: u32 = 6;
+
+/// Appends `v` in a form that parses back to the same `f64`: plain decimal (`{}`) for ordinary
+/// magnitudes, exponent form (`{:e}`) for tiny or huge ones so the text stays short. Both are
+/// the shortest round-tripping digits.
+pub(crate) fn write_f64(out: &mut String, v: f64) {
+    let magnitude = v.abs();
+    // Writing to a String cannot fail.
+    let _ = if magnitude != 0.0 && !(1e-5..1e16).contains(&magnitude) {
+        write!(out, "{v:e}")
+    } else {
+        write!(out, "{v}")
+    };
+}
+
+/// Appends `' '` and `v` (see [`write_f64`]).
+pub(crate) fn push_f64(out: &mut String, v: f64) {
+    out.push(' ');
+    write_f64(out, v);
+}
+
+/// Appends `' '` and an id.
+pub(crate) fn push_id(out: &mut String, id: u64) {
+    let _ = write!(out, " {id}");
+}
+
+/// Appends every value with [`push_f64`].
+pub(crate) fn push_fields(out: &mut String, values: impl IntoIterator<Item = f64>) {
+    for v in values {
+        push_f64(out, v);
+    }
+}
+
+/// Writes `text` to `path`, xz-compressed when the path ends in `.xz`.
+pub(crate) fn save(path: &Path, text: &str) -> Result<(), IoError> {
+    let io_error = |source| IoError::Io {
+        file: path.display().to_string(),
+        source,
+    };
+    let file = std::fs::File::create(path).map_err(io_error)?;
+    let buffered = std::io::BufWriter::new(file);
+    let compressed = path.extension().is_some_and(|ext| ext == "xz");
+    let mut buffered = if compressed {
+        let mut encoder = xz2::write::XzEncoder::new(buffered, XZ_PRESET);
+        encoder.write_all(text.as_bytes()).map_err(io_error)?;
+        encoder.finish().map_err(io_error)?
+    } else {
+        let mut buffered = buffered;
+        buffered.write_all(text.as_bytes()).map_err(io_error)?;
+        buffered
+    };
+    buffered.flush().map_err(io_error)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_round_trip_and_stay_short() {
+        for v in [
+            0.0,
+            -0.0,
+            1.0,
+            -2.5,
+            0.1 + 0.2,
+            1e-5,
+            9.99e-6,
+            1e16,
+            123456789.123,
+            f64::MIN_POSITIVE,
+            f64::MAX,
+            -f64::MAX,
+            5e-324,
+        ] {
+            let mut s = String::new();
+            push_f64(&mut s, v);
+            let back: f64 = s.trim().parse().unwrap_or(f64::NAN);
+            assert_eq!(back.to_bits(), v.to_bits(), "{v} -> {s}");
+            assert!(s.len() < 30, "{s}");
+        }
+    }
+}
