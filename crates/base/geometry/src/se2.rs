@@ -21,15 +21,20 @@ pub struct Se2 {
 
 /// Wraps an angle into (-π, π].
 pub fn wrap_angle_rad(angle_rad: f64) -> f64 {
-    if angle_rad > -core::f64::consts::PI && angle_rad <= core::f64::consts::PI {
+    use core::f64::consts::PI;
+    if angle_rad > -PI && angle_rad <= PI {
         return angle_rad;
     }
-    let two_pi = 2.0 * core::f64::consts::PI;
-    let wrapped = angle_rad - two_pi * ((angle_rad + core::f64::consts::PI) / two_pi).floor();
-    if wrapped <= -core::f64::consts::PI {
-        wrapped + two_pi
+    // `%` (fmod) is exact, so even huge angles land in (-2π, 2π) without cancellation; one
+    // correcting step (also exact here) brings them into (-π, π].
+    let two_pi = 2.0 * PI;
+    let rem = angle_rad % two_pi;
+    if rem > PI {
+        rem - two_pi
+    } else if rem <= -PI {
+        rem + two_pi
     } else {
-        wrapped
+        rem
     }
 }
 
@@ -235,6 +240,10 @@ mod tests {
         assert!((wrap_angle_rad(3.0 * PI + 0.1) - (-PI + 0.1)).abs() < 1e-12);
         assert!((wrap_angle_rad(-7.0) - (-7.0 + 2.0 * PI)).abs() < 1e-12);
         assert!(wrap_angle_rad(f64::NAN).is_nan());
+        for huge in [1e20, -1e20, 4.0e15, 1e300] {
+            let w = wrap_angle_rad(huge);
+            assert!(w > -PI && w <= PI, "{huge} -> {w}");
+        }
     }
 
     #[test]

@@ -224,23 +224,10 @@ pub(crate) fn swap_translation_rotation(m: &Matrix6<f64>) -> Matrix6<f64> {
     Matrix6::from_fn(|i, j| m[(PERM[i % 6], PERM[j % 6])])
 }
 
-/// A planar pose with the heading wrapped into (-π, π] exactly: `fmod` and the one correcting
-/// step are exact in floating point, so huge angles land in range and in-range angles are
-/// returned bit for bit (reading a written file gives the same pose).
+/// A planar pose with the heading wrapped into (-π, π]; in-range headings are kept bit for
+/// bit, so reading a written file gives the same pose.
 pub(crate) fn se2(x_m: f64, y_m: f64, theta_rad: f64) -> Se2 {
-    use core::f64::consts::PI;
-    let two_pi = 2.0 * PI;
-    let mut theta = theta_rad % two_pi;
-    if theta > PI {
-        theta -= two_pi;
-    } else if theta <= -PI {
-        theta += two_pi;
-    }
-    Se2 {
-        x_m,
-        y_m,
-        theta_rad: theta,
-    }
+    Se2::new(x_m, y_m, theta_rad)
 }
 
 /// Accepts `m` if it is symmetric and positive definite (its Cholesky factorisation exists).
