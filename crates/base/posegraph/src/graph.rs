@@ -23,7 +23,11 @@ pub struct Vertex<G> {
 impl<G> Vertex<G> {
     /// A free vertex with default metadata.
     pub fn new(pose: G) -> Self {
-        Self { pose, fixed: false, meta: VertexMeta::default() }
+        Self {
+            pose,
+            fixed: false,
+            meta: VertexMeta::default(),
+        }
     }
 }
 
@@ -144,7 +148,11 @@ pub type PoseGraph3 = PoseGraph<mapmerge_geometry::Se3, 6>;
 
 impl<G, const D: usize> Default for PoseGraph<G, D> {
     fn default() -> Self {
-        Self { vertices: BTreeMap::new(), edges: BTreeMap::new(), next_edge_id: 0 }
+        Self {
+            vertices: BTreeMap::new(),
+            edges: BTreeMap::new(),
+            next_edge_id: 0,
+        }
     }
 }
 
@@ -225,7 +233,11 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
                 return Err(GraphError::MissingVertex(end));
             }
         }
-        let bad = |reason| GraphError::BadEdge { from: edge.from, to: edge.to, reason };
+        let bad = |reason| GraphError::BadEdge {
+            from: edge.from,
+            to: edge.to,
+            reason,
+        };
         match (edge.is_prior(), edge.from == edge.to) {
             (true, false) => Err(bad("a prior edge must have from == to")),
             (false, true) => Err(bad("a relative edge must join two different vertices")),
@@ -260,12 +272,19 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
 
     /// Ids of the edges that touch `id`, in id order.
     pub fn incident_edges(&self, id: NodeId) -> Vec<EdgeId> {
-        self.edges.iter().filter(|(_, e)| e.from == id || e.to == id).map(|(k, _)| *k).collect()
+        self.edges
+            .iter()
+            .filter(|(_, e)| e.from == id || e.to == id)
+            .map(|(k, _)| *k)
+            .collect()
     }
 
     /// Removes a vertex and every edge touching it.
     pub fn remove_vertex(&mut self, id: NodeId) -> Result<RemovedVertex<G, D>, GraphError> {
-        let vertex = self.vertices.remove(&id).ok_or(GraphError::MissingVertex(id))?;
+        let vertex = self
+            .vertices
+            .remove(&id)
+            .ok_or(GraphError::MissingVertex(id))?;
         let incident: Vec<EdgeId> = self.incident_edges(id);
         let edges = incident
             .into_iter()
@@ -327,7 +346,11 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
             .filter(|(_, e)| keep.contains(&e.from) && keep.contains(&e.to))
             .map(|(k, e)| (*k, *e))
             .collect();
-        Self { vertices, edges, next_edge_id: self.next_edge_id }
+        Self {
+            vertices,
+            edges,
+            next_edge_id: self.next_edge_id,
+        }
     }
 
     /// Adds every vertex and edge of `other` (vertex ids must be disjoint; edges get new ids)
@@ -337,7 +360,11 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
         other: &Self,
         connecting: &[Edge<G, D>],
     ) -> Result<UnionRecord, GraphError> {
-        if let Some(clash) = other.vertices.keys().find(|k| self.vertices.contains_key(k)) {
+        if let Some(clash) = other
+            .vertices
+            .keys()
+            .find(|k| self.vertices.contains_key(k))
+        {
             return Err(GraphError::DuplicateVertex(*clash));
         }
         for edge in connecting {
@@ -354,7 +381,8 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
             connecting_edges: Vec::with_capacity(connecting.len()),
             next_edge_id_before,
         };
-        self.vertices.extend(other.vertices.iter().map(|(k, v)| (*k, *v)));
+        self.vertices
+            .extend(other.vertices.iter().map(|(k, v)| (*k, *v)));
         for edge in other.edges.values() {
             let id = EdgeId(self.next_edge_id);
             self.next_edge_id += 1;
