@@ -61,7 +61,11 @@ pub trait LieGroup<const D: usize>:
         let predicted = from.between(to);
         let error = self.compose(&predicted);
         let c = error.error_coordinates_jacobian();
-        (error.error_coordinates(), -(c * predicted.inverse().adjoint()), c)
+        (
+            error.error_coordinates(),
+            -(c * predicted.inverse().adjoint()),
+            c,
+        )
     }
 
     /// `self⁻¹ · other`, the pose of `other` seen from `self`.

@@ -178,11 +178,19 @@ impl LieGroup<3> for Se2 {
 
     // With p = R_fromᵀ(t_to − t_from), R_z⁻¹ = R(self.θ) and e_θ the error heading:
     // J_to = [[R(e_θ), 0], [0, 1]], J_from = [[−R_z⁻¹, −R_z⁻¹ S p], [0, −1]], S = [[0,−1],[1,0]].
-    fn relative_error_jacobians(&self, from: &Self, to: &Self) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
+    fn relative_error_jacobians(
+        &self,
+        from: &Self,
+        to: &Self,
+    ) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
         let (px, py) = from.inverse_rotate(to.x_m - from.x_m, to.y_m - from.y_m);
         let (sz, cz) = self.theta_rad.sin_cos();
         let error_theta = wrap_angle_rad(self.theta_rad + to.theta_rad - from.theta_rad);
-        let residual = Vector3::new(cz * px - sz * py + self.x_m, sz * px + cz * py + self.y_m, error_theta);
+        let residual = Vector3::new(
+            cz * px - sz * py + self.x_m,
+            sz * px + cz * py + self.y_m,
+            error_theta,
+        );
         let (se, ce) = error_theta.sin_cos();
         let jacobian_to = Matrix3::new(ce, -se, 0.0, se, ce, 0.0, 0.0, 0.0, 1.0);
         let jacobian_from = Matrix3::new(

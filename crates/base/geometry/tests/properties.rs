@@ -342,8 +342,18 @@ fn check_relative_error<const D: usize, G: LieGroup<D>>(
     let z_inverse = z.inverse();
     let generic = z_inverse.compose(&a.between(b)).error_coordinates();
     let (residual, j_from, j_to) = z_inverse.relative_error_jacobians(a, b);
-    assert_close("relative_error", &z_inverse.relative_error(a, b), &generic, 1e-9)?;
-    assert_close("relative_error_jacobians residual", &residual, &generic, 1e-9)?;
+    assert_close(
+        "relative_error",
+        &z_inverse.relative_error(a, b),
+        &generic,
+        1e-9,
+    )?;
+    assert_close(
+        "relative_error_jacobians residual",
+        &residual,
+        &generic,
+        1e-9,
+    )?;
     let numeric_from = numerical_jacobian(
         |d: &SVector<f64, D>| z_inverse.relative_error(&a.retract(d), b),
         &SVector::zeros(),

@@ -324,9 +324,9 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
             }
         }
         let mut groups: BTreeMap<usize, Vec<NodeId>> = BTreeMap::new();
-        for i in 0..ids.len() {
+        for (i, id) in ids.iter().enumerate() {
             let root = find(&mut parent, i);
-            groups.entry(root).or_default().push(ids[i]);
+            groups.entry(root).or_default().push(*id);
         }
         groups.into_values().collect()
     }

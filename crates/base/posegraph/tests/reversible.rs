@@ -1,4 +1,5 @@
 //! Every structural edit can be undone exactly (property tests on random graphs).
+#![allow(clippy::unwrap_used)]
 
 use std::collections::BTreeSet;
 

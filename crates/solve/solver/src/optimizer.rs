@@ -338,7 +338,7 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
                 info.termination = Termination::NoFurtherDecrease;
                 break;
             };
-            if gauss_newton && !(new_cost < cost) {
+            if gauss_newton && new_cost >= cost {
                 info.termination = Termination::NoFurtherDecrease;
                 break;
             }

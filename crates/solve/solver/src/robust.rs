@@ -6,10 +6,11 @@
 use serde::{Deserialize, Serialize};
 
 /// A robust kernel `ρ(s)` on the squared error `s`.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum RobustKernel {
     /// Plain least squares, `ρ(s) = s`.
+    #[default]
     None,
     /// Huber: quadratic up to `|r| = delta`, linear beyond (`delta` in Mahalanobis units).
     Huber {
@@ -27,12 +28,6 @@ pub enum RobustKernel {
         /// `Φ`, the squared error at which scaling starts (paper default 1).
         phi: f64,
     },
-}
-
-impl Default for RobustKernel {
-    fn default() -> Self {
-        Self::None
-    }
 }
 
 impl RobustKernel {

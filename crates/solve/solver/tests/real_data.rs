@@ -1,5 +1,6 @@
 //! The optimizer on public graphs with known optima (GTSAM 4.3's Levenberg–Marquardt result
 //! from the same initial guess, ../shared/peers/README.md).
+#![allow(clippy::unwrap_used)]
 
 use mapmerge_io::{read_graph, AnyGraph};
 use mapmerge_solve::{optimize, OptimizerParams};

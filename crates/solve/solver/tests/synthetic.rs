@@ -1,4 +1,5 @@
 //! The optimizer on synthetic graphs with known answers.
+#![allow(clippy::unwrap_used)]
 
 use mapmerge_geometry::{LieGroup, Se2, Se3};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph, PoseGraph2, PoseGraph3, Vertex};
@@ -16,9 +17,9 @@ fn truth_2d(n: usize, rng: &mut ChaCha8Rng) -> Vec<Se2> {
     for i in 1..n {
         let turn = if i % 10 == 0 {
             if rng.random_bool(0.5) {
-                1.5707963
+                core::f64::consts::FRAC_PI_2
             } else {
-                -1.5707963
+                -core::f64::consts::FRAC_PI_2
             }
         } else {
             0.0
@@ -138,7 +139,7 @@ fn truth_3d(n: usize) -> Vec<Se3> {
         .map(|i| {
             let a = i as f64 * 0.2;
             Se3::new(
-                UnitQuaternion::from_euler_angles(0.0, 0.0, a + 1.5707963),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, a + core::f64::consts::FRAC_PI_2),
                 Vector3::new(5.0 * a.cos(), 5.0 * a.sin(), 0.05 * i as f64),
             )
         })
