@@ -29,6 +29,30 @@ pub struct GncParams {
     pub binary_tolerance: f64,
     /// Odometry edges are trusted and never down-weighted (default true, as in vertigo).
     pub odometry_is_inlier: bool,
+    /// Where the graduation starts (default: a DCS warm start).
+    pub start: GncStart,
+}
+
+/// The estimate GNC starts from, and how the first `μ` is chosen.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GncStart {
+    /// Yang et al.'s rule: the plain least-squares solution, `μ₀ = c̄² / (2 r²_max − c̄²)`.
+    /// With many false loop closures that solution is already folded and GNC follows it.
+    LeastSquares,
+    /// The graph's initial guess with the same `μ₀` rule.
+    InitialGuess,
+    /// Dynamic Covariance Scaling (Agarwal et al. 2013) from the initial guess, then GNC with
+    /// `μ₀ = mu_initial`. From an odometry-like guess DCS already lands near the right basin
+    /// (M3500 with 50 % false loops: 1 cm RMS), where Yang's tiny `μ₀` would throw it away
+    /// again; a moderate `μ₀` only sharpens DCS's soft decisions into binary ones.
+    Dcs {
+        /// DCS's Φ; `None` (default) uses the inlier threshold `c̄²`, so edges consistent with
+        /// their information keep full weight during the warm start.
+        phi: Option<f64>,
+        /// The first `μ` (1: full weight below c̄²/2, none above 2c̄²).
+        mu_initial: f64,
+    },
 }
 
 impl Default for GncParams {
@@ -44,6 +68,10 @@ impl Default for GncParams {
             max_steps: 100,
             binary_tolerance: 1e-6,
             odometry_is_inlier: true,
+            start: GncStart::Dcs {
+                phi: None,
+                mu_initial: 1.0,
+            },
         }
     }
 }
@@ -94,6 +122,31 @@ fn tls_weight(s: f64, threshold: f64, mu: f64) -> f64 {
     }
 }
 
+/// Rebuilds the normal equations without the zero-weight edges once at least 5 % of the
+/// edges in the current pattern have dropped out (their fill is what makes random false loop
+/// closures expensive), and whenever an edge outside the pattern regains weight.
+fn rebuild_if_needed<G: LieGroup<D>, const D: usize>(
+    session: Session<G, D>,
+    problem: &mut Problem<G, D>,
+    weights: &[f64],
+    pattern: &mut Vec<bool>,
+) -> Result<Session<G, D>, SolveError> {
+    let missing = weights
+        .iter()
+        .zip(pattern.iter())
+        .any(|(w, in_pattern)| *w > 0.0 && !in_pattern);
+    let dropped = weights
+        .iter()
+        .zip(pattern.iter())
+        .filter(|(w, p)| **w == 0.0 && **p)
+        .count();
+    if !missing && dropped * 20 < weights.len() {
+        return Ok(session);
+    }
+    *pattern = weights.iter().map(|w| *w > 0.0).collect();
+    Session::with_active_edges(problem, Some(pattern))
+}
+
 /// Robust optimisation of `graph` by GNC-TLS. Rejected edges stay in the graph; the result
 /// lists them.
 pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
@@ -122,9 +175,7 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
         .map(|e| e.is_prior || (params.odometry_is_inlier && e.kind == EdgeKind::Odometry))
         .collect();
     let mut weights = vec![1.0; problem.edges.len()];
-    // Step 0: the non-robust solution.
-    let first = session.run(&mut problem, &weights, &params.inner, |_| {});
-    let mut inner_iterations = first.iterations.len();
+    let mut inner_iterations = 0;
     let chi2_of = |problem: &Problem<G, D>| -> Vec<f64> {
         problem
             .edges
@@ -132,17 +183,44 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
             .map(|e| Problem::edge_chi2(e, &problem.poses))
             .collect()
     };
-    let mut residuals = chi2_of(&problem);
-    let max_untrusted = residuals
-        .iter()
-        .zip(&trusted)
-        .filter(|(_, t)| !**t)
-        .fold(0.0f64, |m, (s, _)| m.max(*s));
-    let mut mu = if 2.0 * max_untrusted > threshold {
-        threshold / (2.0 * max_untrusted - threshold)
-    } else {
-        f64::INFINITY
+    let mut mu = match params.start {
+        GncStart::LeastSquares | GncStart::InitialGuess => {
+            if params.start == GncStart::LeastSquares {
+                let first = session.run(&mut problem, &weights, &params.inner, |_| {});
+                inner_iterations += first.iterations.len();
+            }
+            let max_untrusted = chi2_of(&problem)
+                .iter()
+                .zip(&trusted)
+                .filter(|(_, t)| !**t)
+                .fold(0.0f64, |m, (s, _)| m.max(*s));
+            if 2.0 * max_untrusted > threshold {
+                threshold / (2.0 * max_untrusted - threshold)
+            } else {
+                f64::INFINITY
+            }
+        }
+        GncStart::Dcs { phi, mu_initial } => {
+            if !(mu_initial.is_finite() && mu_initial > 0.0) {
+                return Err(SolveError::InvalidParameter(
+                    "GNC mu_initial must be > 0".into(),
+                ));
+            }
+            let dcs = OptimizerParams {
+                robust: RobustKernel::Dcs {
+                    phi: phi.unwrap_or(threshold),
+                },
+                max_iterations: params.inner.max_iterations.max(50),
+                ..params.inner
+            };
+            dcs.validate()?;
+            let warm = session.run(&mut problem, &weights, &dcs, |_| {});
+            inner_iterations += warm.iterations.len();
+            mu_initial
+        }
     };
+    let mut residuals = chi2_of(&problem);
+    let mut pattern = vec![true; weights.len()];
     let mut steps = 0;
     while mu.is_finite() && steps < params.max_steps {
         steps += 1;
@@ -173,6 +251,7 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
         };
         *w = if soft >= 0.5 { 1.0 } else { 0.0 };
     }
+    session = rebuild_if_needed(session, &mut problem, &weights, &mut pattern)?;
     let polish_params = OptimizerParams {
         max_iterations: 100.max(params.inner.max_iterations),
         relative_decrease_tolerance: 1e-9,

@@ -27,7 +27,7 @@ mod problem;
 mod robust;
 
 pub use error::SolveError;
-pub use gnc::{chi2_quantile_99, optimize_gnc, GncInfo, GncParams};
+pub use gnc::{chi2_quantile_99, optimize_gnc, GncInfo, GncParams, GncStart};
 pub use marginals::marginal_covariances;
 pub use optimizer::{
     optimize, optimize_with_progress, Algorithm, IterationStats, OptimizerInfo, OptimizerParams,

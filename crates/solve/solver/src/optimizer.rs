@@ -207,15 +207,30 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
     /// Renumbers the problem's free slots in fill-reducing order and builds the normal
     /// equations (symbolic analysis once).
     pub fn new(problem: &mut Problem<G, D>) -> Result<Self, SolveError> {
+        Self::with_active_edges(problem, None)
+    }
+
+    /// Like [`Session::new`], but only edges marked active enter the sparsity pattern; the
+    /// others must then carry weight 0 in every run (GNC drops rejected edges this way, which
+    /// keeps the factor sparse once random false loop closures are switched off).
+    pub fn with_active_edges(
+        problem: &mut Problem<G, D>,
+        active: Option<&[bool]>,
+    ) -> Result<Self, SolveError> {
         let slots_of_edges = |problem: &Problem<G, D>| -> Vec<(u32, u32)> {
             problem
                 .edges
                 .iter()
-                .map(|e| {
-                    (
-                        problem.free_slot[e.from as usize],
-                        problem.free_slot[e.to as usize],
-                    )
+                .enumerate()
+                .map(|(k, e)| {
+                    if active.is_some_and(|mask| !mask.get(k).copied().unwrap_or(true)) {
+                        (FIXED, FIXED)
+                    } else {
+                        (
+                            problem.free_slot[e.from as usize],
+                            problem.free_slot[e.to as usize],
+                        )
+                    }
                 })
                 .collect()
         };
@@ -223,16 +238,7 @@ impl<G: LieGroup<D>, const D: usize> Session<G, D> {
         for slot in problem.free_slot.iter_mut().filter(|s| **s != FIXED) {
             *slot = new_of_old[*slot as usize];
         }
-        let slots: Vec<(u32, u32)> = problem
-            .edges
-            .iter()
-            .map(|e| {
-                (
-                    problem.free_slot[e.from as usize],
-                    problem.free_slot[e.to as usize],
-                )
-            })
-            .collect();
+        let slots = slots_of_edges(problem);
         let normal = NormalEquations::new(problem.num_free, &slots)?;
         Ok(Self {
             normal,
