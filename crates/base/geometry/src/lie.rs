@@ -36,7 +36,8 @@ pub trait LieGroup<const D: usize>:
     }
     /// The coordinates a pose-graph residual uses for a (small) relative transform.
     ///
-    /// GTSAM's `ChartAtOrigin::Local`: `(x, y, θ)` for SE(2) and the full logarithm for SE(3).
+    /// GTSAM's `Local` at the identity: the full logarithm for both SE(2) and SE(3) (GTSAM
+    /// 4.3's `BetweenFactor` error, so our chi2 equals GTSAM's).
     fn error_coordinates(&self) -> SVector<f64, D>;
     /// `∂ error_coordinates(self · Exp(δ)) / ∂δ` at `δ = 0`.
     fn error_coordinates_jacobian(&self) -> SMatrix<f64, D, D>;

@@ -151,33 +151,30 @@ impl LieGroup<3> for Se2 {
         )
     }
 
+    // GTSAM 4.3's Pose2 `Local` is the full logarithm (checked against its
+    // `BetweenFactorPose2::unwhitenedError`), so chi2 values agree with GTSAM's.
     fn error_coordinates(&self) -> Vector3<f64> {
-        Vector3::new(self.x_m, self.y_m, wrap_angle_rad(self.theta_rad))
+        self.log()
     }
 
     fn error_coordinates_jacobian(&self) -> Matrix3<f64> {
-        // (x, y, θ) of self · Exp(δ) = (t + R V(δθ) δv, θ + δθ) ⇒ [[R, 0], [0, 1]] at δ = 0.
-        let (s, c) = self.theta_rad.sin_cos();
-        Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
+        Self::right_jacobian_inverse(&self.log())
     }
 
     fn is_finite(&self) -> bool {
         self.x_m.is_finite() && self.y_m.is_finite() && self.theta_rad.is_finite()
     }
 
-    // Closed form of z⁻¹·from⁻¹·to: two sin/cos instead of three compositions' worth.
+    // Closed form of E = z⁻¹·from⁻¹·to (two sin/cos instead of three compositions' worth),
+    // then Log(E).
     fn relative_error(&self, from: &Self, to: &Self) -> Vector3<f64> {
-        let (px, py) = from.inverse_rotate(to.x_m - from.x_m, to.y_m - from.y_m);
-        let (sz, cz) = self.theta_rad.sin_cos();
-        Vector3::new(
-            cz * px - sz * py + self.x_m,
-            sz * px + cz * py + self.y_m,
-            wrap_angle_rad(self.theta_rad + to.theta_rad - from.theta_rad),
-        )
+        self.relative_transform(from, to).log()
     }
 
-    // With p = R_fromᵀ(t_to − t_from), R_z⁻¹ = R(self.θ) and e_θ the error heading:
-    // J_to = [[R(e_θ), 0], [0, 1]], J_from = [[−R_z⁻¹, −R_z⁻¹ S p], [0, −1]], S = [[0,−1],[1,0]].
+    // With p = R_fromᵀ(t_to − t_from), R_z⁻¹ = R(self.θ), e_θ the error heading and
+    // ξ = Log(E): ∂E/∂δ_from in E's (x, y, θ) is [[−R_z⁻¹, −R_z⁻¹ S p], [0, −1]]
+    // (S = [[0,−1],[1,0]]); in E's tangent that is [[R(−e_θ), 0], [0, 1]] times it, and
+    // Log adds Jr⁻¹(ξ): J_from = Jr⁻¹(ξ)·[[R(−e_θ)(…)]], J_to = Jr⁻¹(ξ).
     fn relative_error_jacobians(
         &self,
         from: &Self,
@@ -185,26 +182,44 @@ impl LieGroup<3> for Se2 {
     ) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
         let (px, py) = from.inverse_rotate(to.x_m - from.x_m, to.y_m - from.y_m);
         let (sz, cz) = self.theta_rad.sin_cos();
-        let error_theta = wrap_angle_rad(self.theta_rad + to.theta_rad - from.theta_rad);
-        let residual = Vector3::new(
+        let error = Se2::new(
             cz * px - sz * py + self.x_m,
             sz * px + cz * py + self.y_m,
-            error_theta,
+            self.theta_rad + to.theta_rad - from.theta_rad,
         );
-        let (se, ce) = error_theta.sin_cos();
-        let jacobian_to = Matrix3::new(ce, -se, 0.0, se, ce, 0.0, 0.0, 0.0, 1.0);
-        let jacobian_from = Matrix3::new(
-            -cz,
-            sz,
-            cz * py + sz * px,
-            -sz,
-            -cz,
-            sz * py - cz * px,
+        let xi = error.log();
+        let jr_inv = Self::right_jacobian_inverse(&xi);
+        // Ad(P⁻¹) in closed form: [[R(−e_θ) R_z⁻¹, R(−e_θ) R_z⁻¹ S p], [0, 1]].
+        let (se, ce) = error.theta_rad.sin_cos();
+        // R(−e_θ)·R_z⁻¹ = R(self.θ − e_θ).
+        let (c, s) = (ce * cz + se * sz, ce * sz - se * cz);
+        let (spx, spy) = (-py, px);
+        let ad_inverse = Matrix3::new(
+            c,
+            -s,
+            c * spx - s * spy,
+            s,
+            c,
+            s * spx + c * spy,
             0.0,
             0.0,
-            -1.0,
+            1.0,
         );
-        (residual, jacobian_from, jacobian_to)
+        (xi, -(jr_inv * ad_inverse), jr_inv)
+    }
+}
+
+impl Se2 {
+    /// `self · from⁻¹ · to` without composing three transforms.
+    #[inline]
+    fn relative_transform(&self, from: &Self, to: &Self) -> Self {
+        let (px, py) = from.inverse_rotate(to.x_m - from.x_m, to.y_m - from.y_m);
+        let (sz, cz) = self.theta_rad.sin_cos();
+        Se2::new(
+            cz * px - sz * py + self.x_m,
+            sz * px + cz * py + self.y_m,
+            self.theta_rad + to.theta_rad - from.theta_rad,
+        )
     }
 }
 
