@@ -149,7 +149,8 @@ pub(crate) fn data_lines(text: &str) -> impl Iterator<Item = DataLine<'_>> {
 
 /// A finite `f64`; `field` is the 1-based field number after the tag, for the message.
 pub(crate) fn parse_f64(token: &str, field: usize) -> LineResult<f64> {
-    match token.parse::<f64>() {
+    // fast-float2: the same round-to-nearest results as `str::parse`, about twice as fast.
+    match fast_float2::parse::<f64, _>(token) {
         Ok(v) if v.is_finite() => Ok(v),
         Ok(_) => Err(format!(
             "field {field} {} is not a finite number",

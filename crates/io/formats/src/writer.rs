@@ -9,17 +9,17 @@ use crate::IoError;
 /// xz preset used for `.xz` output (xz's default).
 const XZ_PRESET: u32 = 6;
 
-/// Appends `v` in a form that parses back to the same `f64`: plain decimal (`{}`) for ordinary
-/// magnitudes, exponent form (`{:e}`) for tiny or huge ones so the text stays short. Both are
-/// the shortest round-tripping digits.
+/// Appends `v` in the shortest form that parses back to the same `f64` (ryu; exponent form
+/// for tiny or huge magnitudes), without a trailing `.0` on whole numbers.
 pub(crate) fn write_f64(out: &mut String, v: f64) {
-    let magnitude = v.abs();
-    // Writing to a String cannot fail.
-    let _ = if magnitude != 0.0 && !(1e-5..1e16).contains(&magnitude) {
-        write!(out, "{v:e}")
-    } else {
-        write!(out, "{v}")
-    };
+    if !v.is_finite() {
+        // Never reached for graphs (the writer rejects non-finite numbers first).
+        let _ = write!(out, "{v}");
+        return;
+    }
+    let mut buffer = ryu::Buffer::new();
+    let text = buffer.format_finite(v);
+    out.push_str(text.strip_suffix(".0").unwrap_or(text));
 }
 
 /// Appends `' '` and `v` (see [`write_f64`]).
