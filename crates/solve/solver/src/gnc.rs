@@ -111,6 +111,13 @@ pub struct GncInfo {
     pub inner_iterations: usize,
 }
 
+/// Reweighting rounds of the DCS warm start at most.
+const DCS_ROUNDS: usize = 30;
+/// The warm start ends when no DCS weight moves by more than this.
+const DCS_WEIGHT_TOLERANCE: f64 = 1e-3;
+/// A DCS weight below this is treated as 0 (its edge leaves the sparsity pattern).
+const NEGLIGIBLE_WEIGHT: f64 = 1e-6;
+
 /// TLS weight for squared error `s` (Yang et al. 2020, Prop. 4).
 fn tls_weight(s: f64, threshold: f64, mu: f64) -> f64 {
     if s >= (mu + 1.0) / mu * threshold {
@@ -168,7 +175,11 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
         ));
     }
     let mut problem = Problem::compile(graph)?;
-    let mut session = Session::new(&mut problem)?;
+    // The session's pattern starts with every edge; a DCS start narrows it before the first
+    // factorisation (`rebuild_if_needed`).
+    let dcs_start = matches!(params.start, GncStart::Dcs { .. });
+    let mut pattern = vec![!dcs_start; problem.edges.len()];
+    let mut session = Session::with_active_edges(&mut problem, Some(&pattern))?;
     let trusted: Vec<bool> = problem
         .edges
         .iter()
@@ -206,21 +217,41 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
                     "GNC mu_initial must be > 0".into(),
                 ));
             }
-            let dcs = OptimizerParams {
-                robust: RobustKernel::Dcs {
-                    phi: phi.unwrap_or(threshold),
-                },
-                max_iterations: params.inner.max_iterations.max(50),
-                ..params.inner
+            let kernel = RobustKernel::Dcs {
+                phi: phi.unwrap_or(threshold),
             };
-            dcs.validate()?;
-            let warm = session.run(&mut problem, &weights, &dcs, |_| {});
-            inner_iterations += warm.iterations.len();
+            kernel.validate().map_err(SolveError::InvalidParameter)?;
+            // DCS as explicit reweighting rounds. An edge whose DCS weight is negligible is
+            // left out of the sparsity pattern until its residual shrinks: random false loop
+            // closures would otherwise fill the factor (city10000 with 50 %: dense).
+            for _ in 0..DCS_ROUNDS {
+                let residuals = chi2_of(&problem);
+                let mut change = 0.0f64;
+                for ((w, s), t) in weights.iter_mut().zip(&residuals).zip(&trusted) {
+                    let new = if *t {
+                        1.0
+                    } else {
+                        let d = kernel.weight(*s);
+                        if d < NEGLIGIBLE_WEIGHT {
+                            0.0
+                        } else {
+                            d
+                        }
+                    };
+                    change = change.max((new - *w).abs());
+                    *w = new;
+                }
+                session = rebuild_if_needed(session, &mut problem, &weights, &mut pattern)?;
+                let run = session.run(&mut problem, &weights, &params.inner, |_| {});
+                inner_iterations += run.iterations.len();
+                if change < DCS_WEIGHT_TOLERANCE {
+                    break;
+                }
+            }
             mu_initial
         }
     };
     let mut residuals = chi2_of(&problem);
-    let mut pattern = vec![true; weights.len()];
     let mut steps = 0;
     while mu.is_finite() && steps < params.max_steps {
         steps += 1;
