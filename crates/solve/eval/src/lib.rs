@@ -1,0 +1,54 @@
+//! Evaluation tools for mapmerge's back-end: corrupt a graph with false loop closures, score
+//! which edges a robust optimiser rejected, measure trajectory error, and simulate a Manhattan
+//! world with known ground truth.
+//!
+//! Entry points:
+//! - [`add_false_loop_closures`]: vertigo's random outliers (Sünderhauf & Protzel, IROS 2012).
+//!   `fraction` is the share of **all** loop closures that is false afterwards:
+//!   `n_false = round(fraction / (1 − fraction) · n_true)` ([`false_loop_count`]), so 0.5 adds as
+//!   many false loop closures as there are true ones. They are appended after every existing
+//!   edge, so in a written file they are the edge lines with index ≥ the original edge count.
+//! - [`precision_recall`]: rejected edges against the known false ones ([`RejectionScore`]).
+//! - [`trajectory_error`]: RMS/mean/max position error over common vertex ids, optionally after
+//!   the best rigid alignment ([`align_rigid`], Horn/Umeyama without scale).
+//! - [`simulate_manhattan_2d`]: a grid-world random walk with noisy odometry and loop closures
+//!   ([`ManhattanParams`]).
+//!
+//! ```
+//! use mapmerge_eval::{
+//!     add_false_loop_closures, count_loop_closures, precision_recall, simulate_manhattan_2d,
+//!     trajectory_error, ManhattanParams,
+//! };
+//! let params = ManhattanParams { num_poses: 200, ..Default::default() };
+//! let (mut noisy, truth) = simulate_manhattan_2d(&params, 7).unwrap();
+//! let true_loops = count_loop_closures(&noisy);
+//! let false_edges = add_false_loop_closures(&mut noisy, 0.5, 42).unwrap();
+//! assert_eq!(false_edges.len(), true_loops);
+//!
+//! // A detector that rejected exactly the false edges:
+//! let score = precision_recall(&false_edges, &false_edges, true_loops);
+//! assert_eq!((score.precision, score.recall, score.true_loops_kept), (1.0, 1.0, 1.0));
+//!
+//! // The odometry guess drifts away from the ground truth.
+//! let ate = trajectory_error(&truth, &noisy, true).unwrap();
+//! assert_eq!(ate.matched, 200);
+//! assert!(ate.rms_m > 0.0);
+//! ```
+
+mod error;
+mod outliers;
+mod pose;
+mod rng;
+mod score;
+mod simulate;
+mod trajectory;
+
+pub use error::EvalError;
+pub use outliers::{
+    add_false_loop_closures, add_false_loop_closures_with, count_loop_closures, false_loop_count,
+    is_loop_closure, FalseLoopMeasurement, FalseLoopParams,
+};
+pub use pose::EvalPose;
+pub use score::{precision_recall, RejectionScore};
+pub use simulate::{simulate_manhattan_2d, ManhattanParams};
+pub use trajectory::{align_rigid, trajectory_error, RigidTransform, TrajectoryError};
