@@ -1,7 +1,6 @@
 //! `mapmerge compare`: absolute trajectory error between two graphs over their common vertex
 //! ids (position errors; optionally after the best rigid alignment, Horn/Umeyama without scale).
 
-use std::io::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -85,9 +84,7 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<ExitCode> {
         max_m: err.max_m,
     };
     if args.json {
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &report)?;
-        writeln!(out)?;
+        crate::print_json(&report)?;
     } else {
         println!(
             "{} vertices matched{}: position error rms {:.6} m, mean {:.6} m, max {:.6} m",

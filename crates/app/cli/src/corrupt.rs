@@ -5,7 +5,6 @@
 //! `mapmerge optimize --json` uses for `rejected_edges`). `--json` lists them, and
 //! `--false-edges FILE` writes them one per line.
 
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -176,9 +175,7 @@ pub fn run(args: &CorruptArgs) -> anyhow::Result<ExitCode> {
         false_edges,
     };
     if args.json {
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &report)?;
-        writeln!(out)?;
+        crate::print_json(&report)?;
     } else {
         println!(
             "{}: {} true loop closures, added {} false ones (edge indices {}..{}); wrote {}",

@@ -44,6 +44,15 @@ impl std::fmt::Display for BadInput {
 
 impl std::error::Error for BadInput {}
 
+/// Prints `report` as one JSON object on its own line (the `--json` output of every command).
+pub fn print_json(report: &impl serde::Serialize) -> anyhow::Result<()> {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    serde_json::to_writer(&mut out, report)?;
+    writeln!(out)?;
+    Ok(())
+}
+
 /// Reads a graph file; any failure is bad input (exit code 2), with the reason chain kept.
 pub fn load_graph(path: &std::path::Path) -> anyhow::Result<mapmerge_io::LoadedGraph> {
     load_graph_with(path, &mapmerge_io::ReadParams::default())

@@ -1,6 +1,5 @@
 //! `mapmerge optimize`: load a pose graph, initialise, optimise, write it back.
 
-use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
@@ -319,9 +318,7 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
         iteration_log: info.iterations.clone(),
     };
     if args.json {
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &report)?;
-        writeln!(out)?;
+        crate::print_json(&report)?;
     } else {
         println!(
             "{}: chi2 {:.6} -> {:.6} in {} iterations ({:?}); {:.3} s total; wrote {}",

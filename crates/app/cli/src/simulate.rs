@@ -1,7 +1,6 @@
 //! `mapmerge simulate`: a synthetic Manhattan-world pose graph with known ground truth
 //! (grid random walk, quarter turns, noisy odometry, loop closures on revisits).
 
-use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
@@ -114,9 +113,7 @@ pub fn run(args: &SimulateArgs) -> anyhow::Result<ExitCode> {
         write_graph(path, &AnyGraph::Planar(truth), format_for(path))?;
     }
     if args.json {
-        let mut out = std::io::stdout().lock();
-        serde_json::to_writer(&mut out, &report)?;
-        writeln!(out)?;
+        crate::print_json(&report)?;
     } else {
         println!(
             "simulated {} poses, {} edges ({} loop closures); initial chi2 {:.3}, chi2 at truth \

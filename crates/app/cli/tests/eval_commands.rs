@@ -45,25 +45,7 @@ fn planar(path: &Path) -> mapmerge_posegraph::PoseGraph2 {
 
 /// The shared data directory, or `None` (with the reason printed) when it is absent outside CI.
 fn data_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("MAPMERGE_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| {
-            PathBuf::from(concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/../../../../shared/data"
-            ))
-        });
-    if dir.join("g2o").is_dir() {
-        return Some(dir);
-    }
-    if std::env::var("CI").is_ok_and(|v| v == "true") {
-        panic!("data directory {} missing under CI", dir.display());
-    }
-    eprintln!(
-        "skipping: data directory {} not found (set MAPMERGE_DATA)",
-        dir.display()
-    );
-    None
+    mapmerge_testkit::shared_data_dir()
 }
 
 fn testdata(name: &str) -> PathBuf {
