@@ -171,15 +171,7 @@ pub fn initialize_chordal(
             poses[k] = pose;
         }
     }
-    let vertices_set = topology.write_back(graph, &poses);
-    Ok(InitInfo {
-        vertices_set,
-        components: topology.anchors.len(),
-        anchors: topology.anchor_ids(),
-        edges_used: topology.edges.len(),
-        angle_corrections: 0,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok(topology.finish(graph, &poses, 0, start))
 }
 
 /// The weight `P` of `(u_j − M u_i)ᵀ P (u_j − M u_i)`; `None` if the information is negative.

@@ -5,7 +5,7 @@
 use std::f64::consts::PI;
 use std::time::Instant;
 
-use mapmerge_geometry::Se2;
+use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::PoseGraph2;
 use nalgebra::{Matrix2, Matrix3};
 use serde::{Deserialize, Serialize};
@@ -142,7 +142,7 @@ pub fn initialize_lago(graph: &mut PoseGraph2, params: &LagoParams) -> Result<In
     for k in 0..n {
         if let Some(u) = unknown[k] {
             let pose = Se2::new(solution[2 * u], solution[2 * u + 1], theta[k]);
-            if !(pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite()) {
+            if !pose.is_finite() {
                 return Err(InitError::NonFiniteEstimate {
                     stage: "LAGO",
                     node: topology.ids[k],
@@ -151,15 +151,7 @@ pub fn initialize_lago(graph: &mut PoseGraph2, params: &LagoParams) -> Result<In
             poses[k] = pose;
         }
     }
-    let vertices_set = topology.write_back(graph, &poses);
-    Ok(InitInfo {
-        vertices_set,
-        components: topology.anchors.len(),
-        anchors: topology.anchor_ids(),
-        edges_used: topology.edges.len(),
-        angle_corrections,
-        seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok(topology.finish(graph, &poses, angle_corrections, start))
 }
 
 /// `1 / (Ω⁻¹)_θθ`, the information of the heading alone, as the Schur complement

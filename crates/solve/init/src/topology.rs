@@ -63,6 +63,26 @@ pub(crate) struct Topology<G, const D: usize> {
 }
 
 impl<G: LieGroup<D>, const D: usize> Topology<G, D> {
+    /// Writes the non-anchor `poses` into `graph` and reports what was done (the last step of
+    /// every initialiser).
+    pub(crate) fn finish(
+        &self,
+        graph: &mut PoseGraph<G, D>,
+        poses: &[G],
+        angle_corrections: usize,
+        start: std::time::Instant,
+    ) -> crate::info::InitInfo {
+        let vertices_set = self.write_back(graph, poses);
+        crate::info::InitInfo {
+            vertices_set,
+            components: self.anchors.len(),
+            anchors: self.anchor_ids(),
+            edges_used: self.edges.len(),
+            angle_corrections,
+            seconds: start.elapsed().as_secs_f64(),
+        }
+    }
+
     /// Indexes `graph`. Fails if an edge measurement or an anchor pose is not finite.
     pub fn new(graph: &PoseGraph<G, D>) -> Result<Self, InitError> {
         let n = graph.num_vertices();
