@@ -40,12 +40,16 @@ pub(crate) fn push_fields(out: &mut String, values: impl IntoIterator<Item = f64
     }
 }
 
-/// Writes `text` to `path`, xz-compressed when the path ends in `.xz`.
+/// Writes `text` to `path` (creating missing folders), xz-compressed when the path ends in `.xz`.
 pub(crate) fn save(path: &Path, text: &str) -> Result<(), IoError> {
     let io_error = |source| IoError::Io {
         file: path.display().to_string(),
         source,
     };
+    // A missing output folder is created, as users of `-o some/dir/out.g2o` expect.
+    if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(io_error)?;
+    }
     let file = std::fs::File::create(path).map_err(io_error)?;
     let buffered = std::io::BufWriter::new(file);
     let compressed = path.extension().is_some_and(|ext| ext == "xz");

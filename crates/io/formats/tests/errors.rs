@@ -406,3 +406,15 @@ fn writing_keeps_ids_and_order() {
          EDGE_SE2 5 2 1 0 0 1 0 0 1 0 1\nEDGE_SE2 2 5 1 0 0 1 0 0 1 0 1\n"
     );
 }
+
+#[test]
+fn writing_creates_missing_output_folders() {
+    let text = format!("{V01}EDGE_SE2 0 1 1 0 0 {INFO2}\n");
+    let graph = parse_graph(&text, "mem").unwrap().graph;
+    // Its own folder: the other file tests remove theirs while this one runs.
+    let root = std::env::temp_dir().join(format!("mapmerge-io-mkdir-{}", std::process::id()));
+    let path = root.join("new/folder/out.g2o");
+    write_graph(&path, &graph, GraphFormat::G2o).unwrap();
+    assert_eq!(read_graph(&path).unwrap().graph, graph);
+    let _ = std::fs::remove_dir_all(&root);
+}
