@@ -1,0 +1,31 @@
+//! Occupancy grids for mapmerge.
+//!
+//! Entry points: [`OccupancyGrid`] (log-odds, grows on demand) with [`OccupancyGrid::insert_scan`]
+//! (exact ray casting), and [`LocalMaps`] (one small grid per pose-graph node, rendered into a
+//! global grid from the current poses, incrementally).
+//!
+//! ```
+//! use mapmerge_grid::{CellClass, ClassThresholds, OccupancyGrid};
+//! let grid = OccupancyGrid::new(0.05).unwrap();
+//! assert_eq!(grid.class(mapmerge_grid::Cell::new(3, 4), &ClassThresholds::default()), CellClass::Unknown);
+//! ```
+
+mod error;
+mod geometry;
+mod local_maps;
+mod occupancy;
+mod morphology;
+mod raycast;
+mod resample;
+
+pub use error::GridError;
+pub use raycast::{InsertInfo, InsertParams};
+pub use morphology::{CellMask, DistanceField};
+pub use local_maps::{LocalMap, LocalMapParams, LocalMaps, RenderInfo};
+pub use geometry::{Cell, GridGeometry};
+pub use occupancy::{
+    log_odds_of, probability_of, CellClass, ClassThresholds, OccupancyGrid, SensorModel, MAX_CELLS,
+};
+
+/// A point in the plane (metres).
+pub type Point2 = nalgebra::Vector2<f64>;

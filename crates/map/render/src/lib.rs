@@ -1,0 +1,27 @@
+//! Pictures of maps: PNG images of occupancy grids with overlays — trajectories, pose-graph
+//! vertices and edges coloured by session, merge edges highlighted, and class-coloured points
+//! (for the invalid-merge detectors).
+//!
+//! Entry points: [`Picture::of_grid`] (draw a grid), the `draw_*` overlay methods, and
+//! [`Picture::save_png`].
+//!
+//! ```
+//! use mapmerge_grid::OccupancyGrid;
+//! use mapmerge_render::{Picture, PictureStyle, Rgb};
+//! let mut grid = OccupancyGrid::new(0.1).unwrap();
+//! grid.set(mapmerge_grid::Cell::new(5, 5), 3.0).unwrap();
+//! let mut picture = Picture::of_grid(&grid, &PictureStyle::default());
+//! picture.draw_polyline(&[nalgebra::Vector2::new(0.0, 0.0), nalgebra::Vector2::new(0.5, 0.5)], Rgb::RED, 1.0);
+//! let bytes = picture.to_png().unwrap();
+//! assert_eq!(&bytes[1..4], b"PNG");
+//! ```
+
+mod draw;
+mod overlay;
+mod picture;
+
+pub use overlay::{session_color, GraphStyle};
+pub use picture::{Picture, PictureStyle, RenderError, Rgb};
+
+/// A point in the plane (metres).
+pub type Point2 = nalgebra::Vector2<f64>;
