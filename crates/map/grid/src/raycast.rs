@@ -47,6 +47,15 @@ pub struct InsertInfo {
     pub cells_visited: usize,
 }
 
+impl InsertInfo {
+    /// Adds another insertion's counts.
+    pub fn accumulate(&mut self, other: &InsertInfo) {
+        self.hits += other.hits;
+        self.free_only += other.free_only;
+        self.cells_visited += other.cells_visited;
+    }
+}
+
 /// One beam in the grid frame.
 #[derive(Clone, Copy, Debug)]
 struct Beam {
@@ -55,6 +64,21 @@ struct Beam {
 }
 
 impl OccupancyGrid {
+    /// A grid of `resolution_m` built from scans taken at known poses (`grid_from_robot`),
+    /// inserted in order.
+    pub fn from_scans<'a>(
+        resolution_m: f64,
+        posed_scans: impl IntoIterator<Item = (Se2, &'a LaserScan)>,
+        params: &InsertParams,
+    ) -> Result<(OccupancyGrid, InsertInfo), GridError> {
+        let mut grid = OccupancyGrid::new(resolution_m)?;
+        let mut total = InsertInfo::default();
+        for (grid_from_robot, scan) in posed_scans {
+            total.accumulate(&grid.insert_scan(&grid_from_robot, scan, params)?);
+        }
+        Ok((grid, total))
+    }
+
     /// Inserts `scan` taken with the robot at `grid_from_robot`: free space along every beam,
     /// occupied where it ends. The grid grows to hold every beam.
     pub fn insert_scan(
