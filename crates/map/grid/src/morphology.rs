@@ -182,12 +182,11 @@ fn squared_edt_1d(f: &[f64], out: &mut Vec<f64>, scratch: &mut EdtScratch) {
     z.push(f64::INFINITY);
     let value = |i: usize| f.get(i).copied().unwrap_or(f64::INFINITY);
     for q in 1..n {
-        loop {
-            let Some(&p) = v.last() else { break };
+        while let Some(&p) = v.last() {
             let (qf, pf) = (q as f64, p as f64);
             let s = ((value(q) + qf * qf) - (value(p) + pf * pf)) / (2.0 * qf - 2.0 * pf);
             let k = v.len() - 1;
-            if z.get(k).is_some_and(|&zk| s <= zk) && k > 0 {
+            if k > 0 && z.get(k).is_some_and(|&zk| s <= zk) {
                 v.pop();
                 z.pop();
                 continue;

@@ -1,6 +1,8 @@
 //! Local maps anchored to nodes: incremental rendering equals rendering from scratch, moves
 //! move the map, removal restores what was there.
 
+#![allow(clippy::unwrap_used)]
+
 use std::collections::BTreeMap;
 
 use mapmerge_geometry::Se2;

@@ -1,5 +1,7 @@
 //! Pictures: orientation, overlays in the right place, PNG round trip.
 
+#![allow(clippy::unwrap_used)]
+
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{Cell, ClassThresholds, GridGeometry, OccupancyGrid};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, SessionId, Vertex};
