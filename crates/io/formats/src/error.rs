@@ -1,11 +1,11 @@
 //! The one error type of this crate.
 
 /// What can go wrong when reading or writing a file. Every variant names the file (or the
-/// `source` string given to [`crate::parse_graph`]).
+/// `source` string given to a `parse_*` function).
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum IoError {
-    /// The text is not a valid graph; `line` is 1-based.
+    /// A line of a text file is malformed (or, for a PGM, a header token); `line` is 1-based.
     #[error("{file}:{line}: {reason}")]
     Parse {
         /// The file (or source name) being parsed.
@@ -24,17 +24,27 @@ pub enum IoError {
         #[source]
         source: std::io::Error,
     },
+    /// A file is malformed as a whole, not at one line: a missing YAML key, PGM pixel data
+    /// shorter than its header says, a map whose pixels do not fill it.
+    #[error("{file}: {reason}")]
+    Invalid {
+        /// The file (or source name).
+        file: String,
+        /// What is wrong.
+        reason: String,
+    },
     /// The text holds no vertex, edge or fix line at all.
     #[error("{file}: no vertex or edge lines (empty graph file)")]
     Empty {
         /// The file (or source name) being parsed.
         file: String,
     },
-    /// The graph holds something the chosen output format cannot express (a prior edge in
-    /// TORO, a non-finite number).
-    #[error("cannot write the graph as {format}: {reason}")]
+    /// The data holds something the chosen output format cannot express (a prior edge in
+    /// TORO, a non-finite number, a map whose pixels do not match its size).
+    #[error("cannot write the data as {format}: {reason}")]
     Unwritable {
-        /// The requested output format (`"g2o"`, `"TORO"`, `"TUM"`).
+        /// The requested output format (`"g2o"`, `"TORO"`, `"TUM"`, `"CARMEN"`, `"PGM"`,
+        /// `"map_server YAML"`).
         format: &'static str,
         /// What cannot be written.
         reason: String,

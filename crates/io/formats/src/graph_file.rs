@@ -1,17 +1,14 @@
 //! Pose-graph files: format detection, reading (plain or xz) and writing.
 
-use std::io::Read as _;
 use std::path::Path;
 
 use mapmerge_geometry::{LieGroup, Se2, Se3};
 use mapmerge_posegraph::{EdgeId, PoseGraph, PoseGraph2, PoseGraph3};
 
+use crate::input::read_text;
 use crate::reader::{data_lines, parse_error, quoted, tag_family, Built, Dim};
 use crate::writer::save;
 use crate::{g2o, toro, IoError};
-
-/// The magic bytes that start an xz stream.
-const XZ_MAGIC: &[u8] = &[0xFD, b'7', b'z', b'X', b'Z', 0x00];
 
 /// A planar or a spatial pose graph, as a file can hold either.
 #[derive(Clone, Debug, PartialEq)]
@@ -108,28 +105,8 @@ pub fn read_graph(path: &Path) -> Result<LoadedGraph, IoError> {
 
 /// [`read_graph`] with explicit [`ReadParams`].
 pub fn read_graph_with(path: &Path, params: &ReadParams) -> Result<LoadedGraph, IoError> {
-    let file = path.display().to_string();
-    let io_error = |source| IoError::Io {
-        file: file.clone(),
-        source,
-    };
-    let raw = std::fs::read(path).map_err(io_error)?;
-    let bytes = if raw.starts_with(XZ_MAGIC) {
-        // Text graphs compress about 5:1; the cap keeps a hostile header from reserving much.
-        let mut decoded = Vec::with_capacity(raw.len().saturating_mul(6).min(1 << 28));
-        xz2::read::XzDecoder::new_multi_decoder(raw.as_slice())
-            .read_to_end(&mut decoded)
-            .map_err(io_error)?;
-        decoded
-    } else {
-        raw
-    };
-    let text = std::str::from_utf8(&bytes).map_err(|err| {
-        let valid = bytes.get(..err.valid_up_to()).unwrap_or_default();
-        let line = valid.iter().filter(|b| **b == b'\n').count() + 1;
-        parse_error(&file, line, "invalid UTF-8".to_owned())
-    })?;
-    parse_graph_with(text, &file, params)
+    let text = read_text(path)?;
+    parse_graph_with(&text, &path.display().to_string(), params)
 }
 
 /// Parses the text of a g2o or TORO graph; `source` names it in errors. Uses the default

@@ -160,6 +160,38 @@ pub(crate) fn parse_f64(token: &str, field: usize) -> LineResult<f64> {
     }
 }
 
+/// A finite `f32`, rounded once from the decimal text (not through `f64`), so a value written
+/// with the shortest `f32` digits reads back bit for bit.
+pub(crate) fn parse_f32(token: &str, field: usize) -> LineResult<f32> {
+    match fast_float2::parse::<f32, _>(token) {
+        Ok(v) if v.is_finite() => Ok(v),
+        Ok(_) => Err(format!(
+            "field {field} {} is not a finite number",
+            quoted(token)
+        )),
+        Err(_) => Err(format!("field {field} {} is not a number", quoted(token))),
+    }
+}
+
+/// A count of items (`what`, e.g. "beam count"): a non-negative integer that fits in `usize`.
+pub(crate) fn parse_count(token: &str, field: usize, what: &str) -> LineResult<usize> {
+    token.parse::<usize>().map_err(|_| {
+        let digits = |s: &str| !s.is_empty() && s.bytes().all(|b| b.is_ascii_digit());
+        match token.strip_prefix('-') {
+            Some(rest) if digits(rest) => {
+                format!("field {field}: negative {what} {}", quoted(token))
+            }
+            _ if digits(token.strip_prefix('+').unwrap_or(token)) => {
+                format!("field {field}: {what} {} is too large", quoted(token))
+            }
+            _ => format!(
+                "field {field} {} is not a {what} (non-negative integer)",
+                quoted(token)
+            ),
+        }
+    })
+}
+
 /// `N` finite numbers from `tokens[start..start + N]` (`start` is 0-based after the tag).
 pub(crate) fn parse_f64s<const N: usize>(tokens: &[&str], start: usize) -> LineResult<[f64; N]> {
     let mut out = [0.0; N];

@@ -22,6 +22,25 @@ pub(crate) fn write_f64(out: &mut String, v: f64) {
     out.push_str(text.strip_suffix(".0").unwrap_or(text));
 }
 
+/// Appends `v` in the shortest form that parses back (as `f32`) to the same `f32`, without a
+/// trailing `.0` (laser ranges: `81.91`, not `81.91000366210938`).
+pub(crate) fn write_f32(out: &mut String, v: f32) {
+    if !v.is_finite() {
+        // Never reached: writers reject non-finite numbers first.
+        let _ = write!(out, "{v}");
+        return;
+    }
+    let mut buffer = ryu::Buffer::new();
+    let text = buffer.format_finite(v);
+    out.push_str(text.strip_suffix(".0").unwrap_or(text));
+}
+
+/// Appends `' '` and `v` (see [`write_f32`]).
+pub(crate) fn push_f32(out: &mut String, v: f32) {
+    out.push(' ');
+    write_f32(out, v);
+}
+
 /// Appends `' '` and `v` (see [`write_f64`]).
 pub(crate) fn push_f64(out: &mut String, v: f64) {
     out.push(' ');
@@ -42,6 +61,12 @@ pub(crate) fn push_fields(out: &mut String, values: impl IntoIterator<Item = f64
 
 /// Writes `text` to `path` (creating missing folders), xz-compressed when the path ends in `.xz`.
 pub(crate) fn save(path: &Path, text: &str) -> Result<(), IoError> {
+    save_bytes(path, text.as_bytes())
+}
+
+/// Writes `bytes` to `path` (creating missing folders), xz-compressed when the path ends in
+/// `.xz`.
+pub(crate) fn save_bytes(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     let io_error = |source| IoError::Io {
         file: path.display().to_string(),
         source,
@@ -55,11 +80,11 @@ pub(crate) fn save(path: &Path, text: &str) -> Result<(), IoError> {
     let compressed = path.extension().is_some_and(|ext| ext == "xz");
     let mut buffered = if compressed {
         let mut encoder = xz2::write::XzEncoder::new(buffered, XZ_PRESET);
-        encoder.write_all(text.as_bytes()).map_err(io_error)?;
+        encoder.write_all(bytes).map_err(io_error)?;
         encoder.finish().map_err(io_error)?
     } else {
         let mut buffered = buffered;
-        buffered.write_all(text.as_bytes()).map_err(io_error)?;
+        buffered.write_all(bytes).map_err(io_error)?;
         buffered
     };
     buffered.flush().map_err(io_error)
@@ -92,5 +117,29 @@ mod tests {
             assert_eq!(back.to_bits(), v.to_bits(), "{v} -> {s}");
             assert!(s.len() < 30, "{s}");
         }
+    }
+
+    #[test]
+    fn f32_numbers_round_trip_and_stay_short() {
+        for v in [
+            0.0f32,
+            -0.0,
+            81.91,
+            32.767,
+            0.1,
+            1e-7,
+            3.4e38,
+            f32::MIN_POSITIVE,
+            1e-45,
+        ] {
+            let mut s = String::new();
+            push_f32(&mut s, v);
+            let back: f32 = s.trim().parse().unwrap_or(f32::NAN);
+            assert_eq!(back.to_bits(), v.to_bits(), "{v} -> {s}");
+            assert!(s.len() < 16, "{s}");
+        }
+        let mut s = String::new();
+        write_f32(&mut s, 81.91);
+        assert_eq!(s, "81.91");
     }
 }
