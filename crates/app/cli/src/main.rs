@@ -9,7 +9,10 @@ use clap::{Parser, Subcommand};
 
 mod compare;
 mod corrupt;
+mod grid;
 mod optimize;
+mod render;
+mod sim;
 mod simulate;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
@@ -28,8 +31,15 @@ enum Command {
     Corrupt(corrupt::CorruptArgs),
     /// Compare two graphs' trajectories (same vertex ids): ATE after optional alignment.
     Compare(compare::CompareArgs),
-    /// Generate a synthetic pose graph with known ground truth.
+    /// Generate a synthetic pose graph with known ground truth (Manhattan world).
+    #[command(name = "sim-graph", alias = "simulate")]
     Simulate(simulate::SimulateArgs),
+    /// Simulate robot sessions in a 2D office world: CARMEN logs, ground truth, world map.
+    Sim(sim::SimArgs),
+    /// Build an occupancy grid (ROS map_server YAML + PGM) from a laser log and poses.
+    Grid(grid::GridArgs),
+    /// Draw a grid, pose graphs and trajectories to a PNG.
+    Render(render::RenderArgs),
 }
 
 /// An error that maps to exit code 2.
@@ -63,15 +73,23 @@ pub fn load_graph_with(
     path: &std::path::Path,
     params: &mapmerge_io::ReadParams,
 ) -> anyhow::Result<mapmerge_io::LoadedGraph> {
-    mapmerge_io::read_graph_with(path, params).map_err(|err| {
-        let mut message = err.to_string();
-        let mut source = std::error::Error::source(&err);
-        while let Some(cause) = source {
-            message.push_str(&format!(": {cause}"));
-            source = cause.source();
-        }
-        anyhow::Error::new(BadInput(message))
-    })
+    mapmerge_io::read_graph_with(path, params).map_err(bad_file)
+}
+
+/// A bad-input error (exit code 2) with `reason`.
+pub fn bad_input(reason: impl std::fmt::Display) -> anyhow::Error {
+    anyhow::Error::new(BadInput(reason.to_string()))
+}
+
+/// A bad-input error (exit code 2) from a reader's error, its cause chain kept in the text.
+pub fn bad_file(err: impl std::error::Error) -> anyhow::Error {
+    let mut message = err.to_string();
+    let mut source = err.source();
+    while let Some(cause) = source {
+        message.push_str(&format!(": {cause}"));
+        source = cause.source();
+    }
+    bad_input(message)
 }
 
 fn main() -> ExitCode {
@@ -81,6 +99,9 @@ fn main() -> ExitCode {
         Command::Corrupt(args) => corrupt::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Sim(args) => sim::run(args),
+        Command::Grid(args) => grid::run(args),
+        Command::Render(args) => render::run(args),
     };
     match result {
         Ok(code) => code,

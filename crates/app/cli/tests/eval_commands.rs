@@ -3,38 +3,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 use mapmerge_io::{read_graph, AnyGraph};
 use mapmerge_posegraph::{EdgeId, EdgeKind};
 
-const BIN: &str = env!("CARGO_BIN_EXE_mapmerge");
-
-/// A fresh scratch directory for one test.
-fn scratch(test: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("mapmerge-cli-{}-{test}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().unwrap()
-}
-
-fn ok_json(args: &[&str]) -> serde_json::Value {
-    let out = run(args);
-    assert!(
-        out.status.success(),
-        "mapmerge {args:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
-
-fn p(path: &Path) -> &str {
-    path.to_str().unwrap()
-}
+mod common;
+use common::{ok_json, p, run, scratch, testdata};
 
 fn planar(path: &Path) -> mapmerge_posegraph::PoseGraph2 {
     match read_graph(path).unwrap().graph {
@@ -48,9 +22,6 @@ fn data_dir() -> Option<PathBuf> {
     mapmerge_testkit::shared_data_dir()
 }
 
-fn testdata(name: &str) -> PathBuf {
-    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../testdata")).join(name)
-}
 
 #[test]
 fn simulate_is_reproducible_and_writes_ground_truth() {

@@ -64,7 +64,7 @@ pub use graph_file::{
 };
 pub use pgm::{format_pgm, parse_pgm, PgmImage};
 pub use rosmap::{
-    format_ros_map_yaml, parse_ros_map_yaml, read_ros_map, write_ros_map, MapMode, RosMap,
+    format_ros_map_yaml, parse_ros_map_yaml, read_ros_map, write_ros_map, write_ros_map_with, MapMode, RosMap,
     FREE_PROBABILITY, OCCUPIED_PROBABILITY,
 };
 pub use tum::{

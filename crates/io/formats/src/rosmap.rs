@@ -491,6 +491,13 @@ pub fn format_ros_map_yaml(map: &RosMap) -> Result<String, IoError> {
 /// the YAML's file stem + `.pgm` (`maps/floor.yaml` → `maps/floor.pgm`, `image: floor.pgm`).
 /// Either file is xz-compressed when its name ends in `.xz`. Missing folders are created.
 pub fn write_ros_map(yaml_path: &Path, map: &RosMap) -> Result<(), IoError> {
+    write_ros_map_with(yaml_path, map, false)
+}
+
+/// [`write_ros_map`], optionally storing the image xz-compressed as `<image>.xz` while the
+/// YAML keeps naming `<image>` (as the public data sets do; [`read_ros_map`] falls back to the
+/// `.xz` file, ROS tools need `xz -d` first).
+pub fn write_ros_map_with(yaml_path: &Path, map: &RosMap, compress_image: bool) -> Result<(), IoError> {
     let image = if map.image.as_os_str().is_empty() {
         let stem = yaml_path
             .file_stem()
@@ -504,7 +511,11 @@ pub fn write_ros_map(yaml_path: &Path, map: &RosMap) -> Result<(), IoError> {
     let yaml = format_ros_map_yaml(&header)?;
     let pgm = format_pgm(map.width, map.height, &map.pixels)?;
     let folder = yaml_path.parent().unwrap_or_else(|| Path::new(""));
-    save_bytes(&folder.join(&image), &pgm)?;
+    let mut image_path = folder.join(&image).into_os_string();
+    if compress_image {
+        image_path.push(".xz");
+    }
+    save_bytes(Path::new(&image_path), &pgm)?;
     save(yaml_path, &yaml)
 }
 

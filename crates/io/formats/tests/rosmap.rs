@@ -180,6 +180,13 @@ fn written_map_is_named_after_the_yaml_and_can_be_compressed() {
     let again = read_ros_map(&yaml).unwrap();
     assert_eq!(again.to_grid().unwrap(), grid);
     assert_eq!(again.image, Path::new("floor.pgm"));
+    // Compressed storage behind a plain name: the YAML names `floor.pgm`, the file is
+    // `floor.pgm.xz`, and reading falls back to it.
+    let packed = dir.join("packed/floor.yaml");
+    mapmerge_io::write_ros_map_with(&packed, &map, true).unwrap();
+    assert!(dir.join("packed/floor.pgm.xz").exists() && !dir.join("packed/floor.pgm").exists());
+    assert_eq!(std::fs::read_to_string(&packed).unwrap(), text);
+    assert_eq!(read_ros_map(&packed).unwrap().to_grid().unwrap(), grid);
     // An `.xz` image name is written compressed and read back.
     let compressed = RosMap {
         image: PathBuf::from("img/floor.pgm.xz"),

@@ -1,0 +1,269 @@
+//! `mapmerge sim`: a simulated multi-session data set written to a folder.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_grid::{ClassThresholds, OccupancyGrid};
+use mapmerge_io::{MapMode, RosMap};
+use mapmerge_render::{Picture, PictureStyle, Rgb};
+use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, World, WorldPreset};
+use serde::Serialize;
+
+use crate::{bad_input, print_json};
+
+/// Arguments of `mapmerge sim`.
+#[derive(Args, Debug)]
+pub struct SimArgs {
+    /// World preset: office, office-aliased, corridor-loop, warehouse.
+    #[arg(long, default_value = "office")]
+    pub world: String,
+    /// Number of sessions (session 0 sees the generated world, later ones a changed one).
+    #[arg(long, default_value_t = 3)]
+    pub sessions: usize,
+    /// Seed: the same seed gives the same data set, bit for bit.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Robot time per session (s).
+    #[arg(long, default_value_t = 180.0)]
+    pub duration: f64,
+    /// Lidar beams per scan (over 360°).
+    #[arg(long, default_value_t = 360)]
+    pub beams: usize,
+    /// Lidar maximum range (m).
+    #[arg(long, default_value_t = 30.0)]
+    pub range_max: f32,
+    /// Most kidnaps per session (each happens with `--kidnap-probability`).
+    #[arg(long, default_value_t = 1)]
+    pub kidnaps: usize,
+    /// Probability of each possible kidnap.
+    #[arg(long, default_value_t = 0.5)]
+    pub kidnap_probability: f64,
+    /// Cell side of the ground-truth world maps (m).
+    #[arg(long, default_value_t = 0.05)]
+    pub resolution: f64,
+    /// Write the logs and map images xz-compressed (`session_K.log.xz`, about 6× smaller;
+    /// `world.pgm.xz` while the YAML names `world.pgm`: run `xz -d` before ROS tools read it).
+    #[arg(long)]
+    pub compress: bool,
+    /// Skip the PNG pictures (faster).
+    #[arg(long)]
+    pub no_pictures: bool,
+    /// Output folder (created if missing).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Print one JSON summary instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Serialize)]
+struct SimReport<'a> {
+    world: &'a str,
+    seed: u64,
+    sessions: usize,
+    robot_secs: f64,
+    scans: usize,
+    beams: usize,
+    kidnaps: usize,
+    slips: usize,
+    world_changes: usize,
+    simulate_secs: f64,
+    write_secs: f64,
+    output: &'a Path,
+}
+
+/// Per-session facts for `dataset.json` (the logs and trajectories are in their own files).
+#[derive(Serialize)]
+struct SessionSummary<'a> {
+    index: usize,
+    log: String,
+    truth: String,
+    world_map: String,
+    start_room: String,
+    scans: usize,
+    odometry_messages: usize,
+    kidnaps: &'a [mapmerge_sim::Kidnap],
+    slips: &'a [mapmerge_sim::SlipEvent],
+    world_changes: &'a [mapmerge_sim::WorldChange],
+    motion: &'a mapmerge_sim::MotionInfo,
+}
+
+#[derive(Serialize)]
+struct DatasetSummary<'a> {
+    world: &'a str,
+    seed: u64,
+    params: &'a SimParams,
+    world_map: &'static str,
+    sessions: Vec<SessionSummary<'a>>,
+}
+
+/// Runs `mapmerge sim`.
+pub fn run(args: &SimArgs) -> anyhow::Result<ExitCode> {
+    let params = params_of(args)?;
+    let started = Instant::now();
+    let dataset = simulate(&params, args.seed).map_err(bad_input)?;
+    let simulate_secs = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    write_dataset(&dataset, args)?;
+    let write_secs = started.elapsed().as_secs_f64();
+    let sessions = &dataset.sessions;
+    let report = SimReport {
+        world: &dataset.world_name,
+        seed: dataset.seed,
+        sessions: sessions.len(),
+        robot_secs: params.duration_secs * sessions.len() as f64,
+        scans: sessions.iter().map(|s| s.log.scans.len()).sum(),
+        beams: sessions
+            .iter()
+            .flat_map(|s| s.log.scans.iter().map(|r| r.scan.len()))
+            .sum(),
+        kidnaps: sessions.iter().map(|s| s.kidnaps.len()).sum(),
+        slips: sessions.iter().map(|s| s.slips.len()).sum(),
+        world_changes: sessions.iter().map(|s| s.world_changes.len()).sum(),
+        simulate_secs,
+        write_secs,
+        output: &args.output,
+    };
+    if args.json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{}: {} sessions, {} scans, {} kidnaps, {} slips, {} world changes; simulated in {:.2} s, wrote {} in {:.2} s",
+            report.world,
+            report.sessions,
+            report.scans,
+            report.kidnaps,
+            report.slips,
+            report.world_changes,
+            simulate_secs,
+            args.output.display(),
+            write_secs
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The simulator's parameters from the arguments.
+fn params_of(args: &SimArgs) -> anyhow::Result<SimParams> {
+    let preset = WorldPreset::from_name(&args.world).map_err(bad_input)?;
+    let mut params = SimParams::default()
+        .with_preset(preset)
+        .with_sessions(args.sessions)
+        .with_duration_secs(args.duration);
+    params.lidar.beam_count = args.beams;
+    params.lidar.range_max_m = args.range_max;
+    params.kidnap.max_per_session = args.kidnaps;
+    params.kidnap.probability = args.kidnap_probability;
+    if !(args.resolution.is_finite() && args.resolution > 0.0) {
+        return Err(bad_input(format!(
+            "--resolution must be a positive number of metres, got {}",
+            args.resolution
+        )));
+    }
+    Ok(params)
+}
+
+/// Writes every file of the data set (see docs/formats.md, "Simulated data sets").
+fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
+    let dir = &args.output;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let world_grid = write_world(&dataset.world, &dir.join("world.yaml"), args)?;
+    let mut summaries = Vec::new();
+    for session in &dataset.sessions {
+        let stem = format!("session_{}", session.index);
+        let log = format!("{stem}.log{}", if args.compress { ".xz" } else { "" });
+        let truth = format!("{stem}.truth.tum");
+        mapmerge_io::write_carmen(&dir.join(&log), &session.log)?;
+        mapmerge_io::write_tum_planar(&dir.join(&truth), &session.truth)?;
+        // A changed world gets its own map, so detectors can be scored against it.
+        let world_map = if session.world_changes.is_empty() {
+            "world.yaml".to_owned()
+        } else {
+            let name = format!("{stem}.world.yaml");
+            write_world(&session.world, &dir.join(&name), args)?;
+            name
+        };
+        if !args.no_pictures {
+            let grid = if session.world_changes.is_empty() {
+                world_grid.clone()
+            } else {
+                session.world.to_grid(args.resolution).map_err(bad_input)?
+            };
+            session_picture(&grid, session).save_png(&dir.join(format!("{stem}.png")))?;
+        }
+        let start_room = session
+            .world
+            .room(session.start_room)
+            .map(|room| room.name.clone())
+            .unwrap_or_default();
+        summaries.push(SessionSummary {
+            index: session.index,
+            log,
+            truth,
+            world_map,
+            start_room,
+            scans: session.log.scans.len(),
+            odometry_messages: session.log.odometry.len(),
+            kidnaps: &session.kidnaps,
+            slips: &session.slips,
+            world_changes: &session.world_changes,
+            motion: &session.motion,
+        });
+    }
+    let summary = DatasetSummary {
+        world: &dataset.world_name,
+        seed: dataset.seed,
+        params: &dataset.params,
+        world_map: "world.yaml",
+        sessions: summaries,
+    };
+    let json = serde_json::to_string_pretty(&summary)?;
+    std::fs::write(dir.join("dataset.json"), json + "\n")
+        .with_context(|| format!("writing {}", dir.join("dataset.json").display()))?;
+    Ok(())
+}
+
+/// Rasterises `world` and writes it as a map_server map (the PGM xz-compressed with
+/// `--compress`); returns the grid.
+fn write_world(world: &World, yaml: &Path, args: &SimArgs) -> anyhow::Result<OccupancyGrid> {
+    let grid = world.to_grid(args.resolution).map_err(bad_input)?;
+    let map = RosMap::from_grid(&grid, MapMode::Trinary, &ClassThresholds::default());
+    mapmerge_io::write_ros_map_with(yaml, &map, args.compress)?;
+    Ok(grid)
+}
+
+/// The session's world with the true path (red), the odometry path started at the true start
+/// pose (blue; its drift and the kidnaps it does not see) and each kidnap's jump (magenta).
+fn session_picture(grid: &OccupancyGrid, session: &SessionData) -> Picture {
+    let style = PictureStyle {
+        pixels_per_cell: 1,
+        classes: Some(ClassThresholds::default()),
+    };
+    let mut picture = Picture::of_grid(grid, &style);
+    let truth: Vec<Se2> = session.truth.iter().map(|(_, pose)| *pose).collect();
+    let odometry: Vec<Se2> = session
+        .log
+        .scans
+        .iter()
+        .filter_map(|record| record.odom_from_robot)
+        .collect();
+    if let (Some(world_from_start), Some(odom_from_start)) = (truth.first(), odometry.first()) {
+        let world_from_odom = world_from_start.compose(&odom_from_start.inverse());
+        let drifting: Vec<Se2> = odometry.iter().map(|p| world_from_odom.compose(p)).collect();
+        picture.draw_trajectory(&drifting, Rgb([40, 90, 220]), 1.0);
+    }
+    // The true path, broken at kidnaps so the jump is not drawn as driving.
+    let mut start = 0;
+    for kidnap in &session.kidnaps {
+        let end = kidnap.scan_index.min(truth.len());
+        picture.draw_trajectory(truth.get(start..end).unwrap_or_default(), Rgb::RED, 1.5);
+        picture.draw_line(&kidnap.from.translation(), &kidnap.to.translation(), Rgb::MAGENTA, 2.0);
+        start = end;
+    }
+    picture.draw_trajectory(truth.get(start..).unwrap_or_default(), Rgb::RED, 1.5);
+    picture
+}
