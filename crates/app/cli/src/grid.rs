@@ -164,7 +164,12 @@ pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
         picture.draw_trajectory(&posed.poses, Rgb::RED, 1.0);
         picture.save_png(png)?;
     }
-    let count = |class| grid.log_odds().iter().filter(|&&l| thresholds.classify(l) == class).count();
+    let count = |class| {
+        grid.log_odds()
+            .iter()
+            .filter(|&&l| thresholds.classify(l) == class)
+            .count()
+    };
     let geometry = grid.geometry();
     let report = GridReport {
         log: &args.log,
@@ -195,7 +200,10 @@ pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
             report.free_cells,
             build_secs,
             args.output.display(),
-            args.png.as_ref().map(|p| format!(" and {}", p.display())).unwrap_or_default()
+            args.png
+                .as_ref()
+                .map(|p| format!(" and {}", p.display()))
+                .unwrap_or_default()
         );
     }
     Ok(ExitCode::SUCCESS)

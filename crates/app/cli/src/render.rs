@@ -62,10 +62,16 @@ struct RenderReport<'a> {
 /// Runs `mapmerge render`.
 pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
     if !(args.resolution.is_finite() && args.resolution > 0.0) {
-        return Err(bad_input(format!("--resolution must be positive, got {}", args.resolution)));
+        return Err(bad_input(format!(
+            "--resolution must be positive, got {}",
+            args.resolution
+        )));
     }
     if !(1..=64).contains(&args.scale) {
-        return Err(bad_input(format!("--scale must be 1..=64 pixels per cell, got {}", args.scale)));
+        return Err(bad_input(format!(
+            "--scale must be 1..=64 pixels per cell, got {}",
+            args.scale
+        )));
     }
     // 1. The grid underneath (or an empty one).
     let mut grid = match (&args.map, &args.log) {
@@ -84,7 +90,10 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
         match load_graph(path)?.graph {
             AnyGraph::Planar(graph) => graphs.push(graph),
             AnyGraph::Spatial(_) => {
-                return Err(bad_input(format!("{}: only 2D graphs can be drawn", path.display())))
+                return Err(bad_input(format!(
+                    "{}: only 2D graphs can be drawn",
+                    path.display()
+                )))
             }
         }
     }
@@ -131,7 +140,10 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         print_json(&report)?;
     } else {
-        println!("wrote {} ({width_px} × {height_px} px)", args.output.display());
+        println!(
+            "wrote {} ({width_px} × {height_px} px)",
+            args.output.display()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -253,7 +253,10 @@ fn session_picture(grid: &OccupancyGrid, session: &SessionData) -> Picture {
         .collect();
     if let (Some(world_from_start), Some(odom_from_start)) = (truth.first(), odometry.first()) {
         let world_from_odom = world_from_start.compose(&odom_from_start.inverse());
-        let drifting: Vec<Se2> = odometry.iter().map(|p| world_from_odom.compose(p)).collect();
+        let drifting: Vec<Se2> = odometry
+            .iter()
+            .map(|p| world_from_odom.compose(p))
+            .collect();
         picture.draw_trajectory(&drifting, Rgb([40, 90, 220]), 1.0);
     }
     // The true path, broken at kidnaps so the jump is not drawn as driving.
@@ -261,7 +264,12 @@ fn session_picture(grid: &OccupancyGrid, session: &SessionData) -> Picture {
     for kidnap in &session.kidnaps {
         let end = kidnap.scan_index.min(truth.len());
         picture.draw_trajectory(truth.get(start..end).unwrap_or_default(), Rgb::RED, 1.5);
-        picture.draw_line(&kidnap.from.translation(), &kidnap.to.translation(), Rgb::MAGENTA, 2.0);
+        picture.draw_line(
+            &kidnap.from.translation(),
+            &kidnap.to.translation(),
+            Rgb::MAGENTA,
+            2.0,
+        );
         start = end;
     }
     picture.draw_trajectory(truth.get(start..).unwrap_or_default(), Rgb::RED, 1.5);

@@ -22,7 +22,6 @@ fn data_dir() -> Option<PathBuf> {
     mapmerge_testkit::shared_data_dir()
 }
 
-
 #[test]
 fn simulate_is_reproducible_and_writes_ground_truth() {
     let dir = scratch("simulate");

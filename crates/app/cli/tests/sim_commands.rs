@@ -12,7 +12,16 @@ use mapmerge_grid::{CellClass, ClassThresholds};
 
 /// The arguments that made `testdata/sim/office-aliased` (see README.md).
 const TESTDATA_ARGS: [&str; 10] = [
-    "--world", "office-aliased", "--sessions", "3", "--seed", "12", "--duration", "120", "--compress", "--no-pictures",
+    "--world",
+    "office-aliased",
+    "--sessions",
+    "3",
+    "--seed",
+    "12",
+    "--duration",
+    "120",
+    "--compress",
+    "--no-pictures",
 ];
 
 /// Asserts two data-set folders hold the same data (logs compared after parsing, since xz
@@ -20,15 +29,29 @@ const TESTDATA_ARGS: [&str; 10] = [
 fn assert_same_dataset(a: &Path, b: &Path) {
     for k in 0..3 {
         let log = format!("session_{k}.log.xz");
-        assert_eq!(mapmerge_io::read_carmen(&a.join(&log)).unwrap(), mapmerge_io::read_carmen(&b.join(&log)).unwrap(), "{log}");
+        assert_eq!(
+            mapmerge_io::read_carmen(&a.join(&log)).unwrap(),
+            mapmerge_io::read_carmen(&b.join(&log)).unwrap(),
+            "{log}"
+        );
         let truth = format!("session_{k}.truth.tum");
-        assert_eq!(std::fs::read(a.join(&truth)).unwrap(), std::fs::read(b.join(&truth)).unwrap(), "{truth}");
+        assert_eq!(
+            std::fs::read(a.join(&truth)).unwrap(),
+            std::fs::read(b.join(&truth)).unwrap(),
+            "{truth}"
+        );
     }
     for yaml in ["world.yaml", "session_1.world.yaml", "session_2.world.yaml"] {
-        let (ma, mb) = (mapmerge_io::read_ros_map(&a.join(yaml)).unwrap(), mapmerge_io::read_ros_map(&b.join(yaml)).unwrap());
+        let (ma, mb) = (
+            mapmerge_io::read_ros_map(&a.join(yaml)).unwrap(),
+            mapmerge_io::read_ros_map(&b.join(yaml)).unwrap(),
+        );
         assert_eq!(ma.pixels, mb.pixels, "{yaml}");
     }
-    assert_eq!(std::fs::read_to_string(a.join("dataset.json")).unwrap(), std::fs::read_to_string(b.join("dataset.json")).unwrap());
+    assert_eq!(
+        std::fs::read_to_string(a.join("dataset.json")).unwrap(),
+        std::fs::read_to_string(b.join("dataset.json")).unwrap()
+    );
 }
 
 #[test]
@@ -38,7 +61,10 @@ fn checked_in_sim_testdata_is_what_sim_writes() {
     args.extend(TESTDATA_ARGS);
     args.extend(["-o", p(&dir), "--json"]);
     let report = ok_json(&args);
-    assert_eq!((report["sessions"].as_u64(), report["scans"].as_u64()), (Some(3), Some(3603)));
+    assert_eq!(
+        (report["sessions"].as_u64(), report["scans"].as_u64()),
+        (Some(3), Some(3603))
+    );
     assert_same_dataset(&testdata("sim/office-aliased"), &dir);
 }
 
@@ -46,17 +72,46 @@ fn checked_in_sim_testdata_is_what_sim_writes() {
 fn sim_is_deterministic_and_refuses_unknown_worlds() {
     let (a, b, c) = (scratch("sim-a"), scratch("sim-b"), scratch("sim-c"));
     for (seed, dir) in [("3", &a), ("3", &b), ("4", &c)] {
-        ok_json(&["sim", "--world", "corridor-loop", "--sessions", "2", "--duration", "20", "--seed", seed, "-o", p(dir), "--json"]);
+        ok_json(&[
+            "sim",
+            "--world",
+            "corridor-loop",
+            "--sessions",
+            "2",
+            "--duration",
+            "20",
+            "--seed",
+            seed,
+            "-o",
+            p(dir),
+            "--json",
+        ]);
     }
-    for name in ["session_0.log", "session_1.truth.tum", "world.pgm", "dataset.json", "session_0.png"] {
-        assert_eq!(std::fs::read(a.join(name)).unwrap(), std::fs::read(b.join(name)).unwrap(), "{name}");
+    for name in [
+        "session_0.log",
+        "session_1.truth.tum",
+        "world.pgm",
+        "dataset.json",
+        "session_0.png",
+    ] {
+        assert_eq!(
+            std::fs::read(a.join(name)).unwrap(),
+            std::fs::read(b.join(name)).unwrap(),
+            "{name}"
+        );
     }
-    assert_ne!(std::fs::read(a.join("session_0.log")).unwrap(), std::fs::read(c.join("session_0.log")).unwrap());
+    assert_ne!(
+        std::fs::read(a.join("session_0.log")).unwrap(),
+        std::fs::read(c.join("session_0.log")).unwrap()
+    );
 
     let out = run(&["sim", "--world", "castle", "-o", p(&a)]);
     assert_eq!(out.status.code(), Some(2));
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(stderr.contains("castle") && stderr.contains("office-aliased"), "{stderr}");
+    assert!(
+        stderr.contains("castle") && stderr.contains("office-aliased"),
+        "{stderr}"
+    );
 }
 
 #[test]
@@ -65,21 +120,52 @@ fn a_grid_from_the_simulated_log_and_true_poses_lands_on_the_world_s_walls() {
     let dir = scratch("sim-grid");
     let yaml = dir.join("map.yaml");
     ok_json(&[
-        "grid", "--log", p(&data.join("session_0.log.xz")), "--poses", p(&data.join("session_0.truth.tum")),
-        "-o", p(&yaml), "--png", p(&dir.join("map.png")), "--json",
+        "grid",
+        "--log",
+        p(&data.join("session_0.log.xz")),
+        "--poses",
+        p(&data.join("session_0.truth.tum")),
+        "-o",
+        p(&yaml),
+        "--png",
+        p(&dir.join("map.png")),
+        "--json",
     ]);
     let thresholds = ClassThresholds::default();
     let built = mapmerge_io::read_ros_map(&yaml).unwrap().to_grid().unwrap();
-    let world = mapmerge_io::read_ros_map(&data.join("world.yaml")).unwrap().to_grid().unwrap();
+    let world = mapmerge_io::read_ros_map(&data.join("world.yaml"))
+        .unwrap()
+        .to_grid()
+        .unwrap();
     // Walls of the true world, grown by one cell (5 cm) for the lidar's 1.5 cm noise.
     let walls = world.mask(CellClass::Occupied, &thresholds).dilate(1);
-    let occupied: Vec<_> = built.cells().filter(|&(_, _, l)| thresholds.classify(l) == CellClass::Occupied).collect();
-    let on_walls = occupied.iter().filter(|(_, centre, _)| walls.is_set(world.geometry().cell_of(centre))).count();
+    let occupied: Vec<_> = built
+        .cells()
+        .filter(|&(_, _, l)| thresholds.classify(l) == CellClass::Occupied)
+        .collect();
+    let on_walls = occupied
+        .iter()
+        .filter(|(_, centre, _)| walls.is_set(world.geometry().cell_of(centre)))
+        .count();
     let fraction = on_walls as f64 / occupied.len() as f64;
-    assert!(occupied.len() > 3000 && fraction > 0.98, "{on_walls} of {} occupied cells on the world's walls", occupied.len());
+    assert!(
+        occupied.len() > 3000 && fraction > 0.98,
+        "{on_walls} of {} occupied cells on the world's walls",
+        occupied.len()
+    );
     // And free space is free in the world.
     let free_in_world = world.mask(CellClass::Free, &thresholds).dilate(1);
-    let free: Vec<_> = built.cells().filter(|&(_, _, l)| thresholds.classify(l) == CellClass::Free).collect();
-    let agree = free.iter().filter(|(_, centre, _)| free_in_world.is_set(world.geometry().cell_of(centre))).count();
-    assert!(agree as f64 > 0.99 * free.len() as f64, "{agree} of {} free cells free in the world", free.len());
+    let free: Vec<_> = built
+        .cells()
+        .filter(|&(_, _, l)| thresholds.classify(l) == CellClass::Free)
+        .collect();
+    let agree = free
+        .iter()
+        .filter(|(_, centre, _)| free_in_world.is_set(world.geometry().cell_of(centre)))
+        .count();
+    assert!(
+        agree as f64 > 0.99 * free.len() as f64,
+        "{agree} of {} free cells free in the world",
+        free.len()
+    );
 }

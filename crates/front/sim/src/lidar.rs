@@ -92,7 +92,10 @@ impl LidarParams {
             return bad("lidar.range_sigma_m", "must be finite and non-negative");
         }
         if !(self.range_resolution_m >= 0.0 && self.range_resolution_m.is_finite()) {
-            return bad("lidar.range_resolution_m", "must be finite and non-negative");
+            return bad(
+                "lidar.range_resolution_m",
+                "must be finite and non-negative",
+            );
         }
         if !(0.0..=1.0).contains(&self.dropout_probability) {
             return bad("lidar.dropout_probability", "must lie in [0, 1]");

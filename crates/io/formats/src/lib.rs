@@ -64,8 +64,8 @@ pub use graph_file::{
 };
 pub use pgm::{format_pgm, parse_pgm, PgmImage};
 pub use rosmap::{
-    format_ros_map_yaml, parse_ros_map_yaml, read_ros_map, write_ros_map, write_ros_map_with, MapMode, RosMap,
-    FREE_PROBABILITY, OCCUPIED_PROBABILITY,
+    format_ros_map_yaml, parse_ros_map_yaml, read_ros_map, write_ros_map, write_ros_map_with,
+    MapMode, RosMap, FREE_PROBABILITY, OCCUPIED_PROBABILITY,
 };
 pub use tum::{
     format_tum, format_tum_planar, parse_tum_planar, read_tum_planar, write_tum, write_tum_planar,

@@ -497,7 +497,11 @@ pub fn write_ros_map(yaml_path: &Path, map: &RosMap) -> Result<(), IoError> {
 /// [`write_ros_map`], optionally storing the image xz-compressed as `<image>.xz` while the
 /// YAML keeps naming `<image>` (as the public data sets do; [`read_ros_map`] falls back to the
 /// `.xz` file, ROS tools need `xz -d` first).
-pub fn write_ros_map_with(yaml_path: &Path, map: &RosMap, compress_image: bool) -> Result<(), IoError> {
+pub fn write_ros_map_with(
+    yaml_path: &Path,
+    map: &RosMap,
+    compress_image: bool,
+) -> Result<(), IoError> {
     let image = if map.image.as_os_str().is_empty() {
         let stem = yaml_path
             .file_stem()

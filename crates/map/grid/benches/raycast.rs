@@ -15,12 +15,29 @@ fn room_scan(x: f64, y: f64) -> LaserScan {
         .map(|i| {
             let a = -std::f64::consts::PI + i as f64 * std::f64::consts::TAU / n as f64;
             let (s, c) = a.sin_cos();
-            let tx = if c > 0.0 { (half_w - x) / c } else if c < 0.0 { (-half_w - x) / c } else { f64::INFINITY };
-            let ty = if s > 0.0 { (half_h - y) / s } else if s < 0.0 { (-half_h - y) / s } else { f64::INFINITY };
+            let tx = if c > 0.0 {
+                (half_w - x) / c
+            } else if c < 0.0 {
+                (-half_w - x) / c
+            } else {
+                f64::INFINITY
+            };
+            let ty = if s > 0.0 {
+                (half_h - y) / s
+            } else if s < 0.0 {
+                (-half_h - y) / s
+            } else {
+                f64::INFINITY
+            };
             tx.min(ty) as f32
         })
         .collect();
-    LaserScan::new(-std::f64::consts::PI, std::f64::consts::PI - std::f64::consts::TAU / n as f64, 30.0, ranges)
+    LaserScan::new(
+        -std::f64::consts::PI,
+        std::f64::consts::PI - std::f64::consts::TAU / n as f64,
+        30.0,
+        ranges,
+    )
 }
 
 fn raycast(c: &mut Criterion) {
@@ -37,7 +54,10 @@ fn raycast(c: &mut Criterion) {
         for (pose, scan) in &scans {
             // Scans are in the room frame; rotate the pose back so beams stay in the room.
             let pose = Se2::new(pose.x_m, pose.y_m, 0.0);
-            cells += grid.insert_scan(&pose, scan, &params).map(|i| i.cells_visited).unwrap_or(0);
+            cells += grid
+                .insert_scan(&pose, scan, &params)
+                .map(|i| i.cells_visited)
+                .unwrap_or(0);
         }
         let mut group = c.benchmark_group(format!("insert_32_scans_{}cm", resolution_m * 100.0));
         group.throughput(Throughput::Elements(cells as u64));

@@ -56,13 +56,15 @@ impl GridGeometry {
 
     /// Centre of `cell` (m).
     pub fn center_of(&self, cell: Cell) -> Point2 {
-        self.origin_m
-            + Point2::new(cell.x as f64 + 0.5, cell.y as f64 + 0.5) * self.resolution_m
+        self.origin_m + Point2::new(cell.x as f64 + 0.5, cell.y as f64 + 0.5) * self.resolution_m
     }
 
     /// True when `cell` lies inside the grid.
     pub fn contains(&self, cell: Cell) -> bool {
-        cell.x >= 0 && cell.y >= 0 && (cell.x as u64) < self.width as u64 && (cell.y as u64) < self.height as u64
+        cell.x >= 0
+            && cell.y >= 0
+            && (cell.x as u64) < self.width as u64
+            && (cell.y as u64) < self.height as u64
     }
 
     /// Row-major index of `cell` (row 0 at the bottom), if inside.

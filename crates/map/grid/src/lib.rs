@@ -13,19 +13,19 @@
 mod error;
 mod geometry;
 mod local_maps;
-mod occupancy;
 mod morphology;
+mod occupancy;
 mod raycast;
 mod resample;
 
 pub use error::GridError;
-pub use raycast::{InsertInfo, InsertParams};
-pub use morphology::{CellMask, DistanceField};
-pub use local_maps::{LocalMap, LocalMapParams, LocalMaps, RenderInfo};
 pub use geometry::{Cell, GridGeometry};
+pub use local_maps::{LocalMap, LocalMapParams, LocalMaps, RenderInfo};
+pub use morphology::{CellMask, DistanceField};
 pub use occupancy::{
     log_odds_of, probability_of, CellClass, ClassThresholds, OccupancyGrid, SensorModel, MAX_CELLS,
 };
+pub use raycast::{InsertInfo, InsertParams};
 
 /// A point in the plane (metres).
 pub type Point2 = nalgebra::Vector2<f64>;

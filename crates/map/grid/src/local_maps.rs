@@ -128,7 +128,9 @@ impl LocalMaps {
                 scans: 0,
             }),
         };
-        let info = map.grid.insert_scan(node_from_robot, scan, &self.params.insert)?;
+        let info = map
+            .grid
+            .insert_scan(node_from_robot, scan, &self.params.insert)?;
         map.scans += 1;
         Ok(info)
     }
@@ -173,7 +175,10 @@ impl LocalMaps {
 
     /// Brings the rendered grid up to date with the nodes' poses (`map_from_node`; nodes
     /// without a pose are not drawn). Only what moved is redrawn.
-    pub fn render(&mut self, map_from_node: &BTreeMap<NodeId, Se2>) -> Result<RenderInfo, GridError> {
+    pub fn render(
+        &mut self,
+        map_from_node: &BTreeMap<NodeId, Se2>,
+    ) -> Result<RenderInfo, GridError> {
         let mut info = RenderInfo::default();
         // 1. Take out what left the graph or moved too far.
         let drawn: Vec<(NodeId, Drawn)> = self.drawn.iter().map(|(&id, &d)| (id, d)).collect();
@@ -203,7 +208,12 @@ impl LocalMaps {
                 return Err(GridError::NotFinite);
             }
             info.cells_written += self.draw(node, &pose, 1)?;
-            self.drawn.insert(node, Drawn { map_from_node: pose });
+            self.drawn.insert(
+                node,
+                Drawn {
+                    map_from_node: pose,
+                },
+            );
         }
         info.added = self.drawn.len() - info.unchanged - moved_before;
         Ok(info)
@@ -216,8 +226,14 @@ impl LocalMaps {
             return true;
         };
         let (lo, hi) = map.grid.geometry().bounds_m();
-        let radius = [lo.x.abs(), hi.x.abs()].iter().fold(0.0f64, |a, &b| a.max(b))
-            .hypot([lo.y.abs(), hi.y.abs()].iter().fold(0.0f64, |a, &b| a.max(b)));
+        let radius = [lo.x.abs(), hi.x.abs()]
+            .iter()
+            .fold(0.0f64, |a, &b| a.max(b))
+            .hypot(
+                [lo.y.abs(), hi.y.abs()]
+                    .iter()
+                    .fold(0.0f64, |a, &b| a.max(b)),
+            );
         let shift = (new.translation() - old.translation()).norm()
             + mapmerge_geometry::wrap_angle_rad(new.theta_rad - old.theta_rad).abs() * radius;
         shift > self.params.move_tolerance_m
@@ -292,7 +308,11 @@ impl Canvas {
             for gx in x0..=g_hi.x.min(global.width as i64 - 1) {
                 let (lx, ly) = (p.x.floor(), p.y.floor());
                 p += step_x;
-                if lx < lo_cell.x as f64 || ly < lo_cell.y as f64 || lx > hi_cell.x as f64 || ly > hi_cell.y as f64 {
+                if lx < lo_cell.x as f64
+                    || ly < lo_cell.y as f64
+                    || lx > hi_cell.x as f64
+                    || ly > hi_cell.y as f64
+                {
                     continue;
                 }
                 let l = local_odds
@@ -303,7 +323,10 @@ impl Canvas {
                     continue;
                 }
                 let index = row + gx as usize;
-                let (Some(sum), Some(out)) = (self.sums.get_mut(index), self.rendered.log_odds_mut().get_mut(index)) else {
+                let (Some(sum), Some(out)) = (
+                    self.sums.get_mut(index),
+                    self.rendered.log_odds_mut().get_mut(index),
+                ) else {
                     continue;
                 };
                 *sum += sign * (l * FIXED_POINT_SCALE).round() as i32;

@@ -79,7 +79,11 @@ impl CellMask {
     pub fn distance_transform(&self) -> DistanceField {
         let (w, h) = (self.geometry.width, self.geometry.height);
         let far = ((w + h) as f64).powi(2) + 1.0;
-        let mut squared: Vec<f64> = self.set.iter().map(|&s| if s { 0.0 } else { far }).collect();
+        let mut squared: Vec<f64> = self
+            .set
+            .iter()
+            .map(|&s| if s { 0.0 } else { far })
+            .collect();
         let mut line = Vec::new();
         let mut out = Vec::new();
         let mut scratch = EdtScratch::default();
@@ -87,7 +91,9 @@ impl CellMask {
         for (count, length, stride, step) in [(w, h, 1, w), (h, w, w, 1)] {
             for k in 0..count {
                 line.clear();
-                line.extend((0..length).filter_map(|i| squared.get(k * stride + i * step).copied()));
+                line.extend(
+                    (0..length).filter_map(|i| squared.get(k * stride + i * step).copied()),
+                );
                 squared_edt_1d(&line, &mut out, &mut scratch);
                 for (i, &v) in out.iter().enumerate() {
                     if let Some(slot) = squared.get_mut(k * stride + i * step) {
@@ -102,7 +108,13 @@ impl CellMask {
             geometry: self.geometry,
             distance_m: squared
                 .iter()
-                .map(|&d| if empty { f32::INFINITY } else { (d.sqrt() * resolution) as f32 })
+                .map(|&d| {
+                    if empty {
+                        f32::INFINITY
+                    } else {
+                        (d.sqrt() * resolution) as f32
+                    }
+                })
                 .collect(),
         }
     }
@@ -142,7 +154,9 @@ fn dilate_lines(
     for k in 0..count {
         let at = |i: usize| input.get(k * stride + i * step).copied().unwrap_or(false);
         // Number of set cells in the window [i − r, i + r].
-        let mut in_window = (0..=radius.min(length.saturating_sub(1))).filter(|&i| at(i)).count();
+        let mut in_window = (0..=radius.min(length.saturating_sub(1)))
+            .filter(|&i| at(i))
+            .count();
         for i in 0..length {
             if let Some(slot) = out.get_mut(k * stride + i * step) {
                 *slot = in_window > 0;

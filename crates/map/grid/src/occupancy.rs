@@ -221,7 +221,10 @@ impl OccupancyGrid {
 
     /// Class of every cell, row-major.
     pub fn classes(&self, thresholds: &ClassThresholds) -> Vec<CellClass> {
-        self.log_odds.iter().map(|&l| thresholds.classify(l)).collect()
+        self.log_odds
+            .iter()
+            .map(|&l| thresholds.classify(l))
+            .collect()
     }
 
     /// Sets the log-odds of `cell`, growing the grid if needed.
@@ -287,12 +290,26 @@ impl OccupancyGrid {
             Cell::new(hi.x + margin, hi.y + margin)
         } else {
             Cell::new(
-                if hi.x >= old_w { hi.x + margin } else { old_w - 1 },
-                if hi.y >= old_h { hi.y + margin } else { old_h - 1 },
+                if hi.x >= old_w {
+                    hi.x + margin
+                } else {
+                    old_w - 1
+                },
+                if hi.y >= old_h {
+                    hi.y + margin
+                } else {
+                    old_h - 1
+                },
             )
         };
-        let width = new_hi.x.checked_sub(new_lo.x).and_then(|w| w.checked_add(1));
-        let height = new_hi.y.checked_sub(new_lo.y).and_then(|h| h.checked_add(1));
+        let width = new_hi
+            .x
+            .checked_sub(new_lo.x)
+            .and_then(|w| w.checked_add(1));
+        let height = new_hi
+            .y
+            .checked_sub(new_lo.y)
+            .and_then(|h| h.checked_add(1));
         let (Some(width), Some(height)) = (width, height) else {
             return Err(GridError::TooLarge);
         };

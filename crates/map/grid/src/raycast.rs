@@ -182,7 +182,8 @@ impl OccupancyGrid {
                 if let (Some(l), Some(mark)) = (log_odds.get_mut(index), marks.get_mut(index)) {
                     if *mark != generation {
                         *mark = generation;
-                        *l = (*l + model.miss_log_odds).clamp(model.min_log_odds, model.max_log_odds);
+                        *l = (*l + model.miss_log_odds)
+                            .clamp(model.min_log_odds, model.max_log_odds);
                     }
                 }
             });
@@ -208,8 +209,20 @@ pub(crate) fn traverse(
     let (cx, cy) = (start.x.floor() as i64, start.y.floor() as i64);
     let (ex, ey) = (end.x.floor() as i64, end.y.floor() as i64);
     let delta = end - start;
-    let step_x: i64 = if ex > cx { 1 } else if ex < cx { -1 } else { 0 };
-    let step_y: i64 = if ey > cy { 1 } else if ey < cy { -1 } else { 0 };
+    let step_x: i64 = if ex > cx {
+        1
+    } else if ex < cx {
+        -1
+    } else {
+        0
+    };
+    let step_y: i64 = if ey > cy {
+        1
+    } else if ey < cy {
+        -1
+    } else {
+        0
+    };
     // Parameter t ∈ [0, 1] along the segment at which the next x / y cell border is crossed.
     let boundary = |c: i64, step: i64| if step > 0 { (c + 1) as f64 } else { c as f64 };
     let mut t_max_x = if step_x != 0 {
@@ -222,8 +235,16 @@ pub(crate) fn traverse(
     } else {
         f64::INFINITY
     };
-    let t_delta_x = if step_x != 0 { (1.0 / delta.x).abs() } else { f64::INFINITY };
-    let t_delta_y = if step_y != 0 { (1.0 / delta.y).abs() } else { f64::INFINITY };
+    let t_delta_x = if step_x != 0 {
+        (1.0 / delta.x).abs()
+    } else {
+        f64::INFINITY
+    };
+    let t_delta_y = if step_y != 0 {
+        (1.0 / delta.y).abs()
+    } else {
+        f64::INFINITY
+    };
     let mut remaining_x = (ex - cx).unsigned_abs();
     let mut remaining_y = (ey - cy).unsigned_abs();
     let width = width as i64;
@@ -262,8 +283,14 @@ mod tests {
     /// clipping against every cell of the bounding box), plus the two end cells.
     fn brute_force(start: Point2, end: Point2, width: usize) -> BTreeSet<usize> {
         let mut out = BTreeSet::new();
-        let (x0, x1) = (start.x.min(end.x).floor() as i64, start.x.max(end.x).floor() as i64);
-        let (y0, y1) = (start.y.min(end.y).floor() as i64, start.y.max(end.y).floor() as i64);
+        let (x0, x1) = (
+            start.x.min(end.x).floor() as i64,
+            start.x.max(end.x).floor() as i64,
+        );
+        let (y0, y1) = (
+            start.y.min(end.y).floor() as i64,
+            start.y.max(end.y).floor() as i64,
+        );
         let d = end - start;
         for y in y0..=y1 {
             for x in x0..=x1 {
@@ -321,13 +348,31 @@ mod tests {
     #[test]
     fn axis_aligned_and_single_cell_rays() {
         let mut v = Vec::new();
-        traverse(Point2::new(0.5, 0.5), Point2::new(3.5, 0.5), 10, false, |i| v.push(i));
+        traverse(
+            Point2::new(0.5, 0.5),
+            Point2::new(3.5, 0.5),
+            10,
+            false,
+            |i| v.push(i),
+        );
         assert_eq!(v, [0, 1, 2, 3]);
         v.clear();
-        traverse(Point2::new(2.5, 3.5), Point2::new(2.5, 0.2), 10, true, |i| v.push(i));
+        traverse(
+            Point2::new(2.5, 3.5),
+            Point2::new(2.5, 0.2),
+            10,
+            true,
+            |i| v.push(i),
+        );
         assert_eq!(v, [32, 22, 12]);
         v.clear();
-        traverse(Point2::new(1.2, 1.2), Point2::new(1.7, 1.9), 10, false, |i| v.push(i));
+        traverse(
+            Point2::new(1.2, 1.2),
+            Point2::new(1.7, 1.9),
+            10,
+            false,
+            |i| v.push(i),
+        );
         assert_eq!(v, [11]);
     }
 
@@ -344,7 +389,9 @@ mod tests {
             .collect();
         let scan = LaserScan::new(first, 30f64.to_radians(), 30.0, ranges);
         let mut grid = OccupancyGrid::new(0.05).unwrap();
-        let info = grid.insert_scan(&Se2::new(0.0, 0.0, 0.0), &scan, &InsertParams::default()).unwrap();
+        let info = grid
+            .insert_scan(&Se2::new(0.0, 0.0, 0.0), &scan, &InsertParams::default())
+            .unwrap();
         assert_eq!(info.hits, n);
         let thresholds = crate::ClassThresholds::default();
         let class_at = |grid: &OccupancyGrid, x: f64, y: f64| {
@@ -354,7 +401,8 @@ mod tests {
         assert_eq!(class_at(&grid, 2.02, 1.02), crate::CellClass::Occupied);
         assert_eq!(class_at(&grid, -1.0, 0.0), crate::CellClass::Unknown);
         // One miss (p = 0.4) is not yet free with the default thresholds; a second scan is.
-        grid.insert_scan(&Se2::new(0.0, 0.0, 0.0), &scan, &InsertParams::default()).unwrap();
+        grid.insert_scan(&Se2::new(0.0, 0.0, 0.0), &scan, &InsertParams::default())
+            .unwrap();
         assert_eq!(class_at(&grid, 1.0, 0.0), crate::CellClass::Free);
         assert_eq!(class_at(&grid, 2.02, 0.5), crate::CellClass::Occupied);
     }

@@ -76,7 +76,12 @@ impl OccupancyGrid {
 mod tests {
     use crate::{Cell, GridGeometry, OccupancyGrid, Point2};
 
-    fn grid(resolution_m: f64, width: usize, height: usize, values: &[(i64, i64, f32)]) -> OccupancyGrid {
+    fn grid(
+        resolution_m: f64,
+        width: usize,
+        height: usize,
+        values: &[(i64, i64, f32)],
+    ) -> OccupancyGrid {
         let geometry = GridGeometry {
             resolution_m,
             origin_m: Point2::new(-1.0, 2.0),
@@ -93,12 +98,29 @@ mod tests {
     #[test]
     fn coarsening_keeps_walls_and_averages_free_space() {
         // 4x4 at 0.05 → 2x2 at 0.10: one wall cell, one free block, one half-known block.
-        let fine = grid(0.05, 4, 4, &[(1, 0, 2.0), (0, 0, -1.0), (2, 0, -1.0), (3, 0, -2.0), (2, 1, -1.0), (3, 1, -2.0), (0, 2, -1.0)]);
+        let fine = grid(
+            0.05,
+            4,
+            4,
+            &[
+                (1, 0, 2.0),
+                (0, 0, -1.0),
+                (2, 0, -1.0),
+                (3, 0, -2.0),
+                (2, 1, -1.0),
+                (3, 1, -2.0),
+                (0, 2, -1.0),
+            ],
+        );
         let coarse = fine.resample(0.10).unwrap();
         assert_eq!(coarse.geometry().width, 2);
         assert_eq!(coarse.cell_log_odds(Cell::new(0, 0)), 2.0);
         assert_eq!(coarse.cell_log_odds(Cell::new(1, 0)), -1.5);
-        assert_eq!(coarse.cell_log_odds(Cell::new(0, 1)), 0.0, "one known quarter stays unknown");
+        assert_eq!(
+            coarse.cell_log_odds(Cell::new(0, 1)),
+            0.0,
+            "one known quarter stays unknown"
+        );
         assert_eq!(coarse.cell_log_odds(Cell::new(1, 1)), 0.0);
     }
 

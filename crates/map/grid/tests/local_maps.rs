@@ -20,7 +20,12 @@ fn room_scan(half_m: f64) -> LaserScan {
             (half_m / a.cos().abs().max(a.sin().abs())) as f32
         })
         .collect();
-    let mut scan = LaserScan::new(-std::f64::consts::PI, std::f64::consts::PI * (1.0 - 2.0 / n as f64), 30.0, ranges);
+    let mut scan = LaserScan::new(
+        -std::f64::consts::PI,
+        std::f64::consts::PI * (1.0 - 2.0 / n as f64),
+        30.0,
+        ranges,
+    );
     scan.range_min_m = 0.05;
     scan
 }
@@ -29,8 +34,10 @@ fn maps_with(nodes: usize) -> LocalMaps {
     let mut maps = LocalMaps::new(LocalMapParams::new(0.1)).unwrap();
     for k in 0..nodes {
         let scan = room_scan(1.0 + 0.3 * k as f64);
-        maps.insert_scan(NodeId(k as u64), &Se2::new(0.0, 0.0, 0.0), &scan).unwrap();
-        maps.insert_scan(NodeId(k as u64), &Se2::new(0.1, 0.0, 0.05), &scan).unwrap();
+        maps.insert_scan(NodeId(k as u64), &Se2::new(0.0, 0.0, 0.0), &scan)
+            .unwrap();
+        maps.insert_scan(NodeId(k as u64), &Se2::new(0.1, 0.0, 0.05), &scan)
+            .unwrap();
     }
     maps
 }
@@ -84,16 +91,23 @@ fn a_translation_by_whole_cells_moves_the_map_exactly() {
     let info = maps.render(&poses(&[(0.5, -0.3, 0.0)])).unwrap();
     assert_eq!((info.moved, info.added, info.unchanged), (1, 0, 0));
     let after = known(maps.rendered());
-    let shifted: BTreeMap<_, _> = before.iter().map(|(&(x, y), &l)| ((x + 5, y - 3), l)).collect();
+    let shifted: BTreeMap<_, _> = before
+        .iter()
+        .map(|(&(x, y), &l)| ((x + 5, y - 3), l))
+        .collect();
     assert_eq!(after, shifted);
 }
 
 #[test]
 fn small_moves_are_not_redrawn_and_removal_empties_the_grid() {
     let mut maps = maps_with(2);
-    let info = maps.render(&poses(&[(0.0, 0.0, 0.0), (4.0, 0.0, 1.0)])).unwrap();
+    let info = maps
+        .render(&poses(&[(0.0, 0.0, 0.0), (4.0, 0.0, 1.0)]))
+        .unwrap();
     assert_eq!(info.added, 2);
-    let info = maps.render(&poses(&[(0.01, 0.0, 0.0), (4.0, 0.0, 1.0)])).unwrap();
+    let info = maps
+        .render(&poses(&[(0.01, 0.0, 0.0), (4.0, 0.0, 1.0)]))
+        .unwrap();
     assert_eq!((info.moved, info.unchanged), (0, 2));
     let info = maps.render(&BTreeMap::new()).unwrap();
     assert_eq!(info.removed, 2);
@@ -107,7 +121,10 @@ fn new_scans_and_removed_maps_update_the_rendering() {
     maps.render(&at).unwrap();
     let wall = Point2::new(10.0 + 1.3, 0.0);
     let thresholds = mapmerge_grid::ClassThresholds::default();
-    let class = |maps: &LocalMaps| maps.rendered().class(maps.rendered().geometry().cell_of(&wall), &thresholds);
+    let class = |maps: &LocalMaps| {
+        maps.rendered()
+            .class(maps.rendered().geometry().cell_of(&wall), &thresholds)
+    };
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Occupied);
     let removed = maps.remove(NodeId(1)).unwrap();
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Unknown);
@@ -116,7 +133,8 @@ fn new_scans_and_removed_maps_update_the_rendering() {
     assert_eq!((info.added, info.unchanged), (1, 1));
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Occupied);
     // A scan added to a drawn node takes it out until the next render.
-    maps.insert_scan(NodeId(1), &Se2::new(0.0, 0.0, 0.0), &room_scan(1.3)).unwrap();
+    maps.insert_scan(NodeId(1), &Se2::new(0.0, 0.0, 0.0), &room_scan(1.3))
+        .unwrap();
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Unknown);
     maps.render(&at).unwrap();
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Occupied);

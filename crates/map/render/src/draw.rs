@@ -22,7 +22,11 @@ impl Picture {
         let steps = (length * 2.0).ceil().min(1e6) as usize;
         let radius = width_px / 2.0;
         for k in 0..=steps {
-            let t = if steps == 0 { 0.0 } else { k as f64 / steps as f64 };
+            let t = if steps == 0 {
+                0.0
+            } else {
+                k as f64 / steps as f64
+            };
             let p = pa + (pb - pa) * t;
             if radius <= 0.75 {
                 if p.x >= 0.0 && p.y >= 0.0 {
@@ -50,8 +54,14 @@ impl Picture {
 
     /// A disc given in pixel coordinates.
     fn disc_px(&mut self, c: &Point2, r: f64, colour: Rgb) {
-        let (x0, x1) = ((c.x - r).floor().max(0.0), (c.x + r).ceil().min(self.width_px as f64));
-        let (y0, y1) = ((c.y - r).floor().max(0.0), (c.y + r).ceil().min(self.height_px as f64));
+        let (x0, x1) = (
+            (c.x - r).floor().max(0.0),
+            (c.x + r).ceil().min(self.width_px as f64),
+        );
+        let (y0, y1) = (
+            (c.y - r).floor().max(0.0),
+            (c.y + r).ceil().min(self.height_px as f64),
+        );
         for y in y0 as usize..y1.max(0.0) as usize {
             for x in x0 as usize..x1.max(0.0) as usize {
                 let d = Point2::new(x as f64 + 0.5, y as f64 + 0.5) - c;

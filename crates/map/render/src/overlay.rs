@@ -67,7 +67,12 @@ impl Picture {
             match edge.kind {
                 EdgeKind::Odometry => {
                     let session = graph.vertex(edge.from).map_or(0, |v| v.meta.session.0);
-                    self.draw_line(&a, &b, session_color(u64::from(session)), style.odometry_width_px);
+                    self.draw_line(
+                        &a,
+                        &b,
+                        session_color(u64::from(session)),
+                        style.odometry_width_px,
+                    );
                 }
                 EdgeKind::Loop if style.loop_width_px > 0.0 => {
                     self.draw_line(&a, &b, style.loop_colour, style.loop_width_px);

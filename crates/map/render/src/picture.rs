@@ -141,8 +141,10 @@ impl Picture {
         let mut bytes = Vec::new();
         let encode = |e: png::EncodingError| RenderError::Encode(e.to_string());
         {
-            let width = u32::try_from(self.width_px.max(1)).map_err(|e| RenderError::Encode(e.to_string()))?;
-            let height = u32::try_from(self.height_px.max(1)).map_err(|e| RenderError::Encode(e.to_string()))?;
+            let width = u32::try_from(self.width_px.max(1))
+                .map_err(|e| RenderError::Encode(e.to_string()))?;
+            let height = u32::try_from(self.height_px.max(1))
+                .map_err(|e| RenderError::Encode(e.to_string()))?;
             let mut encoder = png::Encoder::new(&mut bytes, width, height);
             encoder.set_color(png::ColorType::Rgb);
             encoder.set_depth(png::BitDepth::Eight);
@@ -181,7 +183,9 @@ fn cell_colour(log_odds: f32, classes: Option<&ClassThresholds>) -> Rgb {
         },
         None if log_odds == 0.0 => Rgb::UNKNOWN_GREY,
         None => {
-            let shade = (255.0 * (1.0 - probability_of(log_odds))).round().clamp(0.0, 255.0) as u8;
+            let shade = (255.0 * (1.0 - probability_of(log_odds)))
+                .round()
+                .clamp(0.0, 255.0) as u8;
             Rgb([shade; 3])
         }
     }

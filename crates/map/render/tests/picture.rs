@@ -39,16 +39,47 @@ fn north_is_up_and_classes_have_their_colours() {
 #[test]
 fn overlays_land_on_their_world_positions_and_merges_are_on_top() {
     let mut graph = PoseGraph2::new();
-    for (k, (x, y)) in [(-0.75, -0.75), (2.75, -0.75), (2.75, 0.75)].iter().enumerate() {
+    for (k, (x, y)) in [(-0.75, -0.75), (2.75, -0.75), (2.75, 0.75)]
+        .iter()
+        .enumerate()
+    {
         let mut v = Vertex::new(Se2::new(*x, *y, 0.0));
         v.meta.session = SessionId(if k < 2 { 0 } else { 1 });
         graph.add_vertex(NodeId(k as u64), v).unwrap();
     }
     let info = Matrix3::identity();
-    graph.add_edge(Edge { from: NodeId(0), to: NodeId(1), measurement: Se2::new(3.5, 0.0, 0.0), information: info, kind: EdgeKind::Odometry }).unwrap();
-    graph.add_edge(Edge { from: NodeId(1), to: NodeId(2), measurement: Se2::new(0.0, 1.5, 0.0), information: info, kind: EdgeKind::Merge }).unwrap();
-    let mut picture = Picture::of_grid(&grid(), &PictureStyle { pixels_per_cell: 4, classes: None });
-    picture.draw_graph(&graph, &GraphStyle { vertex_radius_px: 0.0, ..GraphStyle::default() });
+    graph
+        .add_edge(Edge {
+            from: NodeId(0),
+            to: NodeId(1),
+            measurement: Se2::new(3.5, 0.0, 0.0),
+            information: info,
+            kind: EdgeKind::Odometry,
+        })
+        .unwrap();
+    graph
+        .add_edge(Edge {
+            from: NodeId(1),
+            to: NodeId(2),
+            measurement: Se2::new(0.0, 1.5, 0.0),
+            information: info,
+            kind: EdgeKind::Merge,
+        })
+        .unwrap();
+    let mut picture = Picture::of_grid(
+        &grid(),
+        &PictureStyle {
+            pixels_per_cell: 4,
+            classes: None,
+        },
+    );
+    picture.draw_graph(
+        &graph,
+        &GraphStyle {
+            vertex_radius_px: 0.0,
+            ..GraphStyle::default()
+        },
+    );
     // 0.125 m per pixel, 32 × 16 pixels; world (-0.75, -0.75) is 2 px right of the left edge
     // and 2 px above the bottom.
     let p = picture.to_pixel(&Vector2::new(-0.75, -0.75));

@@ -73,7 +73,10 @@ pub fn estimate_normals(
     // Bucket the points in cells of `radius_m`; neighbours are in the 3×3 block around a cell.
     let mut buckets: HashMap<(i64, i64), Vec<usize>> = HashMap::new();
     for (index, p) in points.iter().enumerate() {
-        buckets.entry(voxel_of(p, radius_m)).or_default().push(index);
+        buckets
+            .entry(voxel_of(p, radius_m))
+            .or_default()
+            .push(index);
     }
     let radius_squared = radius_m * radius_m;
     let mut out = Vec::with_capacity(points.len());
@@ -145,11 +148,17 @@ mod tests {
     #[test]
     fn normals_of_a_wall_point_to_the_sensor() {
         // A wall along y = 2 seen from the origin.
-        let wall: Vec<Point2> = (0..50).map(|i| Point2::new(-1.0 + 0.04 * f64::from(i), 2.0)).collect();
+        let wall: Vec<Point2> = (0..50)
+            .map(|i| Point2::new(-1.0 + 0.04 * f64::from(i), 2.0))
+            .collect();
         let normals = estimate_normals(&wall, 0.2, 3, &Point2::zeros());
         assert_eq!(normals.len(), wall.len());
         for n in &normals {
-            assert!((n.normal - Point2::new(0.0, -1.0)).norm() < 1e-9, "{:?}", n.normal);
+            assert!(
+                (n.normal - Point2::new(0.0, -1.0)).norm() < 1e-9,
+                "{:?}",
+                n.normal
+            );
             assert!(n.planarity > 0.999);
         }
     }

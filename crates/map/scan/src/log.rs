@@ -54,6 +54,9 @@ pub struct LaserLog {
 impl LaserLog {
     /// Poses attached to the scans (`None` for scans without one), in scan order.
     pub fn scan_poses(&self) -> Vec<Option<Se2>> {
-        self.scans.iter().map(|record| record.odom_from_robot).collect()
+        self.scans
+            .iter()
+            .map(|record| record.odom_from_robot)
+            .collect()
     }
 }

@@ -54,7 +54,12 @@ impl Default for BeamFilter {
 impl LaserScan {
     /// A scan whose beams spread evenly from `first_angle_rad` to `last_angle_rad` (both
     /// inclusive), mounted at the robot's origin, with `range_min_m = 0`.
-    pub fn new(first_angle_rad: f64, last_angle_rad: f64, range_max_m: f32, ranges_m: Vec<f32>) -> Self {
+    pub fn new(
+        first_angle_rad: f64,
+        last_angle_rad: f64,
+        range_max_m: f32,
+        ranges_m: Vec<f32>,
+    ) -> Self {
         let gaps = ranges_m.len().saturating_sub(1).max(1) as f64;
         Self {
             angle_min_rad: first_angle_rad,
