@@ -73,5 +73,43 @@ fn raycast(c: &mut Criterion) {
     }
 }
 
-criterion_group!(benches, raycast);
+/// Rendering local maps anchored to nodes: everything from scratch, and incrementally after
+/// 5 of 200 nodes moved (what an online system does after a loop closure nudges a few nodes).
+fn render_local_maps(c: &mut Criterion) {
+    use mapmerge_grid::{LocalMapParams, LocalMaps};
+    use mapmerge_posegraph::NodeId;
+    use std::collections::BTreeMap;
+    let nodes = 200;
+    let mut maps = LocalMaps::new(LocalMapParams::new(0.05)).unwrap_or_else(|e| panic!("{e}"));
+    let mut poses = BTreeMap::new();
+    for k in 0..nodes {
+        let (x, y) = (-6.0 + 12.0 * (k as f64 / nodes as f64), -3.0 + 0.02 * (k % 50) as f64);
+        let _ = maps.insert_scan(NodeId(k), &Se2::new(0.0, 0.0, 0.0), &room_scan(x, y));
+        poses.insert(NodeId(k), Se2::new(x, y, 0.0));
+    }
+    let mut group = c.benchmark_group("render_200_local_maps_5cm");
+    group.bench_function("from_scratch", |b| {
+        b.iter(|| {
+            let mut fresh = maps.clone();
+            let _ = fresh.render(&poses);
+        })
+    });
+    let _ = maps.render(&poses);
+    let mut moved = poses.clone();
+    let mut flip = false;
+    group.bench_function("incremental_5_moved", |b| {
+        b.iter(|| {
+            flip = !flip;
+            for k in 0..5 {
+                if let Some(pose) = moved.get_mut(&NodeId(k * 40)) {
+                    pose.x_m += if flip { 0.1 } else { -0.1 };
+                }
+            }
+            let _ = maps.render(&moved);
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, raycast, render_local_maps);
 criterion_main!(benches);

@@ -141,3 +141,54 @@ fn new_scans_and_removed_maps_update_the_rendering() {
     assert_eq!(maps.get(NodeId(1)).map(|m| m.scans), Some(3));
     let _ = Cell::new(0, 0);
 }
+
+#[test]
+fn rendering_local_maps_matches_inserting_the_scans_directly() {
+    // One node per scan, each scan in its node's frame; rendering at the scan poses must give
+    // the map that inserting the scans into one grid gives (up to resampling by a rotation).
+    let thresholds = mapmerge_grid::ClassThresholds::default();
+    let poses: Vec<Se2> = (0..12)
+        .map(|k| Se2::new(0.3 * k as f64, 0.1 * (k % 3) as f64, 0.37 * k as f64))
+        .collect();
+    let scans: Vec<LaserScan> = poses.iter().map(|p| {
+        // The same 4 × 3 m room seen from each pose: ranges by ray-box intersection.
+        let n = 360;
+        let ranges = (0..n).map(|i| {
+            let a = p.theta_rad - std::f64::consts::PI + i as f64 * std::f64::consts::TAU / n as f64;
+            let (s, c) = a.sin_cos();
+            let tx = if c > 0.0 { (6.0 - p.x_m) / c } else { (-2.0 - p.x_m) / c };
+            let ty = if s > 0.0 { (2.0 - p.y_m) / s } else { (-1.5 - p.y_m) / s };
+            tx.min(ty) as f32
+        }).collect();
+        LaserScan::new(-std::f64::consts::PI, std::f64::consts::PI - std::f64::consts::TAU / n as f64, 30.0, ranges)
+    }).collect();
+    let params = LocalMapParams::new(0.05);
+    let (direct, _) = OccupancyGrid::from_scans(0.05, poses.iter().copied().zip(&scans), &params.insert).unwrap();
+    let mut maps = LocalMaps::new(params).unwrap();
+    let mut at = BTreeMap::new();
+    for (k, (pose, scan)) in poses.iter().zip(&scans).enumerate() {
+        maps.insert_scan(NodeId(k as u64), &Se2::new(0.0, 0.0, 0.0), scan).unwrap();
+        at.insert(NodeId(k as u64), *pose);
+    }
+    maps.render(&at).unwrap();
+    let rendered = maps.rendered();
+    let occupied_direct = direct.mask(mapmerge_grid::CellClass::Occupied, &thresholds);
+    let near_direct = occupied_direct.dilate(1);
+    let occupied_rendered: Vec<Point2> = rendered
+        .cells()
+        .filter(|&(_, _, l)| thresholds.classify(l) == mapmerge_grid::CellClass::Occupied)
+        .map(|(_, p, _)| p)
+        .collect();
+    let close = occupied_rendered.iter().filter(|p| near_direct.is_set(direct.geometry().cell_of(p))).count();
+    assert!(occupied_rendered.len() > 500);
+    assert!(close as f64 > 0.97 * occupied_rendered.len() as f64, "{close} of {}", occupied_rendered.len());
+    // Free space agrees cell for cell almost everywhere.
+    let free_direct = direct.mask(mapmerge_grid::CellClass::Free, &thresholds);
+    let free_rendered: Vec<Point2> = rendered
+        .cells()
+        .filter(|&(_, _, l)| thresholds.classify(l) == mapmerge_grid::CellClass::Free)
+        .map(|(_, p, _)| p)
+        .collect();
+    let same = free_rendered.iter().filter(|p| free_direct.is_set(direct.geometry().cell_of(p))).count();
+    assert!(same as f64 > 0.97 * free_rendered.len() as f64, "{same} of {}", free_rendered.len());
+}
