@@ -13,7 +13,7 @@ use mapmerge_render::{Picture, PictureStyle, Rgb};
 use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
-use crate::{bad_file, bad_input, print_json};
+use crate::{bad_file, bad_input, check_resolution, print_json};
 
 /// Arguments of `mapmerge grid`.
 #[derive(Args, Debug)]
@@ -138,12 +138,7 @@ pub fn build_grid(
 
 /// Runs `mapmerge grid`.
 pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
-    if !(args.resolution.is_finite() && args.resolution > 0.0) {
-        return Err(bad_input(format!(
-            "--resolution must be a positive number of metres, got {}",
-            args.resolution
-        )));
-    }
+    check_resolution(args.resolution)?;
     let posed = load_posed_log(&args.log, args.poses.as_deref())?;
     let mut params = InsertParams::default();
     if let Some(max_range) = args.max_range {

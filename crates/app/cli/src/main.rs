@@ -76,6 +76,17 @@ pub fn load_graph_with(
     mapmerge_io::read_graph_with(path, params).map_err(bad_file)
 }
 
+/// Rejects a `--resolution` that is not a positive, finite number of metres (exit code 2).
+pub fn check_resolution(resolution_m: f64) -> anyhow::Result<()> {
+    if resolution_m.is_finite() && resolution_m > 0.0 {
+        Ok(())
+    } else {
+        Err(bad_input(format!(
+            "--resolution must be a positive number of metres, got {resolution_m}"
+        )))
+    }
+}
+
 /// A bad-input error (exit code 2) with `reason`.
 pub fn bad_input(reason: impl std::fmt::Display) -> anyhow::Error {
     anyhow::Error::new(BadInput(reason.to_string()))

@@ -11,7 +11,7 @@ use mapmerge_render::{session_color, GraphStyle, Picture, PictureStyle};
 use serde::Serialize;
 
 use crate::grid::{build_grid, load_posed_log};
-use crate::{bad_file, bad_input, load_graph, print_json};
+use crate::{bad_file, bad_input, check_resolution, load_graph, print_json};
 
 /// Arguments of `mapmerge render`.
 #[derive(Args, Debug)]
@@ -61,12 +61,7 @@ struct RenderReport<'a> {
 
 /// Runs `mapmerge render`.
 pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
-    if !(args.resolution.is_finite() && args.resolution > 0.0) {
-        return Err(bad_input(format!(
-            "--resolution must be positive, got {}",
-            args.resolution
-        )));
-    }
+    check_resolution(args.resolution)?;
     if !(1..=64).contains(&args.scale) {
         return Err(bad_input(format!(
             "--scale must be 1..=64 pixels per cell, got {}",

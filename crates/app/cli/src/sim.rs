@@ -13,7 +13,7 @@ use mapmerge_render::{Picture, PictureStyle, Rgb};
 use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, World, WorldPreset};
 use serde::Serialize;
 
-use crate::{bad_input, print_json};
+use crate::{bad_input, check_resolution, print_json};
 
 /// Arguments of `mapmerge sim`.
 #[derive(Args, Debug)]
@@ -158,12 +158,7 @@ fn params_of(args: &SimArgs) -> anyhow::Result<SimParams> {
     params.lidar.range_max_m = args.range_max;
     params.kidnap.max_per_session = args.kidnaps;
     params.kidnap.probability = args.kidnap_probability;
-    if !(args.resolution.is_finite() && args.resolution > 0.0) {
-        return Err(bad_input(format!(
-            "--resolution must be a positive number of metres, got {}",
-            args.resolution
-        )));
-    }
+    check_resolution(args.resolution)?;
     Ok(params)
 }
 

@@ -1,6 +1,8 @@
 //! Kidnaps: the truth jumps, the odometry does not.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_sim::{simulate, KidnapParams, KidnapTarget, SimParams, WorldPreset};
 
@@ -20,12 +22,7 @@ fn truth_jumps_while_odometry_goes_on() {
     let dataset = simulate(&params, 9).unwrap();
     for session in &dataset.sessions {
         assert_eq!(session.kidnaps.len(), 2, "session {}", session.index);
-        let odometry: Vec<Se2> = session
-            .log
-            .scans
-            .iter()
-            .map(|r| r.odom_from_robot.unwrap())
-            .collect();
+        let odometry: Vec<Se2> = common::scan_odometry(session);
         for kidnap in &session.kidnaps {
             let i = kidnap.scan_index;
             assert!(i > 0 && i < session.truth.len());

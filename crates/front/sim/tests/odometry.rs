@@ -2,6 +2,8 @@
 //! drift grows with time, slips happen at the configured rate and scale the reported motion.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_sim::{
     simulate, ChangeParams, KidnapParams, OdometryNoiseParams, SessionData, SimParams, SlipKind,
@@ -20,12 +22,7 @@ fn params(odometry: OdometryNoiseParams, sessions: usize, duration_secs: f64) ->
 
 /// Per scan interval: (true distance, true |turn|, odometry distance error, odometry turn error).
 fn increments(session: &SessionData) -> Vec<(f64, f64, f64, f64)> {
-    let odometry: Vec<Se2> = session
-        .log
-        .scans
-        .iter()
-        .map(|r| r.odom_from_robot.unwrap())
-        .collect();
+    let odometry: Vec<Se2> = common::scan_odometry(session);
     (1..odometry.len())
         .map(|i| {
             let truth = session.truth[i - 1].1.between(&session.truth[i].1);
@@ -121,12 +118,7 @@ fn slips_happen_at_the_configured_rate_and_scale_the_odometry() {
     let count = session.slips.len();
     assert!((60..115).contains(&count), "{count} slips");
     // Inside translation slips, reported over true distance is the factor.
-    let odometry: Vec<Se2> = session
-        .log
-        .scans
-        .iter()
-        .map(|r| r.odom_from_robot.unwrap())
-        .collect();
+    let odometry: Vec<Se2> = common::scan_odometry(session);
     let mut checked = 0;
     for slip in session
         .slips

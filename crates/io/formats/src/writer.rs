@@ -12,20 +12,18 @@ const XZ_PRESET: u32 = 6;
 /// Appends `v` in the shortest form that parses back to the same `f64` (ryu; exponent form
 /// for tiny or huge magnitudes), without a trailing `.0` on whole numbers.
 pub(crate) fn write_f64(out: &mut String, v: f64) {
-    if !v.is_finite() {
-        // Never reached for graphs (the writer rejects non-finite numbers first).
-        let _ = write!(out, "{v}");
-        return;
-    }
-    let mut buffer = ryu::Buffer::new();
-    let text = buffer.format_finite(v);
-    out.push_str(text.strip_suffix(".0").unwrap_or(text));
+    write_shortest(out, v, v.is_finite());
 }
 
 /// Appends `v` in the shortest form that parses back (as `f32`) to the same `f32`, without a
 /// trailing `.0` (laser ranges: `81.91`, not `81.91000366210938`).
 pub(crate) fn write_f32(out: &mut String, v: f32) {
-    if !v.is_finite() {
+    write_shortest(out, v, v.is_finite());
+}
+
+/// The shared body of [`write_f64`] and [`write_f32`].
+fn write_shortest<F: ryu::Float + std::fmt::Display>(out: &mut String, v: F, finite: bool) {
+    if !finite {
         // Never reached: writers reject non-finite numbers first.
         let _ = write!(out, "{v}");
         return;

@@ -83,7 +83,10 @@ fn render_local_maps(c: &mut Criterion) {
     let mut maps = LocalMaps::new(LocalMapParams::new(0.05)).unwrap_or_else(|e| panic!("{e}"));
     let mut poses = BTreeMap::new();
     for k in 0..nodes {
-        let (x, y) = (-6.0 + 12.0 * (k as f64 / nodes as f64), -3.0 + 0.02 * (k % 50) as f64);
+        let (x, y) = (
+            -6.0 + 12.0 * (k as f64 / nodes as f64),
+            -3.0 + 0.02 * (k % 50) as f64,
+        );
         let _ = maps.insert_scan(NodeId(k), &Se2::new(0.0, 0.0, 0.0), &room_scan(x, y));
         poses.insert(NodeId(k), Se2::new(x, y, 0.0));
     }

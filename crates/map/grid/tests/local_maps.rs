@@ -150,24 +150,45 @@ fn rendering_local_maps_matches_inserting_the_scans_directly() {
     let poses: Vec<Se2> = (0..12)
         .map(|k| Se2::new(0.3 * k as f64, 0.1 * (k % 3) as f64, 0.37 * k as f64))
         .collect();
-    let scans: Vec<LaserScan> = poses.iter().map(|p| {
-        // The same 4 × 3 m room seen from each pose: ranges by ray-box intersection.
-        let n = 360;
-        let ranges = (0..n).map(|i| {
-            let a = p.theta_rad - std::f64::consts::PI + i as f64 * std::f64::consts::TAU / n as f64;
-            let (s, c) = a.sin_cos();
-            let tx = if c > 0.0 { (6.0 - p.x_m) / c } else { (-2.0 - p.x_m) / c };
-            let ty = if s > 0.0 { (2.0 - p.y_m) / s } else { (-1.5 - p.y_m) / s };
-            tx.min(ty) as f32
-        }).collect();
-        LaserScan::new(-std::f64::consts::PI, std::f64::consts::PI - std::f64::consts::TAU / n as f64, 30.0, ranges)
-    }).collect();
+    let scans: Vec<LaserScan> = poses
+        .iter()
+        .map(|p| {
+            // The same 4 × 3 m room seen from each pose: ranges by ray-box intersection.
+            let n = 360;
+            let ranges = (0..n)
+                .map(|i| {
+                    let a = p.theta_rad - std::f64::consts::PI
+                        + i as f64 * std::f64::consts::TAU / n as f64;
+                    let (s, c) = a.sin_cos();
+                    let tx = if c > 0.0 {
+                        (6.0 - p.x_m) / c
+                    } else {
+                        (-2.0 - p.x_m) / c
+                    };
+                    let ty = if s > 0.0 {
+                        (2.0 - p.y_m) / s
+                    } else {
+                        (-1.5 - p.y_m) / s
+                    };
+                    tx.min(ty) as f32
+                })
+                .collect();
+            LaserScan::new(
+                -std::f64::consts::PI,
+                std::f64::consts::PI - std::f64::consts::TAU / n as f64,
+                30.0,
+                ranges,
+            )
+        })
+        .collect();
     let params = LocalMapParams::new(0.05);
-    let (direct, _) = OccupancyGrid::from_scans(0.05, poses.iter().copied().zip(&scans), &params.insert).unwrap();
+    let (direct, _) =
+        OccupancyGrid::from_scans(0.05, poses.iter().copied().zip(&scans), &params.insert).unwrap();
     let mut maps = LocalMaps::new(params).unwrap();
     let mut at = BTreeMap::new();
     for (k, (pose, scan)) in poses.iter().zip(&scans).enumerate() {
-        maps.insert_scan(NodeId(k as u64), &Se2::new(0.0, 0.0, 0.0), scan).unwrap();
+        maps.insert_scan(NodeId(k as u64), &Se2::new(0.0, 0.0, 0.0), scan)
+            .unwrap();
         at.insert(NodeId(k as u64), *pose);
     }
     maps.render(&at).unwrap();
@@ -179,9 +200,16 @@ fn rendering_local_maps_matches_inserting_the_scans_directly() {
         .filter(|&(_, _, l)| thresholds.classify(l) == mapmerge_grid::CellClass::Occupied)
         .map(|(_, p, _)| p)
         .collect();
-    let close = occupied_rendered.iter().filter(|p| near_direct.is_set(direct.geometry().cell_of(p))).count();
+    let close = occupied_rendered
+        .iter()
+        .filter(|p| near_direct.is_set(direct.geometry().cell_of(p)))
+        .count();
     assert!(occupied_rendered.len() > 500);
-    assert!(close as f64 > 0.97 * occupied_rendered.len() as f64, "{close} of {}", occupied_rendered.len());
+    assert!(
+        close as f64 > 0.97 * occupied_rendered.len() as f64,
+        "{close} of {}",
+        occupied_rendered.len()
+    );
     // Free space agrees cell for cell almost everywhere.
     let free_direct = direct.mask(mapmerge_grid::CellClass::Free, &thresholds);
     let free_rendered: Vec<Point2> = rendered
@@ -189,6 +217,13 @@ fn rendering_local_maps_matches_inserting_the_scans_directly() {
         .filter(|&(_, _, l)| thresholds.classify(l) == mapmerge_grid::CellClass::Free)
         .map(|(_, p, _)| p)
         .collect();
-    let same = free_rendered.iter().filter(|p| free_direct.is_set(direct.geometry().cell_of(p))).count();
-    assert!(same as f64 > 0.97 * free_rendered.len() as f64, "{same} of {}", free_rendered.len());
+    let same = free_rendered
+        .iter()
+        .filter(|p| free_direct.is_set(direct.geometry().cell_of(p)))
+        .count();
+    assert!(
+        same as f64 > 0.97 * free_rendered.len() as f64,
+        "{same} of {}",
+        free_rendered.len()
+    );
 }

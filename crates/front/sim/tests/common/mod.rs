@@ -68,3 +68,13 @@ pub fn brute_force_cast(
     }
     (best <= max_range_m).then_some(best)
 }
+
+/// The odometry pose the log attaches to every scan (the simulator always attaches one).
+pub fn scan_odometry(session: &mapmerge_sim::SessionData) -> Vec<mapmerge_geometry::Se2> {
+    session
+        .log
+        .scans
+        .iter()
+        .map(|r| r.odom_from_robot.unwrap())
+        .collect()
+}
