@@ -184,3 +184,35 @@ fn bad_inputs_exit_with_code_2_and_name_the_file() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+#[test]
+fn render_draws_pose_graphs_and_refuses_3d_ones() {
+    let dir = scratch("render-graph");
+    let out = dir.join("graph.png");
+    let graph = common::testdata("sim_manhattan_500.g2o");
+    let report = ok_json(&[
+        "render",
+        "--graph",
+        p(&graph),
+        "--resolution",
+        "0.2",
+        "-o",
+        p(&out),
+        "--json",
+    ]);
+    assert_eq!(report["graphs"], 1);
+    assert!(
+        report["width_px"].as_u64().unwrap() > 50 && report["height_px"].as_u64().unwrap() > 50,
+        "{report}"
+    );
+    assert_eq!(&std::fs::read(&out).unwrap()[1..4], b"PNG");
+    let spatial = dir.join("tiny3d.g2o");
+    std::fs::write(
+        &spatial,
+        "VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 0 0 0 1\n",
+    )
+    .unwrap();
+    let refused = run(&["render", "--graph", p(&spatial), "-o", p(&out)]);
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("only 2D graphs"));
+}
