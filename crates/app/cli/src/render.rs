@@ -5,7 +5,7 @@ use std::process::ExitCode;
 
 use clap::Args;
 use mapmerge_geometry::Se2;
-use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid, Point2};
+use mapmerge_grid::{ClassThresholds, GridGeometry, InsertParams, OccupancyGrid, Point2};
 use mapmerge_io::AnyGraph;
 use mapmerge_render::{session_color, GraphStyle, Picture, PictureStyle};
 use serde::Serialize;
@@ -108,7 +108,20 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
             .iter()
             .fold((*first, *first), |(lo, hi), p| (lo.inf(p), hi.sup(p)));
         let margin = Point2::new(1.0, 1.0);
-        grid.grow_to_contain(&(lo - margin), &(hi + margin))?;
+        let (lo, hi) = (lo - margin, hi + margin);
+        if grid.geometry().is_empty() {
+            // Nothing underneath: a canvas that fits the overlays (growing would add margins).
+            let resolution_m = grid.resolution_m();
+            let cells = (hi - lo) / resolution_m;
+            grid = OccupancyGrid::with_geometry(GridGeometry {
+                resolution_m,
+                origin_m: lo,
+                width: cells.x.ceil() as usize,
+                height: cells.y.ceil() as usize,
+            })?;
+        } else {
+            grid.grow_to_contain(&lo, &hi)?;
+        }
     }
     // 3. Draw.
     let style = PictureStyle {
