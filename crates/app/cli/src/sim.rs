@@ -36,6 +36,12 @@ pub struct SimArgs {
     /// Lidar maximum range (m).
     #[arg(long, default_value_t = 30.0)]
     pub range_max: f32,
+    /// Lidar range noise, standard deviation (m).
+    #[arg(long, default_value_t = 0.015)]
+    pub range_sigma: f64,
+    /// Wheel-slip events per minute of robot time.
+    #[arg(long, default_value_t = 0.5)]
+    pub slip_rate: f64,
     /// Most kidnaps per session (each happens with `--kidnap-probability`).
     #[arg(long, default_value_t = 1)]
     pub kidnaps: usize,
@@ -156,6 +162,8 @@ fn params_of(args: &SimArgs) -> anyhow::Result<SimParams> {
         .with_duration_secs(args.duration);
     params.lidar.beam_count = args.beams;
     params.lidar.range_max_m = args.range_max;
+    params.lidar.range_sigma_m = args.range_sigma;
+    params.odometry.slip_rate_per_min = args.slip_rate;
     params.kidnap.max_per_session = args.kidnaps;
     params.kidnap.probability = args.kidnap_probability;
     check_resolution(args.resolution)?;
