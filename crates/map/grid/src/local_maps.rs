@@ -26,10 +26,46 @@ const FIXED_POINT_SCALE: f32 = 4096.0;
 /// One node's local map: a grid in the node's frame and how many scans it holds.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LocalMap {
+    grid: OccupancyGrid,
+    scans: usize,
+    /// The cell box of the grid's known cells (what rendering has to cover), kept with it.
+    known: Option<(Cell, Cell)>,
+}
+
+impl LocalMap {
+    /// An empty local map of `resolution_m`.
+    pub fn new(resolution_m: f64) -> Result<Self, GridError> {
+        Ok(Self::from_grid(OccupancyGrid::new(resolution_m)?, 0))
+    }
+
+    /// A local map holding `grid` (in the node's frame), built from `scans` scans.
+    pub fn from_grid(grid: OccupancyGrid, scans: usize) -> Self {
+        let known = known_bounds(&grid);
+        Self { grid, scans, known }
+    }
+
     /// The grid, in the node's frame.
-    pub grid: OccupancyGrid,
+    pub fn grid(&self) -> &OccupancyGrid {
+        &self.grid
+    }
+
     /// Scans inserted.
-    pub scans: usize,
+    pub fn scans(&self) -> usize {
+        self.scans
+    }
+
+    /// Inserts a scan taken at `node_from_robot`.
+    pub fn insert_scan(
+        &mut self,
+        node_from_robot: &Se2,
+        scan: &LaserScan,
+        params: &InsertParams,
+    ) -> Result<InsertInfo, GridError> {
+        let info = self.grid.insert_scan(node_from_robot, scan, params)?;
+        self.scans += 1;
+        self.known = known_bounds(&self.grid);
+        Ok(info)
+    }
 }
 
 /// What a [`LocalMaps::render`] call did.
@@ -123,16 +159,11 @@ impl LocalMaps {
         self.undraw(node);
         let map = match self.maps.entry(node) {
             std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
-            std::collections::btree_map::Entry::Vacant(e) => e.insert(LocalMap {
-                grid: OccupancyGrid::new(self.params.resolution_m)?,
-                scans: 0,
-            }),
+            std::collections::btree_map::Entry::Vacant(e) => {
+                e.insert(LocalMap::new(self.params.resolution_m)?)
+            }
         };
-        let info = map
-            .grid
-            .insert_scan(node_from_robot, scan, &self.params.insert)?;
-        map.scans += 1;
-        Ok(info)
+        map.insert_scan(node_from_robot, scan, &self.params.insert)
     }
 
     /// The local map of `node`.
@@ -269,7 +300,7 @@ impl Canvas {
         params: &LocalMapParams,
     ) -> Result<usize, GridError> {
         let local = *map.grid.geometry();
-        let Some((lo_cell, hi_cell)) = known_bounds(&map.grid) else {
+        let Some((lo_cell, hi_cell)) = map.known else {
             return Ok(0);
         };
         // Corners of the known area in the map frame → global bounding box.
@@ -301,18 +332,27 @@ impl Canvas {
         );
         let local_odds = map.grid.log_odds();
         let mut written = 0;
+        let (box_lo, box_hi) = (
+            Point2::new(lo_cell.x as f64, lo_cell.y as f64),
+            Point2::new((hi_cell.x + 1) as f64, (hi_cell.y + 1) as f64),
+        );
+        let sums = &mut self.sums;
+        let rendered = self.rendered.log_odds_mut();
         for gy in g_lo.y.max(0)..=g_hi.y.min(global.height as i64 - 1) {
             let x0 = g_lo.x.max(0);
-            let mut p = to_local(global.center_of(Cell::new(x0, gy)));
+            let x1 = g_hi.x.min(global.width as i64 - 1);
+            let p0 = to_local(global.center_of(Cell::new(x0, gy)));
+            // Only the part of the row whose centres fall inside the known box (the box's
+            // image is a rotated rectangle: skip the corners of its bounding box).
+            let Some((k0, k1)) = row_span(&p0, &step_x, &box_lo, &box_hi, (x1 - x0) as f64) else {
+                continue;
+            };
             let row = gy as usize * global.width;
-            for gx in x0..=g_hi.x.min(global.width as i64 - 1) {
+            for k in k0..=k1 {
+                let p = p0 + step_x * k as f64;
                 let (lx, ly) = (p.x.floor(), p.y.floor());
-                p += step_x;
-                if lx < lo_cell.x as f64
-                    || ly < lo_cell.y as f64
-                    || lx > hi_cell.x as f64
-                    || ly > hi_cell.y as f64
-                {
+                // Rounding at the span's ends can still land one cell outside.
+                if lx < box_lo.x || ly < box_lo.y || lx >= box_hi.x || ly >= box_hi.y {
                     continue;
                 }
                 let l = local_odds
@@ -322,11 +362,8 @@ impl Canvas {
                 if l == 0.0 {
                     continue;
                 }
-                let index = row + gx as usize;
-                let (Some(sum), Some(out)) = (
-                    self.sums.get_mut(index),
-                    self.rendered.log_odds_mut().get_mut(index),
-                ) else {
+                let index = row + (x0 + k) as usize;
+                let (Some(sum), Some(out)) = (sums.get_mut(index), rendered.get_mut(index)) else {
                     continue;
                 };
                 *sum += sign * (l * FIXED_POINT_SCALE).round() as i32;
@@ -358,6 +395,29 @@ impl Canvas {
         self.sums = sums;
         Ok(())
     }
+}
+
+/// The steps `k ∈ [0, last]` for which `p0 + k · step` lies in the box `[lo, hi)`, or `None`.
+fn row_span(p0: &Point2, step: &Point2, lo: &Point2, hi: &Point2, last: f64) -> Option<(i64, i64)> {
+    let (mut k_min, mut k_max) = (0.0f64, last);
+    for axis in 0..2 {
+        let (p, s) = (p0[axis], step[axis]);
+        if s.abs() < 1e-12 {
+            if p < lo[axis] || p >= hi[axis] {
+                return None;
+            }
+        } else {
+            let (a, b) = ((lo[axis] - p) / s, (hi[axis] - p) / s);
+            k_min = k_min.max(a.min(b));
+            k_max = k_max.min(a.max(b));
+        }
+    }
+    // Widen by one step each side; the caller checks every cell anyway.
+    let (k0, k1) = (
+        (k_min.floor() - 1.0).max(0.0),
+        (k_max.ceil() + 1.0).min(last),
+    );
+    (k0 <= k1).then_some((k0 as i64, k1 as i64))
 }
 
 /// The smallest cell box holding every known cell of `grid`, or `None` when all are unknown.

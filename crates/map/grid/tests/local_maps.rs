@@ -138,7 +138,7 @@ fn new_scans_and_removed_maps_update_the_rendering() {
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Unknown);
     maps.render(&at).unwrap();
     assert_eq!(class(&maps), mapmerge_grid::CellClass::Occupied);
-    assert_eq!(maps.get(NodeId(1)).map(|m| m.scans), Some(3));
+    assert_eq!(maps.get(NodeId(1)).map(|m| m.scans()), Some(3));
     let _ = Cell::new(0, 0);
 }
 
