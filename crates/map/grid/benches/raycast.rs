@@ -92,10 +92,14 @@ fn render_local_maps(c: &mut Criterion) {
     }
     let mut group = c.benchmark_group("render_200_local_maps_5cm");
     group.bench_function("from_scratch", |b| {
-        b.iter(|| {
-            let mut fresh = maps.clone();
-            let _ = fresh.render(&poses);
-        })
+        b.iter_batched(
+            || maps.clone(),
+            |mut fresh| {
+                let _ = fresh.render(&poses);
+                fresh
+            },
+            criterion::BatchSize::LargeInput,
+        )
     });
     let _ = maps.render(&poses);
     let mut moved = poses.clone();
