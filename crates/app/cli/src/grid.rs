@@ -122,18 +122,35 @@ fn poses_of(log: &LaserLog, path: &Path) -> anyhow::Result<Vec<Se2>> {
         .collect()
 }
 
-/// Builds the grid of a posed log.
+/// Builds the grid of a posed log, with a progress bar on stderr when it is a terminal (and
+/// `progress` is set).
 pub fn build_grid(
     posed: &PosedLog,
     resolution_m: f64,
     params: &InsertParams,
+    progress: bool,
 ) -> anyhow::Result<(OccupancyGrid, mapmerge_grid::InsertInfo)> {
+    let bar = if progress {
+        indicatif::ProgressBar::new(posed.poses.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} scans ({eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("grid");
     let scans = posed
         .poses
         .iter()
         .zip(&posed.log.scans)
-        .map(|(pose, record)| (*pose, &record.scan));
-    OccupancyGrid::from_scans(resolution_m, scans, params).context("building the grid")
+        .map(|(pose, record)| {
+            bar.inc(1);
+            (*pose, &record.scan)
+        });
+    let built = OccupancyGrid::from_scans(resolution_m, scans, params).context("building the grid");
+    bar.finish_and_clear();
+    built
 }
 
 /// Runs `mapmerge grid`.
@@ -145,7 +162,7 @@ pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
         params.max_hit_range_m = max_range;
     }
     let started = Instant::now();
-    let (grid, info) = build_grid(&posed, args.resolution, &params)?;
+    let (grid, info) = build_grid(&posed, args.resolution, &params, !args.json)?;
     let build_secs = started.elapsed().as_secs_f64();
     let thresholds = ClassThresholds::default();
     let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
