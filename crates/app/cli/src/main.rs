@@ -9,6 +9,7 @@ use clap::{Parser, Subcommand};
 
 mod compare;
 mod corrupt;
+mod eval;
 mod grid;
 mod optimize;
 mod render;
@@ -40,6 +41,8 @@ enum Command {
     Grid(grid::GridArgs),
     /// Draw a grid, pose graphs and trajectories to a PNG.
     Render(render::RenderArgs),
+    /// SLAM evaluation on corrected logs: odometry noise, relations, ATE/RPE.
+    Eval(eval::EvalArgs),
 }
 
 /// An error that maps to exit code 2.
@@ -104,6 +107,13 @@ pub fn bad_file(err: impl std::error::Error) -> anyhow::Error {
 }
 
 fn main() -> ExitCode {
+    // `mapmerge … | head` must end quietly, like other Unix tools, instead of panicking in
+    // `println!` on a closed pipe: restore the default SIGPIPE action Rust turns off.
+    #[cfg(unix)]
+    // SAFETY: called before any thread starts; SIG_DFL is a valid handler for SIGPIPE.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Optimize(args) => optimize::run(args),
@@ -113,6 +123,7 @@ fn main() -> ExitCode {
         Command::Sim(args) => sim::run(args),
         Command::Grid(args) => grid::run(args),
         Command::Render(args) => render::run(args),
+        Command::Eval(args) => eval::run(args),
     };
     match result {
         Ok(code) => code,

@@ -75,7 +75,13 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
             .map_err(bad_file)?,
         (None, Some(log)) => {
             let posed = load_posed_log(log, args.poses.as_deref())?;
-            build_grid(&posed, args.resolution, &InsertParams::default(), !args.json)?.0
+            build_grid(
+                &posed,
+                args.resolution,
+                &InsertParams::default(),
+                !args.json,
+            )?
+            .0
         }
         (None, None) => OccupancyGrid::new(args.resolution)?,
     };

@@ -32,6 +32,40 @@ pub enum EvalError {
         /// What is wrong with it.
         reason: String,
     },
+    /// A scan of a laser log carries no robot pose (e.g. `RAWLASER*`), so the log has no
+    /// trajectory to add noise to or to score.
+    #[error("scan {scan} carries no robot pose")]
+    MissingPose {
+        /// Index of the scan in the log.
+        scan: usize,
+    },
+    /// Two trajectories keyed by scan index differ in length.
+    #[error("{what}: {estimate} estimated poses vs {reference} reference poses (poses pair by scan index)")]
+    LengthMismatch {
+        /// Which comparison.
+        what: &'static str,
+        /// Number of reference poses.
+        reference: usize,
+        /// Number of estimated poses.
+        estimate: usize,
+    },
+    /// A relation names a scan index beyond the trajectory.
+    #[error(
+        "relation {relation} ({from} → {to}) names a scan beyond the trajectory's {poses} poses"
+    )]
+    RelationOutOfRange {
+        /// Position of the relation in its list.
+        relation: usize,
+        /// Its first scan index.
+        from: usize,
+        /// Its second scan index.
+        to: usize,
+        /// Number of poses of the trajectory.
+        poses: usize,
+    },
+    /// There is nothing to measure (no relations, or fewer than two poses).
+    #[error("nothing to measure: {0}")]
+    Empty(&'static str),
     /// A graph edit failed (should not happen for graphs built by this crate).
     #[error(transparent)]
     Graph(#[from] GraphError),

@@ -11,6 +11,12 @@
 //! - [`precision_recall`]: rejected edges against the known false ones ([`RejectionScore`]).
 //! - [`trajectory_error`]: RMS/mean/max position error over common vertex ids, optionally after
 //!   the best rigid alignment ([`align_rigid`], Horn/Umeyama without scale).
+//! - [`add_odometry_noise`]: seeded wheel-odometry noise (random, calibration, wheel slips) for
+//!   a *corrected* laser log, so a SLAM front-end can be scored against the corrected poses
+//!   ([`OdometryNoiseProfile`]: `default`, `harsh`, `none`).
+//! - [`make_relations`] / [`relations_error`]: the relations metric of Kümmerle et al. 2009
+//!   ("On measuring the accuracy of SLAM algorithms"), with [`absolute_trajectory_error`] and
+//!   [`relative_pose_error`] on scan-indexed planar trajectories ([`trajectory_report`]).
 //! - [`simulate_manhattan_2d`]: a grid-world random walk with noisy odometry and loop closures
 //!   ([`ManhattanParams`]).
 //!
@@ -34,21 +40,55 @@
 //! assert_eq!(ate.matched, 200);
 //! assert!(ate.rms_m > 0.0);
 //! ```
+//!
+//! Scoring a trajectory keyed by scan index (here: a circle and a copy of it with drift):
+//!
+//! ```
+//! use mapmerge_eval::{absolute_trajectory_error, make_relations, relations_error, RelationsParams};
+//! use mapmerge_geometry::Se2;
+//! let truth: Vec<Se2> = (0..200)
+//!     .map(|k| {
+//!         let t = k as f64 * 0.063;
+//!         Se2::new(5.0 * t.cos(), 5.0 * t.sin(), t + std::f64::consts::FRAC_PI_2)
+//!     })
+//!     .collect();
+//! let drifted: Vec<Se2> = truth
+//!     .iter()
+//!     .enumerate()
+//!     .map(|(k, p)| Se2::new(p.x_m * (1.0 + 1e-4 * k as f64), p.y_m, p.theta_rad))
+//!     .collect();
+//! let relations = make_relations(&truth, &RelationsParams::default()).unwrap();
+//! assert!(relations_error(&truth, &relations).unwrap().translation_mean_m < 1e-12);
+//! assert!(relations_error(&drifted, &relations).unwrap().translation_mean_m > 0.0);
+//! assert!(absolute_trajectory_error(&truth, &drifted, true).unwrap().rms_m > 0.0);
+//! ```
 
 mod error;
+mod odometry_noise;
 mod outliers;
 mod pose;
+mod relations;
 mod rng;
 mod score;
 mod simulate;
 mod trajectory;
 
 pub use error::EvalError;
+pub use odometry_noise::{
+    add_odometry_noise, scan_poses, NoisyLog, OdometryNoiseProfile, SlipEvent, SlipKind,
+    NOISE_PROFILE_NAMES,
+};
 pub use outliers::{
     add_false_loop_closures, add_false_loop_closures_with, count_loop_closures, false_loop_count,
     is_loop_closure, FalseLoopMeasurement, FalseLoopParams,
 };
 pub use pose::EvalPose;
+pub use relations::{
+    absolute_trajectory_error, attach_stamps, make_relations, make_relations_with_info,
+    relations_error, relative_pose_error, rpe_relations, trajectory_report, Relation,
+    RelationsError, RelationsInfo, RelationsParams, RelativePoseError, RpeDelta, TrajectoryReport,
+    DEFAULT_RPE_DELTAS,
+};
 pub use score::{precision_recall, RejectionScore};
 pub use simulate::{simulate_manhattan_2d, ManhattanParams};
 pub use trajectory::{align_rigid, trajectory_error, RigidTransform, TrajectoryError};

@@ -134,16 +134,28 @@ where
             p_est.push(w.pose.position_m());
         }
     }
+    position_errors(&p_ref, &p_est, G::PLANAR, align)
+}
+
+/// Position errors of `estimate` against `reference` (paired by position in the slices), after
+/// the best rigid alignment ([`align_rigid`]) when `align` is set. Shared by
+/// [`trajectory_error`] (graphs) and `absolute_trajectory_error` (scan-indexed trajectories).
+pub(crate) fn position_errors(
+    p_ref: &[Vector3<f64>],
+    p_est: &[Vector3<f64>],
+    planar: bool,
+    align: bool,
+) -> Result<TrajectoryError, EvalError> {
     if p_ref.is_empty() {
         return Err(EvalError::NoCommonVertices);
     }
     let alignment = if align {
-        align_rigid(&p_ref, &p_est, G::PLANAR)?
+        align_rigid(p_ref, p_est, planar)?
     } else {
         RigidTransform::identity()
     };
     let (mut sum, mut sum_sq, mut max) = (0.0f64, 0.0f64, 0.0f64);
-    for (r, e) in p_ref.iter().zip(&p_est) {
+    for (r, e) in p_ref.iter().zip(p_est) {
         let err = (r - alignment.apply(e)).norm();
         sum += err;
         sum_sq += err * err;
