@@ -1,0 +1,34 @@
+//! Keyframes: the points a place is recognised from, in the keyframe's own frame.
+
+use mapmerge_scan::Point2;
+use serde::{Deserialize, Serialize};
+
+/// Identifies a keyframe (a pose-graph node's scan or local map) across sessions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct KeyframeId(pub u64);
+
+impl std::fmt::Display for KeyframeId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "keyframe {}", self.0)
+    }
+}
+
+/// A keyframe: one scan's points, or a small local map (several scans merged), expressed in
+/// the robot frame at the keyframe's node. Non-finite points are allowed and ignored.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Keyframe {
+    /// Its id.
+    pub id: KeyframeId,
+    /// Obstacle points in the keyframe frame (m).
+    pub points_in_keyframe: Vec<Point2>,
+}
+
+impl Keyframe {
+    /// A keyframe with id `id` and the points `points_in_keyframe`.
+    pub fn new(id: u64, points_in_keyframe: Vec<Point2>) -> Self {
+        Self {
+            id: KeyframeId(id),
+            points_in_keyframe,
+        }
+    }
+}

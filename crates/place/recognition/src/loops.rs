@@ -1,0 +1,229 @@
+//! Loop candidates between two keyframe sets: describe, index B, query every keyframe of A,
+//! verify the best candidates geometrically, and say how unambiguous each match is.
+
+use std::collections::HashMap;
+
+use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use nalgebra::Matrix3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::descriptor::DescriptorExtractor;
+use crate::index::{IndexParams, PlaceIndex};
+use crate::keyframe::{Keyframe, KeyframeId};
+use crate::scan_context::ScanContextParams;
+use crate::verify::{GeometricVerifier, Verification};
+
+/// Parameters of [`find_loop_candidates`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlaceParams {
+    /// The descriptor (default: [`ScanContextParams::default`]).
+    pub descriptor: ScanContextParams,
+    /// The index (default: [`IndexParams::default`]).
+    pub index: IndexParams,
+    /// How many of the best-ranked candidates of each query are verified (default: 5). More
+    /// finds places the descriptor ranked lower and sharpens the confidence, at one
+    /// verification each.
+    pub candidates_per_query: usize,
+    /// Candidates whose descriptor distance exceeds this are not verified (default: 0.6;
+    /// Scan Context distances lie in `[0, 1]`). Lower saves verifications but misses places
+    /// seen from further away.
+    pub max_descriptor_distance: f64,
+    /// A verification is accepted when its score reaches this (default: 0.5, in the
+    /// verifier's units).
+    pub min_score: f64,
+    /// Without poses of B ([`find_loop_candidates`]): two candidates are the same place when
+    /// their positions in `keyframes_b` differ by at most this many keyframes (default: 10):
+    /// consecutive keyframes see the same place, so they must not count as rivals when the
+    /// confidence is computed.
+    pub distinct_index_gap: usize,
+    /// With poses of B ([`find_loop_candidates_with_poses`]): two candidates are the same
+    /// place when the positions of `a` they imply in B's map are within this distance (m)
+    /// (default: 1.0).
+    pub same_place_m: f64,
+    /// See `same_place_m`: and their headings within this angle (rad) (default: 0.35, 20°).
+    pub same_place_rad: f64,
+}
+
+impl Default for PlaceParams {
+    fn default() -> Self {
+        Self {
+            descriptor: ScanContextParams::default(),
+            index: IndexParams::default(),
+            candidates_per_query: 5,
+            max_descriptor_distance: 0.6,
+            min_score: 0.5,
+            distinct_index_gap: 10,
+            same_place_m: 1.0,
+            same_place_rad: 0.35,
+        }
+    }
+}
+
+/// An accepted match: keyframe `a` of the first set seen again as keyframe `b` of the second.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VerifiedLoop {
+    /// The query keyframe (from `keyframes_a`).
+    pub a: KeyframeId,
+    /// The matched keyframe (from `keyframes_b`).
+    pub b: KeyframeId,
+    /// Pose of `a` in `b`'s frame, from the verifier.
+    pub b_from_a: Se2,
+    /// The verifier's score.
+    pub score: f64,
+    /// How unambiguous the match is, in `[0, 1]`: `(s₁ − s₂) / s₁` with `s₁` the best score and
+    /// `s₂` the best verified score of a candidate showing a *distinct* place (see
+    /// [`find_loop_candidates_with_poses`]), 0 when there is none. Look-alike places (identical rooms) verify
+    /// nearly as well as the true one and get a confidence near 0.
+    pub confidence: f64,
+    /// Covariance of `b_from_a`, from the verifier.
+    pub covariance: Matrix3<f64>,
+}
+
+/// Loop candidates between two keyframe sets with the default Scan Context descriptor
+/// (`params.descriptor`): at most one [`VerifiedLoop`] per keyframe of `keyframes_a`, in the
+/// order of `keyframes_a`. The rotation guess handed to the verifier is the descriptor's yaw
+/// with zero translation.
+pub fn find_loop_candidates(
+    keyframes_a: &[Keyframe],
+    keyframes_b: &[Keyframe],
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+) -> Vec<VerifiedLoop> {
+    search(
+        &params.descriptor,
+        keyframes_a,
+        keyframes_b,
+        None,
+        verifier,
+        params,
+    )
+}
+
+/// As [`find_loop_candidates`], with the poses of `keyframes_b` in their session's map
+/// (`map_from_b[i]` for `keyframes_b[i]`, e.g. from B's optimised pose graph). Two candidates
+/// are then the same place when the poses of `a` they imply in B's map agree within
+/// `params.same_place_m` and `params.same_place_rad`, which also holds for places B visited
+/// several times; without poses ([`find_loop_candidates`]) only keyframes close in B's order
+/// count as the same place, so a place B revisited lowers the confidence. A `map_from_b`
+/// shorter than `keyframes_b` falls back to the index gap for the keyframes without a pose.
+pub fn find_loop_candidates_with_poses(
+    keyframes_a: &[Keyframe],
+    keyframes_b: &[Keyframe],
+    map_from_b: &[Se2],
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+) -> Vec<VerifiedLoop> {
+    search(
+        &params.descriptor,
+        keyframes_a,
+        keyframes_b,
+        Some(map_from_b),
+        verifier,
+        params,
+    )
+}
+
+/// As [`find_loop_candidates`] with any descriptor (`params.descriptor` is then unused).
+/// Queries run in parallel (rayon); the output does not depend on the number of threads.
+pub fn find_loop_candidates_with<E: DescriptorExtractor>(
+    extractor: &E,
+    keyframes_a: &[Keyframe],
+    keyframes_b: &[Keyframe],
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+) -> Vec<VerifiedLoop> {
+    search(extractor, keyframes_a, keyframes_b, None, verifier, params)
+}
+
+/// True when candidates `(ordinal, verification)` `x` and `y` show the same place of B.
+fn same_place(
+    x: (usize, &Verification),
+    y: (usize, &Verification),
+    map_from_b: Option<&[Se2]>,
+    params: &PlaceParams,
+) -> bool {
+    let poses = map_from_b.and_then(|m| Some((m.get(x.0)?, m.get(y.0)?)));
+    match poses {
+        Some((map_from_x, map_from_y)) => {
+            // Where each candidate puts `a` in B's map.
+            let a_via_x = map_from_x.compose(&x.1.candidate_from_query);
+            let a_via_y = map_from_y.compose(&y.1.candidate_from_query);
+            (a_via_x.translation() - a_via_y.translation()).norm() <= params.same_place_m
+                && wrap_angle_rad(a_via_x.theta_rad - a_via_y.theta_rad).abs()
+                    <= params.same_place_rad
+        }
+        None => x.0.abs_diff(y.0) <= params.distinct_index_gap,
+    }
+}
+
+/// The loop search shared by the public entry points.
+fn search<E: DescriptorExtractor>(
+    extractor: &E,
+    keyframes_a: &[Keyframe],
+    keyframes_b: &[Keyframe],
+    map_from_b: Option<&[Se2]>,
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+) -> Vec<VerifiedLoop> {
+    // 1. Describe B and index it.
+    let descriptors_b: Vec<E::Descriptor> = keyframes_b
+        .par_iter()
+        .map(|k| extractor.describe(&k.points_in_keyframe))
+        .collect();
+    let mut index: PlaceIndex<E::Descriptor> = PlaceIndex::new(params.index.clone());
+    for (keyframe, descriptor) in keyframes_b.iter().zip(descriptors_b) {
+        index.insert(keyframe.id, descriptor);
+    }
+    let mut ordinal_of: HashMap<KeyframeId, usize> = HashMap::with_capacity(keyframes_b.len());
+    for (ordinal, keyframe) in keyframes_b.iter().enumerate() {
+        ordinal_of.entry(keyframe.id).or_insert(ordinal);
+    }
+    // 2. Query every keyframe of A, 3. verify its best candidates (the descriptor's yaw, zero
+    // translation), 4. accept the best by score and rate it against distinct rivals.
+    keyframes_a
+        .par_iter()
+        .filter_map(|query| {
+            let descriptor = extractor.describe(&query.points_in_keyframe);
+            let candidates = index.query(&descriptor, params.candidates_per_query);
+            let verified: Vec<(usize, &Keyframe, Verification)> = candidates
+                .iter()
+                .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
+                .filter_map(|c| {
+                    let ordinal = *ordinal_of.get(&c.keyframe)?;
+                    let candidate = keyframes_b.get(ordinal)?;
+                    let guess = Se2::new(0.0, 0.0, c.yaw_rad);
+                    let v = verifier.verify(query, candidate, &guess)?;
+                    v.score.is_finite().then_some((ordinal, candidate, v))
+                })
+                .collect();
+            let (best_ordinal, best_keyframe, best) = verified
+                .iter()
+                .max_by(|x, y| x.2.score.total_cmp(&y.2.score).then(y.0.cmp(&x.0)))?;
+            if best.score < params.min_score {
+                return None;
+            }
+            let rival = verified
+                .iter()
+                .filter(|(ordinal, _, v)| {
+                    !same_place((*best_ordinal, best), (*ordinal, v), map_from_b, params)
+                })
+                .map(|(_, _, v)| v.score.max(0.0))
+                .fold(0.0f64, f64::max);
+            let confidence = if best.score > 0.0 {
+                ((best.score - rival) / best.score).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            Some(VerifiedLoop {
+                a: query.id,
+                b: best_keyframe.id,
+                b_from_a: best.candidate_from_query,
+                score: best.score,
+                confidence,
+                covariance: best.covariance,
+            })
+        })
+        .collect()
+}
