@@ -1,0 +1,456 @@
+//! Real-time correlative scan matching by depth-first branch-and-bound over (x, y, θ).
+//!
+//! Olson, "Real-Time Correlative Scan Matching", ICRA 2009 (the score and the covariance,
+//! Sec. III and IV); Hess, Kohler, Rapp, Andor, "Real-Time Loop Closure in 2D LIDAR SLAM",
+//! ICRA 2016, Sec. V (the angular step, Eq. 7; the search, Algorithms 2–3; the bounds from
+//! precomputed grids, Sec. V-C).
+
+use mapmerge_geometry::Se2;
+use mapmerge_scan::{voxel_downsample, Point2};
+use nalgebra::{Matrix3, Vector3};
+use serde::Serialize;
+
+use crate::correlation_grid::{fast_floor, CorrelationGrid, PrecomputedGrid, LIKELIHOOD_MAX};
+use crate::error::ScanMatchError;
+use crate::params::{CorrelativeParams, SearchWindow};
+
+/// What a query is matched against: the target's correlation grid, its precomputed coarse
+/// levels, and the target points themselves (for ICP). Build once, match many scans.
+#[derive(Clone, Debug)]
+pub struct MatchTarget {
+    params: CorrelativeParams,
+    grid: CorrelationGrid,
+    /// `levels[h − 1]` is height `h` (1 ..= depth); height 0 is `grid`.
+    levels: Vec<PrecomputedGrid>,
+    points_in_target: Vec<Point2>,
+}
+
+impl MatchTarget {
+    /// Rasterises `points_in_target` (non-finite points are dropped) and precomputes
+    /// `params.branch_and_bound_depth` coarse levels.
+    pub fn new(
+        points_in_target: &[Point2],
+        params: &CorrelativeParams,
+    ) -> Result<Self, ScanMatchError> {
+        let grid = CorrelationGrid::new(points_in_target, params)?;
+        let levels = PrecomputedGrid::levels(&grid, params.branch_and_bound_depth);
+        Ok(Self {
+            params: *params,
+            grid,
+            levels,
+            points_in_target: points_in_target
+                .iter()
+                .filter(|p| p.x.is_finite() && p.y.is_finite())
+                .copied()
+                .collect(),
+        })
+    }
+
+    /// The parameters the target was built with (also used by every match against it).
+    pub fn params(&self) -> &CorrelativeParams {
+        &self.params
+    }
+
+    /// The full-resolution correlation grid.
+    pub fn grid(&self) -> &CorrelationGrid {
+        &self.grid
+    }
+
+    /// The finite target points (target frame).
+    pub fn points_in_target(&self) -> &[Point2] {
+        &self.points_in_target
+    }
+}
+
+/// The result of a correlative search.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct CorrelativeMatch {
+    /// The best discretised pose of the query (robot) frame in the target frame.
+    pub target_from_query: Se2,
+    /// Mean likelihood of the (downsampled) query points at that pose, in [0, 1].
+    pub score: f64,
+    /// Covariance of `target_from_query` in its right-perturbation tangent `(v_x, v_y, ω)`
+    /// (Olson 2009, Sec. IV, from the scores around the optimum).
+    pub covariance: Matrix3<f64>,
+    /// Candidates scored (inner nodes and leaves of the search tree).
+    pub candidates: usize,
+    /// Angular step of the search (rad).
+    pub angular_step_rad: f64,
+}
+
+/// The discretised search: angles, per-angle cell indices of the query points, window in
+/// cells.
+struct Search {
+    /// Heading of angle index `a` is `guess.theta_rad + a · angular_step_rad`, for
+    /// `a ∈ [angle_min, angle_max]`.
+    angle_min: i64,
+    angle_max: i64,
+    angular_step_rad: f64,
+    /// Translation offsets in cells, `[-linear_cells, linear_cells]` in x and y.
+    linear_cells: i64,
+    /// `scans[a − angle_min]`: cell of every query point at offset (0, 0).
+    scans: Vec<Vec<(i64, i64)>>,
+    point_count: u64,
+    guess: Se2,
+}
+
+impl Search {
+    fn new(
+        target: &MatchTarget,
+        query_points_in_robot: &[Point2],
+        guess: &Se2,
+        window: &SearchWindow,
+    ) -> Option<Self> {
+        let params = &target.params;
+        if !(guess.x_m.is_finite() && guess.y_m.is_finite() && guess.theta_rad.is_finite()) {
+            return None;
+        }
+        if !(window.linear_m.is_finite() && window.linear_m >= 0.0 && window.angular_rad >= 0.0)
+            || window.angular_rad.is_nan()
+        {
+            return None;
+        }
+        let finite: Vec<Point2> = query_points_in_robot
+            .iter()
+            .filter(|p| p.x.is_finite() && p.y.is_finite())
+            .copied()
+            .collect();
+        let points = if params.query_voxel_m > 0.0 {
+            voxel_downsample(&finite, params.query_voxel_m)
+        } else {
+            finite
+        };
+        if points.is_empty() {
+            return None;
+        }
+        let resolution = params.resolution_m;
+        // Hess et al. 2016, Eq. 7: the step that moves the farthest point by ≤ one cell.
+        let max_range = points.iter().map(|p| p.norm()).fold(0.0, f64::max);
+        let step = if max_range > resolution {
+            (1.0 - resolution * resolution / (2.0 * max_range * max_range)).acos()
+        } else {
+            std::f64::consts::FRAC_PI_4
+        };
+        let two_pi = std::f64::consts::TAU;
+        let full_count = (two_pi / step).ceil().max(1.0) as i64;
+        let mut half = (window.angular_rad / step).ceil() as i64;
+        let (angle_min, angle_max, angular_step_rad) = if 2 * half + 1 >= full_count {
+            // The whole circle, evenly, with no heading twice.
+            let step = two_pi / full_count as f64;
+            (-(full_count / 2), full_count - 1 - full_count / 2, step)
+        } else {
+            half = half.max(0);
+            (-half, half, step)
+        };
+        let linear_cells = (window.linear_m / resolution).ceil() as i64;
+        if linear_cells > 1 << 20 {
+            return None;
+        }
+        // Cell coordinates of `target_from_query · p` (Hess et al., "discretised scans").
+        let origin = target.grid.origin_m();
+        let inverse_resolution = 1.0 / resolution;
+        let (tx, ty) = (
+            (guess.x_m - origin.x) * inverse_resolution,
+            (guess.y_m - origin.y) * inverse_resolution,
+        );
+        let scaled: Vec<Point2> = points.iter().map(|p| p * inverse_resolution).collect();
+        let scans = (angle_min..=angle_max)
+            .map(|a| {
+                let (sin, cos) = (guess.theta_rad + a as f64 * angular_step_rad).sin_cos();
+                scaled
+                    .iter()
+                    .map(|p| {
+                        (
+                            fast_floor(cos * p.x - sin * p.y + tx),
+                            fast_floor(sin * p.x + cos * p.y + ty),
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
+        Some(Self {
+            angle_min,
+            angle_max,
+            angular_step_rad,
+            linear_cells,
+            scans,
+            point_count: points.len() as u64,
+            guess: *guess,
+        })
+    }
+
+    /// Σ of the height-`height` values of the scan at angle `a` shifted by (x, y) cells: the
+    /// exact score (height 0) or an upper bound of every leaf in the block (Hess, Sec. V-C).
+    fn score(&self, target: &MatchTarget, a: i64, x: i64, y: i64, height: usize) -> u64 {
+        let Some(scan) = usize::try_from(a - self.angle_min)
+            .ok()
+            .and_then(|k| self.scans.get(k))
+        else {
+            return 0;
+        };
+        match height.checked_sub(1) {
+            None => scan
+                .iter()
+                .map(|&(i, j)| u64::from(target.grid.value(i + x, j + y)))
+                .sum(),
+            Some(level) => match target.levels.get(level) {
+                Some(grid) => scan
+                    .iter()
+                    .map(|&(i, j)| u64::from(grid.value(i + x, j + y)))
+                    .sum(),
+                None => scan.len() as u64 * u64::from(LIKELIHOOD_MAX),
+            },
+        }
+    }
+
+    fn pose(&self, target: &MatchTarget, a: i64, x: i64, y: i64) -> Se2 {
+        let resolution = target.params.resolution_m;
+        Se2::new(
+            self.guess.x_m + x as f64 * resolution,
+            self.guess.y_m + y as f64 * resolution,
+            self.guess.theta_rad + a as f64 * self.angular_step_rad,
+        )
+    }
+
+    fn normalise(&self, sum: u64) -> f64 {
+        sum as f64 / (self.point_count as f64 * f64::from(LIKELIHOOD_MAX))
+    }
+
+    /// The smallest integer sum whose score reaches `min_score`.
+    fn threshold(&self, min_score: f64) -> u64 {
+        let full = self.point_count as f64 * f64::from(LIKELIHOOD_MAX);
+        (min_score.max(0.0) * full).ceil().min(full) as u64
+    }
+
+    /// Olson 2009, Sec. IV: mean and covariance of the pose under the score distribution
+    /// over the full-resolution poses within `covariance_half_width` of the optimum (weights
+    /// below), plus the discretisation's own variance (step²/12). Returned in the right
+    /// tangent of the best pose, `(v_x, v_y, ω)`.
+    fn covariance(&self, target: &MatchTarget, best: (i64, i64, i64)) -> Matrix3<f64> {
+        let resolution = target.params.resolution_m;
+        let k = target.params.covariance_half_width.min(16) as i64;
+        let full_circle = self.angle_max - self.angle_min + 1
+            >= (std::f64::consts::TAU / self.angular_step_rad).round() as i64;
+        let count = self.angle_max - self.angle_min + 1;
+        let mut samples = Vec::new();
+        for da in -k..=k {
+            let mut a = best.0 + da;
+            if full_circle {
+                a = (a - self.angle_min).rem_euclid(count) + self.angle_min;
+            } else if a < self.angle_min || a > self.angle_max {
+                continue;
+            }
+            for dx in -k..=k {
+                for dy in -k..=k {
+                    let sum = self.score(target, a, best.1 + dx, best.2 + dy, 0);
+                    let offset = Vector3::new(
+                        dx as f64 * resolution,
+                        dy as f64 * resolution,
+                        da as f64 * self.angular_step_rad,
+                    );
+                    samples.push((offset, self.normalise(sum)));
+                }
+            }
+        }
+        // Each sample's weight is its likelihood relative to the optimum, as if every query
+        // point contributed the mean likelihood independently: (s_i / s_best)^N (Olson's
+        // p(z | x) as a product over points).
+        let best_score = samples.iter().map(|s| s.1).fold(0.0, f64::max);
+        let points = self.point_count as f64;
+        let mut weight_sum = 0.0;
+        let mut mean = Vector3::zeros();
+        let mut second = Matrix3::zeros();
+        for (offset, score) in &samples {
+            if best_score <= 0.0 || *score <= 0.0 {
+                continue;
+            }
+            let w = (points * (score / best_score).ln()).exp();
+            weight_sum += w;
+            mean += offset * w;
+            second += offset * offset.transpose() * w;
+        }
+        let discretisation = Matrix3::from_diagonal(&Vector3::new(
+            resolution * resolution / 12.0,
+            resolution * resolution / 12.0,
+            self.angular_step_rad * self.angular_step_rad / 12.0,
+        ));
+        let in_target = if weight_sum > 0.0 {
+            mean /= weight_sum;
+            second / weight_sum - mean * mean.transpose() + discretisation
+        } else {
+            // A flat neighbourhood: as uncertain as the window.
+            let linear = (self.linear_cells.max(1) as f64 * resolution).powi(2) / 3.0;
+            let angular = ((count as f64 * self.angular_step_rad) / 2.0).powi(2) / 3.0;
+            Matrix3::from_diagonal(&Vector3::new(linear, linear, angular)) + discretisation
+        };
+        // (δx, δy) in the target frame → right-perturbation (v_x, v_y) = Rᵀ (δx, δy).
+        let rotation = self.pose(target, best.0, best.1, best.2).rotation_matrix();
+        let mut jacobian = Matrix3::identity();
+        jacobian
+            .fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&rotation.transpose());
+        let covariance = jacobian * in_target * jacobian.transpose();
+        (covariance + covariance.transpose()) * 0.5
+    }
+
+    fn finish(
+        &self,
+        target: &MatchTarget,
+        best: Option<(u64, (i64, i64, i64))>,
+        candidates: usize,
+    ) -> Option<CorrelativeMatch> {
+        let (sum, key) = best?;
+        // The integer threshold, exactly as the search prunes.
+        if sum < self.threshold(target.params.min_score) {
+            return None;
+        }
+        let score = self.normalise(sum);
+        Some(CorrelativeMatch {
+            target_from_query: self.pose(target, key.0, key.1, key.2),
+            score,
+            covariance: self.covariance(target, key),
+            candidates,
+            angular_step_rad: self.angular_step_rad,
+        })
+    }
+}
+
+/// Most coarse candidates [`match_scan`] accepts to enumerate (about a second of work).
+const MAX_ROOTS: f64 = 2e7;
+
+/// `(sum, (a, x, y))` ordered by score, ties to the lexicographically smallest key.
+fn better(sum: u64, key: (i64, i64, i64), best: &Option<(u64, (i64, i64, i64))>) -> bool {
+    match best {
+        None => true,
+        Some((best_sum, best_key)) => sum > *best_sum || (sum == *best_sum && key < *best_key),
+    }
+}
+
+/// Finds the discretised pose of the query scan in the target that maximises the mean
+/// likelihood of `query_points_in_robot`, within `window` around
+/// `guess_target_from_robot`, by depth-first branch-and-bound (Hess et al. 2016,
+/// Algorithm 3). The answer equals [`match_scan_brute_force`]'s, ties going to the smallest
+/// (angle, x, y) offset. `None` when the best score is below `min_score`, an input is
+/// empty or non-finite, or the window is so much larger than the target that even the
+/// coarsest level would need more than 2·10⁷ candidates (raise `branch_and_bound_depth`).
+pub fn match_scan(
+    target: &MatchTarget,
+    query_points_in_robot: &[Point2],
+    guess_target_from_robot: &Se2,
+    window: &SearchWindow,
+) -> Option<CorrelativeMatch> {
+    let search = Search::new(
+        target,
+        query_points_in_robot,
+        guess_target_from_robot,
+        window,
+    )?;
+    let n = search.linear_cells;
+    // The lowest level whose block covers the whole window (one root per angle), or the
+    // tallest precomputed one.
+    let mut top = 0usize;
+    while top < target.levels.len() && (1i64 << top) < 2 * n + 1 {
+        top += 1;
+    }
+    let block = 1i64 << top;
+    // Refuse windows whose coarsest level alone would take minutes (a window far larger
+    // than the target); the answer there is "not found" anyway.
+    let per_axis = ((2 * n + 1) as f64 / block as f64).ceil();
+    let angles = (search.angle_max - search.angle_min + 1) as f64;
+    if angles * per_axis * per_axis > MAX_ROOTS {
+        return None;
+    }
+    let mut candidates = 0usize;
+    // Hess et al., Algorithm 2: the coarsest candidates, best bound first.
+    let mut roots = Vec::new();
+    for a in search.angle_min..=search.angle_max {
+        let mut x = -n;
+        while x <= n {
+            let mut y = -n;
+            while y <= n {
+                roots.push((search.score(target, a, x, y, top), (a, x, y)));
+                candidates += 1;
+                y += block;
+            }
+            x += block;
+        }
+    }
+    roots.sort_unstable_by(|l, r| r.0.cmp(&l.0).then(l.1.cmp(&r.1)));
+    let threshold = search.threshold(target.params.min_score);
+    let mut best: Option<(u64, (i64, i64, i64))> = None;
+    // Depth-first with an explicit stack; children are pushed worst first so the best is
+    // popped first (Hess et al., Algorithm 3).
+    let mut stack: Vec<(u64, (i64, i64, i64), usize)> = Vec::new();
+    for &(bound, key) in roots.iter() {
+        if bound < threshold {
+            break;
+        }
+        stack.push((bound, key, top));
+        while let Some((bound, key, height)) = stack.pop() {
+            // Prune: the block cannot beat the incumbent (ties: only smaller keys can win,
+            // and every key in the block is ≥ the block's corner key).
+            if bound < threshold {
+                continue;
+            }
+            if let Some((best_sum, best_key)) = best {
+                if bound < best_sum || (bound == best_sum && key > best_key) {
+                    continue;
+                }
+            }
+            if height == 0 {
+                if better(bound, key, &best) {
+                    best = Some((bound, key));
+                }
+                continue;
+            }
+            let half = 1i64 << (height - 1);
+            let (a, x0, y0) = key;
+            let mut children = Vec::with_capacity(4);
+            for x in [x0, x0 + half] {
+                for y in [y0, y0 + half] {
+                    if x > n || y > n {
+                        continue;
+                    }
+                    let child_bound = search.score(target, a, x, y, height - 1);
+                    candidates += 1;
+                    children.push((child_bound, (a, x, y), height - 1));
+                }
+            }
+            // Ascending bound, ties: larger key first, so the stack pops best/smallest first.
+            children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
+            stack.extend(children);
+        }
+    }
+    search.finish(target, best, candidates)
+}
+
+/// The reference: scores every discretised pose of the same search as [`match_scan`]. Slow
+/// (use for tests and small windows only).
+pub fn match_scan_brute_force(
+    target: &MatchTarget,
+    query_points_in_robot: &[Point2],
+    guess_target_from_robot: &Se2,
+    window: &SearchWindow,
+) -> Option<CorrelativeMatch> {
+    let search = Search::new(
+        target,
+        query_points_in_robot,
+        guess_target_from_robot,
+        window,
+    )?;
+    let n = search.linear_cells;
+    let mut best = None;
+    let mut candidates = 0usize;
+    for a in search.angle_min..=search.angle_max {
+        for x in -n..=n {
+            for y in -n..=n {
+                let sum = search.score(target, a, x, y, 0);
+                candidates += 1;
+                if better(sum, (a, x, y), &best) {
+                    best = Some((sum, (a, x, y)));
+                }
+            }
+        }
+    }
+    search.finish(target, best, candidates)
+}

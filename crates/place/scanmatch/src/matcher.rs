@@ -1,0 +1,131 @@
+//! The combined matcher: correlative search, then point-to-line ICP refinement.
+
+use mapmerge_geometry::Se2;
+use mapmerge_scan::{voxel_downsample, Point2};
+use nalgebra::Matrix3;
+use serde::Serialize;
+
+use crate::correlative::{match_scan, MatchTarget};
+use crate::error::ScanMatchError;
+use crate::icp::{refine_icp, IcpInfo, IcpTarget};
+use crate::params::{ScanMatchParams, SearchWindow};
+
+/// A target prepared for both stages: correlation grids and normals.
+#[derive(Clone, Debug)]
+pub struct ScanMatchTarget {
+    correlative: MatchTarget,
+    icp: Option<IcpTarget>,
+}
+
+impl ScanMatchTarget {
+    /// The correlative target (grid and levels).
+    pub fn correlative(&self) -> &MatchTarget {
+        &self.correlative
+    }
+}
+
+/// A scan match.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Match {
+    /// Pose of the query (robot) frame in the target frame: ICP's when ICP ran and was
+    /// accepted, else the correlative search's.
+    pub target_from_query: Se2,
+    /// Mean likelihood of the query points in the correlation grid at the correlative
+    /// optimum, in [0, 1].
+    pub score: f64,
+    /// Covariance of `target_from_query`, right-perturbation tangent `(v_x, v_y, ω)`: ICP's
+    /// when accepted, else the correlative one (Olson 2009, Sec. IV).
+    pub covariance: Matrix3<f64>,
+    /// Candidates the branch-and-bound scored.
+    pub candidates: usize,
+    /// The correlative search's own pose (before refinement).
+    pub correlative_target_from_query: Se2,
+    /// What ICP did, when it ran and was accepted.
+    pub icp: Option<IcpInfo>,
+}
+
+/// Correlative search followed by ICP refinement, with one set of parameters.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ScanMatcher {
+    params: ScanMatchParams,
+}
+
+impl ScanMatcher {
+    /// A matcher with `params` (checked).
+    pub fn new(params: ScanMatchParams) -> Result<Self, ScanMatchError> {
+        params.correlative.validate()?;
+        Ok(Self { params })
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &ScanMatchParams {
+        &self.params
+    }
+
+    /// Prepares `points_in_target` (a scan or a local map, in the target frame).
+    pub fn target(&self, points_in_target: &[Point2]) -> Result<ScanMatchTarget, ScanMatchError> {
+        let correlative = MatchTarget::new(points_in_target, &self.params.correlative)?;
+        let icp = self
+            .params
+            .icp
+            .map(|params| IcpTarget::new(correlative.points_in_target(), &params));
+        Ok(ScanMatchTarget { correlative, icp })
+    }
+
+    /// Matches `query_points_in_robot` against `target` within `window` around
+    /// `guess_target_from_robot`. `None` when no pose scores `min_score` or the inputs are
+    /// empty or non-finite.
+    pub fn match_scan(
+        &self,
+        target: &ScanMatchTarget,
+        query_points_in_robot: &[Point2],
+        guess_target_from_robot: &Se2,
+        window: &SearchWindow,
+    ) -> Option<Match> {
+        // 1. Exhaustive-equivalent correlative search.
+        let coarse = match_scan(
+            &target.correlative,
+            query_points_in_robot,
+            guess_target_from_robot,
+            window,
+        )?;
+        let mut result = Match {
+            target_from_query: coarse.target_from_query,
+            score: coarse.score,
+            covariance: coarse.covariance,
+            candidates: coarse.candidates,
+            correlative_target_from_query: coarse.target_from_query,
+            icp: None,
+        };
+        // 2. Point-to-line ICP from the correlative optimum.
+        let (Some(icp_params), Some(icp_target)) = (self.params.icp, &target.icp) else {
+            return Some(result);
+        };
+        let query = voxel_downsample(query_points_in_robot, self.params.correlative.query_voxel_m);
+        let Some(info) = refine_icp(icp_target, &query, &coarse.target_from_query, &icp_params)
+        else {
+            return Some(result);
+        };
+        // 3. Keep ICP only when it agrees with the search (no jump to another basin).
+        let shift = coarse.target_from_query.translation() - info.target_from_query.translation();
+        let max_shift = self.params.icp_max_shift_cells * self.params.correlative.resolution_m;
+        let turn = mapmerge_geometry::wrap_angle_rad(
+            coarse.target_from_query.theta_rad - info.target_from_query.theta_rad,
+        );
+        let max_turn = self.params.icp_max_shift_cells * coarse.angular_step_rad;
+        if info.inlier_fraction >= self.params.icp_min_inlier_fraction
+            && shift.norm() <= max_shift
+            && turn.abs() <= max_turn.max(1e-3)
+            && info
+                .target_from_query
+                .translation()
+                .iter()
+                .all(|v| v.is_finite())
+        {
+            result.target_from_query = info.target_from_query;
+            result.covariance = info.covariance;
+            result.icp = Some(info);
+        }
+        Some(result)
+    }
+}
