@@ -43,9 +43,7 @@ impl ScanAnchors {
         self.anchors
             .iter()
             .map(|(node, node_from_robot)| {
-                graph
-                    .vertex(*node)
-                    .map(|v| v.pose.compose(node_from_robot))
+                graph.vertex(*node).map(|v| v.pose.compose(node_from_robot))
             })
             .collect()
     }
