@@ -12,7 +12,9 @@
 //! ```
 
 mod anchors;
+mod front_end;
 mod keyframe;
 
 pub use anchors::ScanAnchors;
+pub use front_end::{FrontEnd, FrontEndError, FrontEndInfo, FrontEndParams, ScanStep};
 pub use keyframe::KeyframePolicy;
