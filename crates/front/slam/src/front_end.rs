@@ -113,7 +113,7 @@ impl FrontEnd {
     /// A front-end with no scans yet.
     pub fn new(params: FrontEndParams) -> Result<Self, FrontEndError> {
         Ok(Self {
-            matcher: ScanMatcher::new(params.matcher.clone())?,
+            matcher: ScanMatcher::new(params.matcher)?,
             params,
             graph: PoseGraph2::new(),
             anchors: ScanAnchors::new(),
