@@ -4,6 +4,7 @@
 //! depend on the step length), and wheel-slip events during which the wheels over- or
 //! under-report translation or rotation by a factor.
 
+use mapmerge_eval::SlipKind;
 use mapmerge_geometry::{LieGroup, Se2};
 use nalgebra::Vector3;
 use rand::Rng;
@@ -127,16 +128,6 @@ impl OdometryNoiseParams {
         }
         Ok(())
     }
-}
-
-/// What a slip event corrupts.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum SlipKind {
-    /// The reported distance is the true one times the factor.
-    Translation,
-    /// The reported turn is the true one times the factor.
-    Rotation,
 }
 
 /// A wheel-slip event.

@@ -189,11 +189,11 @@ impl OdometryNoiseProfile {
     }
 }
 
-/// What a slip event corrupts.
+/// What a slip event corrupts (shared with the simulator's odometry, `mapmerge-sim`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SlipKind {
-    /// The reported translation is the true one times the factor.
+    /// The reported translation (distance) is the true one times the factor.
     Translation,
     /// The reported turn is the true one times the factor.
     Rotation,
