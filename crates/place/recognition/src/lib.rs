@@ -44,6 +44,7 @@ mod index;
 mod keyframe;
 mod loops;
 mod scan_context;
+mod scan_match_verifier;
 mod verify;
 
 pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
@@ -54,4 +55,5 @@ pub use loops::{
     VerifiedLoop,
 };
 pub use scan_context::{ScanContext, ScanContextParams};
+pub use scan_match_verifier::ScanMatchVerifier;
 pub use verify::{GeometricVerifier, Verification};

@@ -241,3 +241,45 @@ fn look_alike_rooms_match_with_low_confidence() {
     assert!(aliased.confidence < 0.2, "{aliased:?}");
     assert!(unique.confidence > 0.3, "{unique:?}");
 }
+
+#[test]
+fn the_scan_matcher_verifies_loops_between_sessions_correctly() {
+    // Session 1 (queries) against session 0 (indexed) in the `office` world, verified by the
+    // production verifier: every accepted loop must carry the true relative pose.
+    let data = dataset(WorldPreset::Office, 90.0);
+    let b = keyframes(&data, 0, 10, 0);
+    let a = keyframes(&data, 1, 10, 100_000);
+    let (b_keyframes, b_poses): (Vec<Keyframe>, Vec<Se2>) = b.iter().cloned().unzip();
+    let a_keyframes: Vec<Keyframe> = a.iter().map(|(k, _)| k.clone()).collect();
+    let truth_of = |id: KeyframeId| {
+        a.iter()
+            .chain(&b)
+            .find(|(k, _)| k.id == id)
+            .map(|(_, pose)| *pose)
+            .unwrap()
+    };
+    let verifier = mapmerge_place::ScanMatchVerifier::default();
+    // Wrong loops here are 180° flips in symmetric corridors, scoring 0.61–0.66 (confidence
+    // ≤ 0.19); right ones score ≥ 0.73.
+    let params = PlaceParams {
+        min_score: 0.7,
+        ..PlaceParams::default()
+    };
+    let loops =
+        find_loop_candidates_with_poses(&a_keyframes, &b_keyframes, &b_poses, &verifier, &params);
+    let correct = loops
+        .iter()
+        .filter(|l| {
+            let truth = between(&truth_of(l.b), &truth_of(l.a));
+            let error = between(&truth, &l.b_from_a);
+            error.translation().norm() < 0.1
+                && wrap_angle_rad(error.theta_rad).abs() < 2f64.to_radians()
+        })
+        .count();
+    eprintln!(
+        "{} loops accepted, {correct} within 10 cm / 2° of the truth",
+        loops.len()
+    );
+    assert!(loops.len() >= 20, "{} loops", loops.len());
+    assert_eq!(correct, loops.len());
+}
