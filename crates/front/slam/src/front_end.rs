@@ -291,3 +291,41 @@ fn edge_information(
         .filter(|i| i.iter().all(|v| v.is_finite()))
         .unwrap_or_else(|| floor.try_inverse().unwrap_or_else(Matrix3::identity))
 }
+
+/// The result of [`run_front_end`]: every scan's pose and the counters.
+#[derive(Clone, Debug)]
+pub struct FrontEndRun {
+    /// `map_from_robot` of every scan of the log, in log order (from the final graph).
+    pub trajectory: Vec<Se2>,
+    /// Counters.
+    pub info: FrontEndInfo,
+    /// Wall time of the front-end alone (s).
+    pub seconds: f64,
+}
+
+/// Runs the front-end over every scan of `log`, with each scan's `odom_from_robot` as the
+/// wheel odometry (scans without one reuse the previous one).
+pub fn run_front_end(
+    log: &mapmerge_scan::LaserLog,
+    params: FrontEndParams,
+) -> Result<FrontEndRun, FrontEndError> {
+    let mut front_end = FrontEnd::new(params)?;
+    let started = std::time::Instant::now();
+    let mut odometry = Se2::identity();
+    for record in &log.scans {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        front_end.add_scan(&odometry, &record.scan)?;
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let trajectory = front_end
+        .anchors()
+        .trajectory(front_end.graph())
+        .into_iter()
+        .map(|pose| pose.unwrap_or_else(Se2::identity))
+        .collect();
+    Ok(FrontEndRun {
+        trajectory,
+        info: front_end.info(),
+        seconds,
+    })
+}

@@ -16,5 +16,7 @@ mod front_end;
 mod keyframe;
 
 pub use anchors::ScanAnchors;
-pub use front_end::{FrontEnd, FrontEndError, FrontEndInfo, FrontEndParams, ScanStep};
+pub use front_end::{
+    run_front_end, FrontEnd, FrontEndError, FrontEndInfo, FrontEndParams, FrontEndRun, ScanStep,
+};
 pub use keyframe::KeyframePolicy;
