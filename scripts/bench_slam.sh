@@ -17,7 +17,7 @@ while [[ $# -gt 0 ]]; do
 done
 data="${MAPMERGE_DATA:-../shared/data}"
 peers="${MAPMERGE_PEERS:-../shared/peers}"
-out="${OUT_DIR:-bench-out}/slam"
+out="$(realpath -m "${OUT_DIR:-bench-out}")/slam"
 mkdir -p "$out"
 cargo build --release -q -p mapmerge-cli -p mapmerge-slam --example front_end_log
 bin=target/release/mapmerge
