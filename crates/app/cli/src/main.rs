@@ -15,6 +15,7 @@ mod optimize;
 mod render;
 mod sim;
 mod simulate;
+mod slam;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
 #[derive(Parser, Debug)]
@@ -43,6 +44,8 @@ enum Command {
     Render(render::RenderArgs),
     /// SLAM evaluation on corrected logs: odometry noise, relations, ATE/RPE.
     Eval(eval::EvalArgs),
+    /// 2D graph SLAM on a laser log: pose graph, map, picture, one pose per scan.
+    Slam(slam::SlamArgs),
 }
 
 /// An error that maps to exit code 2.
@@ -124,6 +127,7 @@ fn main() -> ExitCode {
         Command::Grid(args) => grid::run(args),
         Command::Render(args) => render::run(args),
         Command::Eval(args) => eval::run(args),
+        Command::Slam(args) => slam::run(args),
     };
     match result {
         Ok(code) => code,

@@ -1,22 +1,34 @@
-//! Scan-to-map odometry and keyframes: the first half of the front-end (loop closing comes
-//! next). Per scan, in order:
+//! The 2D graph-SLAM front-end. Per scan, in order:
 //! 1. predict the pose from the wheel odometry increment;
-//! 2. match the scan against the local map (the points of the last keyframes) in a window
-//!    around the prediction (correlative search + ICP, `mapmerge-scanmatch`);
-//! 3. anchor the scan to the current keyframe, or make it a keyframe: a new node, an odometry
-//!    edge from the previous keyframe weighted by the match covariance, and a new local map.
+//! 2. match the scan against the older active submap (correlative search + ICP,
+//!    `mapmerge-scanmatch`) in a window around the prediction;
+//! 3. anchor the scan to the current keyframe, or make it a keyframe: a node with an edge to
+//!    the matched submap's anchor (the match, weighted by its covariance) and a loose wheel
+//!    odometry edge from the previous keyframe; insert it into the active submaps (Hess et
+//!    al. 2016, Sec. IV: two active submaps, the older one matched against);
+//! 4. search for loops from the new keyframe: finished submaps near the estimate, in a window
+//!    that grows with the distance since the last loop, then place recognition; accepted
+//!    loops become edges and the graph is optimised with a robust kernel (DCS).
+//!
+//! Poses: the front-end tracks `local_from_robot` (odometry corrected by scan matching);
+//! graph nodes live in the map frame, `map_from_local` is re-derived after each
+//! optimisation from the newest keyframe.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, HashMap};
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_place::{
+    verify_candidates, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, ScanContext,
+};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, Vertex};
 use mapmerge_scan::{BeamFilter, LaserScan, Point2};
-use mapmerge_scanmatch::{
-    ScanMatchError, ScanMatchParams, ScanMatchTarget, ScanMatcher, SearchWindow,
-};
-use nalgebra::Matrix3;
+use mapmerge_scanmatch::{ScanMatchError, ScanMatchParams, ScanMatcher, SearchWindow};
+use mapmerge_solve::{chi2_quantile_99, optimize, OptimizerParams, RobustKernel};
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::loop_closing::{LoopClosureParams, SubmapVerifier};
+use crate::submap::Submap;
 use crate::{KeyframePolicy, ScanAnchors};
 
 /// Why the front-end refused a scan.
@@ -29,7 +41,7 @@ pub enum FrontEndError {
         /// Index of the scan.
         scan: usize,
     },
-    /// The matcher's parameters are invalid.
+    /// The matcher's parameters are invalid, or a submap outgrew the matcher's grid limit.
     #[error(transparent)]
     Matcher(#[from] ScanMatchError),
 }
@@ -40,18 +52,29 @@ pub enum FrontEndError {
 pub struct FrontEndParams {
     /// When scans become keyframes.
     pub keyframes: KeyframePolicy,
-    /// The scan matcher.
+    /// The scan matcher for scan-to-submap odometry.
     pub matcher: ScanMatchParams,
     /// Search window around the odometry prediction (m, rad).
     pub odometry_window: SearchWindow,
-    /// Keyframes whose points form the local map.
-    pub local_map_keyframes: usize,
+    /// Keyframes inserted into a submap before the next one starts; a submap is finished
+    /// with twice this many (default: 20) ...
+    pub submap_keyframes: usize,
+    /// ... or once the robot travelled this far (m) since it started (default: 10), so a
+    /// submap stays small enough to be rigid on logs with sparse scans.
+    pub submap_travel_m: f64,
     /// Returns beyond this range are not used for matching (m): far returns are sparse and
     /// widen the angular search (Hess et al. 2016, Eq. 7).
     pub max_match_range_m: f32,
-    /// Smallest standard deviations of a keyframe edge (m, rad), so one lucky match cannot
-    /// make an edge overconfident.
+    /// Smallest standard deviations of a scan-matched edge (m, rad), so one lucky match
+    /// cannot make an edge overconfident.
     pub min_edge_sigma: (f64, f64),
+    /// Wheel-odometry noise assumed when fusing a match with the prediction and weighting
+    /// odometry edges: standard deviations `(a, b)` of translation (m) `a + b·d` and of
+    /// heading (rad) `c + e·|Δθ| + f·d` as `(a, b, c, e, f)` (default: 2 cm + 10 %,
+    /// 1° + 10 % + 2°/m). Loose on purpose: it decides only where scans say little.
+    pub odometry_prior: (f64, f64, f64, f64, f64),
+    /// Loop closing.
+    pub loops: LoopClosureParams,
 }
 
 impl Default for FrontEndParams {
@@ -60,31 +83,38 @@ impl Default for FrontEndParams {
             keyframes: KeyframePolicy::default(),
             matcher: odometry_matcher_params(),
             odometry_window: SearchWindow::new(0.5, 15f64.to_radians()),
-            local_map_keyframes: 10,
+            submap_keyframes: 20,
+            submap_travel_m: 10.0,
             max_match_range_m: 20.0,
             min_edge_sigma: (0.01, 0.2f64.to_radians()),
+            odometry_prior: (0.02, 0.1, 1f64.to_radians(), 0.1, 2f64.to_radians()),
+            loops: LoopClosureParams::default(),
         }
     }
 }
 
 /// The scan matcher for scan-to-map odometry: the ±0.5 m window spans 20 cells, so
-/// branch-and-bound levels beyond 2^4 = 16 cells only cost time to precompute (they were half
-/// of the front-end's time on Intel).
+/// branch-and-bound levels beyond 2^4 = 16 cells only cost time to precompute.
 fn odometry_matcher_params() -> ScanMatchParams {
     let mut params = ScanMatchParams::default();
     params.correlative.branch_and_bound_depth = 4;
     params
 }
 
+/// Branch-and-bound depth of finished submaps (loop windows up to ±5 m at 5 cm).
+const LOOP_BRANCH_AND_BOUND_DEPTH: usize = 7;
+
 /// What happened to one scan.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct ScanStep {
-    /// The scan's pose after matching (`map_from_robot`).
-    pub map_from_robot: Se2,
+    /// The scan's pose in the front-end's local frame after matching.
+    pub local_from_robot: Se2,
     /// Match score, when the scan was matched.
     pub score: Option<f64>,
     /// The node created when the scan became a keyframe.
     pub keyframe: Option<NodeId>,
+    /// Loop edges added for this scan.
+    pub loops: usize,
 }
 
 /// Counters over a run.
@@ -92,29 +122,90 @@ pub struct ScanStep {
 pub struct FrontEndInfo {
     /// Scans seen.
     pub scans: usize,
-    /// Scans matched against the local map.
+    /// Scans matched against a submap.
     pub matched: usize,
-    /// Scans that fell back on odometry (no local map yet, or no acceptable match).
+    /// Scans that fell back on odometry (no submap yet, or no acceptable match).
     pub odometry_only: usize,
     /// Keyframes.
     pub keyframes: usize,
+    /// Submaps started.
+    pub submaps: usize,
+    /// Loop searches against nearby submaps, and loops they found.
+    pub local_searches: usize,
+    /// See `local_searches`.
+    pub local_loops: usize,
+    /// Place-recognition queries, and loops they found.
+    pub place_queries: usize,
+    /// See `place_queries`.
+    pub place_loops: usize,
+    /// Place-recognition matches refused because they would move the estimate further than
+    /// its drift can explain.
+    pub place_gated: usize,
+    /// Graph optimisations run.
+    pub optimizations: usize,
 }
 
-/// The front-end's state: pose graph, keyframes with their points, anchors of every scan.
+/// How a loop edge was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopSource {
+    /// Search of a nearby finished submap around the current estimate.
+    Local,
+    /// Place recognition (descriptor retrieval + verification), no pose guess.
+    Place,
+}
+
+/// An accepted loop edge: from the matched submap's keyframe nearest to the match, to a
+/// keyframe.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LoopRecord {
+    /// The submap's keyframe nearest to the match.
+    pub from: NodeId,
+    /// The keyframe node.
+    pub to: NodeId,
+    /// The keyframe's pose in `from`'s frame (`from_from_to`).
+    pub measurement: Se2,
+    /// How it was found.
+    pub source: LoopSource,
+    /// The match score.
+    pub score: f64,
+    /// The match covariance (right tangent of `measurement`).
+    pub covariance: Matrix3<f64>,
+}
+
+/// A keyframe's data.
+struct KeyframeData {
+    /// Points in the robot frame, beam order, range-limited.
+    points_in_robot: Vec<Point2>,
+    /// Distance travelled up to this keyframe (m).
+    travel_m: f64,
+}
+
+/// The front-end's state: pose graph, submaps, keyframes, anchors of every scan.
 pub struct FrontEnd {
     params: FrontEndParams,
     matcher: ScanMatcher,
     graph: PoseGraph2,
     anchors: ScanAnchors,
-    /// Points of each keyframe in its node's frame.
-    keyframe_points: BTreeMap<NodeId, Vec<Point2>>,
-    /// The last keyframes (for the local map), oldest first.
-    recent: VecDeque<NodeId>,
-    local_map: Option<ScanMatchTarget>,
-    /// `(odom_from_robot, map_from_robot)` of the previous scan.
+    keyframes: BTreeMap<NodeId, KeyframeData>,
+    submaps: Vec<Submap>,
+    /// Indices of the active submaps, oldest first (at most two).
+    active: Vec<usize>,
+    map_from_local: Se2,
+    /// `(odom_from_robot, local_from_robot)` of the previous scan.
     previous: Option<(Se2, Se2)>,
-    /// The current keyframe, its pose, and scans since it.
-    current: Option<(NodeId, Se2, usize)>,
+    /// The current keyframe, its local pose, its wheel-odometry pose, and scans since it.
+    current: Option<(NodeId, Se2, Se2, usize)>,
+    travel_m: f64,
+    /// Travel (m) at the last loop to a submap older than the active ones.
+    travel_at_last_loop_m: f64,
+    place_index: PlaceIndex<ScanContext>,
+    /// Keyframes in the place index, by insertion ordinal, with their submap.
+    place_keyframes: Vec<(Keyframe, usize)>,
+    place_ordinal: HashMap<KeyframeId, usize>,
+    keyframes_since_optimization: usize,
+    loops_since_optimization: usize,
+    loops: Vec<LoopRecord>,
     info: FrontEndInfo,
 }
 
@@ -123,19 +214,28 @@ impl FrontEnd {
     pub fn new(params: FrontEndParams) -> Result<Self, FrontEndError> {
         Ok(Self {
             matcher: ScanMatcher::new(params.matcher)?,
+            place_index: PlaceIndex::new(params.loops.place.index.clone()),
             params,
             graph: PoseGraph2::new(),
             anchors: ScanAnchors::new(),
-            keyframe_points: BTreeMap::new(),
-            recent: VecDeque::new(),
-            local_map: None,
+            keyframes: BTreeMap::new(),
+            submaps: Vec::new(),
+            active: Vec::new(),
+            map_from_local: Se2::identity(),
             previous: None,
             current: None,
+            travel_m: 0.0,
+            travel_at_last_loop_m: 0.0,
+            place_keyframes: Vec::new(),
+            place_ordinal: HashMap::new(),
+            keyframes_since_optimization: 0,
+            loops_since_optimization: 0,
+            loops: Vec::new(),
             info: FrontEndInfo::default(),
         })
     }
 
-    /// The pose graph (keyframe nodes and odometry edges).
+    /// The pose graph (keyframe nodes; odometry, submap and loop edges).
     pub fn graph(&self) -> &PoseGraph2 {
         &self.graph
     }
@@ -150,9 +250,21 @@ impl FrontEnd {
         self.info
     }
 
-    /// Points of a keyframe in its node's frame.
+    /// Points of a keyframe in its node's frame (range-limited, beam order).
     pub fn keyframe_points(&self, node: NodeId) -> Option<&[Point2]> {
-        self.keyframe_points.get(&node).map(Vec::as_slice)
+        self.keyframes
+            .get(&node)
+            .map(|k| k.points_in_robot.as_slice())
+    }
+
+    /// Every loop edge added, in order.
+    pub fn loops(&self) -> &[LoopRecord] {
+        &self.loops
+    }
+
+    /// The submaps, in creation order.
+    pub fn submaps(&self) -> &[Submap] {
+        &self.submaps
     }
 
     /// Processes the next scan, taken at wheel-odometry pose `odom_from_robot`.
@@ -168,73 +280,172 @@ impl FrontEnd {
         self.info.scans += 1;
         // 1. Predict from the odometry increment.
         let predicted = match self.previous {
-            Some((odom_previous, map_previous)) => {
-                map_previous.compose(&odom_previous.between(odom_from_robot))
+            Some((odom_previous, local_previous)) => {
+                local_previous.compose(&odom_previous.between(odom_from_robot))
             }
             None => Se2::identity(),
         };
-        // 2. Match against the local map.
+        // 2. Match against the older active submap.
         let filter = BeamFilter {
             max_range_m: self.params.max_match_range_m,
             ..BeamFilter::default()
         };
         let points = scan.points_in_robot(&filter);
-        let matched = self.local_map.as_ref().and_then(|target| {
-            self.matcher
-                .match_scan(target, &points, &predicted, &self.params.odometry_window)
+        let matched = self.active.first().and_then(|&s| {
+            let submap = self.submaps.get(s)?;
+            if submap.is_empty() {
+                return None;
+            }
+            let guess = submap.local_from_submap.between(&predicted);
+            let found = self.matcher.match_scan(
+                submap.target(),
+                &points,
+                &guess,
+                &self.params.odometry_window,
+            )?;
+            Some((s, found))
         });
-        let (map_from_robot, score, covariance) = match &matched {
-            Some(m) => {
+        // Directions the match does not constrain (a corridor's axis) keep the prediction.
+        let matched = matched.map(|(s, mut m)| {
+            let local_from_submap = self
+                .submaps
+                .get(s)
+                .map_or_else(Se2::identity, |submap| submap.local_from_submap);
+            let guess = local_from_submap.between(&predicted);
+            let increment = previous_local_or(&self.previous, &predicted).between(&predicted);
+            let prior_covariance = odometry_covariance(&increment, &self.params.odometry_prior);
+            m.target_from_query = fuse_with_prior(
+                &m.target_from_query,
+                &m.covariance,
+                &guess,
+                &prior_covariance,
+            );
+            (s, m)
+        });
+        let (local_from_robot, score) = match &matched {
+            Some((s, m)) => {
                 self.info.matched += 1;
-                (m.target_from_query, Some(m.score), Some(m.covariance))
+                let local_from_submap = self
+                    .submaps
+                    .get(*s)
+                    .map_or_else(Se2::identity, |submap| submap.local_from_submap);
+                (
+                    local_from_submap.compose(&m.target_from_query),
+                    Some(m.score),
+                )
             }
             None => {
                 self.info.odometry_only += 1;
-                (predicted, None, None)
+                (predicted, None)
             }
         };
-        self.previous = Some((*odom_from_robot, map_from_robot));
+        if let Some((_, previous_local)) = self.previous {
+            self.travel_m += previous_local
+                .between(&local_from_robot)
+                .translation()
+                .norm();
+        }
+        self.previous = Some((*odom_from_robot, local_from_robot));
         // 3. Keyframe or anchor.
         let make_keyframe = match self.current {
             None => true,
-            Some((_, keyframe_pose, since)) => self
+            Some((_, keyframe_local, _, since)) => self
                 .params
                 .keyframes
-                .is_keyframe(&keyframe_pose.between(&map_from_robot), since + 1),
+                .is_keyframe(&keyframe_local.between(&local_from_robot), since + 1),
         };
-        let keyframe = if make_keyframe {
-            Some(self.add_keyframe(map_from_robot, points, covariance)?)
-        } else {
-            if let Some((node, keyframe_pose, since)) = self.current.as_mut() {
+        if !make_keyframe {
+            if let Some((node, keyframe_local, _, since)) = self.current.as_mut() {
                 *since += 1;
                 self.anchors
-                    .push(*node, keyframe_pose.between(&map_from_robot));
+                    .push(*node, keyframe_local.between(&local_from_robot));
             }
-            None
+            return Ok(ScanStep {
+                local_from_robot,
+                score,
+                keyframe: None,
+                loops: 0,
+            });
+        }
+        let submap_match = matched.map(|(s, m)| (s, m.target_from_query, m.covariance));
+        let node = self.add_keyframe(local_from_robot, *odom_from_robot, points, submap_match)?;
+        // 4. Loops.
+        let loops = if self.params.loops.enabled {
+            self.close_loops(node)
+        } else {
+            0
         };
+        self.keyframes_since_optimization += 1;
+        if loops > 0
+            && self.keyframes_since_optimization >= self.params.loops.optimize_every_keyframes
+        {
+            self.optimize();
+        }
         Ok(ScanStep {
-            map_from_robot,
+            local_from_robot,
             score,
-            keyframe,
+            keyframe: Some(node),
+            loops,
         })
     }
 
-    /// Adds a keyframe node at `map_from_robot` with its points, an odometry edge from the
-    /// previous keyframe, and rebuilds the local map.
+    /// Optimises the graph if loops were added since the last optimisation (call after the
+    /// last scan).
+    pub fn finish(&mut self) {
+        if self.loops_since_optimization > 0 {
+            self.optimize();
+        }
+    }
+
+    /// Adds a keyframe node with its edges and inserts it into the active submaps.
     fn add_keyframe(
         &mut self,
-        map_from_robot: Se2,
+        local_from_robot: Se2,
+        odom_from_robot: Se2,
         points_in_robot: Vec<Point2>,
-        covariance: Option<Matrix3<f64>>,
+        submap_match: Option<(usize, Se2, Matrix3<f64>)>,
     ) -> Result<NodeId, FrontEndError> {
         let node = NodeId(self.info.keyframes as u64);
         self.info.keyframes += 1;
-        // Ids are fresh, so adding cannot fail.
-        let _ = self.graph.add_vertex(node, Vertex::new(map_from_robot));
-        if let Some((previous, previous_pose, _)) = self.current {
-            let measurement = previous_pose.between(&map_from_robot);
-            let information =
-                edge_information(covariance, &measurement, self.params.min_edge_sigma);
+        // Ids are fresh and edges join existing nodes, so adding cannot fail.
+        let _ = self.graph.add_vertex(
+            node,
+            Vertex::new(self.map_from_local.compose(&local_from_robot)),
+        );
+        // The scan match: an edge from the submap's nearest keyframe.
+        if let Some((s, submap_from_robot, covariance)) = submap_match {
+            if let Some((member, member_from_robot)) = self
+                .submaps
+                .get(s)
+                .and_then(|submap| submap.relative_to_nearest(&submap_from_robot))
+            {
+                if member != node {
+                    let information = edge_information(
+                        Some(covariance),
+                        &member_from_robot,
+                        self.params.min_edge_sigma,
+                    );
+                    let _ = self.graph.add_edge(Edge {
+                        from: member,
+                        to: node,
+                        measurement: member_from_robot,
+                        information,
+                        kind: EdgeKind::Odometry,
+                    });
+                }
+            }
+        }
+        // Wheel odometry from the previous keyframe, loosely weighted.
+        if let Some((previous, _, previous_odom, _)) = self.current {
+            let measurement = previous_odom.between(&odom_from_robot);
+            let information = edge_information(
+                Some(odometry_covariance(
+                    &measurement,
+                    &self.params.odometry_prior,
+                )),
+                &measurement,
+                self.params.min_edge_sigma,
+            );
             let _ = self.graph.add_edge(Edge {
                 from: previous,
                 to: node,
@@ -244,52 +455,348 @@ impl FrontEnd {
             });
         }
         self.anchors.push(node, Se2::identity());
-        self.keyframe_points.insert(node, points_in_robot);
-        self.current = Some((node, map_from_robot, 0));
-        self.recent.push_back(node);
-        while self.recent.len() > self.params.local_map_keyframes.max(1) {
-            self.recent.pop_front();
+        self.current = Some((node, local_from_robot, odom_from_robot, 0));
+        // Submaps: insert into the active ones; start a new one when the newest is half
+        // full; finish the oldest when it is full.
+        let start_new = match self.active.last().and_then(|&s| self.submaps.get(s)) {
+            None => true,
+            Some(newest) => {
+                let started_at_m = newest
+                    .keyframes
+                    .first()
+                    .and_then(|(first, _)| self.keyframes.get(first))
+                    .map_or(self.travel_m, |k| k.travel_m);
+                newest.keyframes.len() >= self.params.submap_keyframes.max(1)
+                    || self.travel_m - started_at_m >= self.params.submap_travel_m
+            }
+        };
+        if start_new {
+            self.submaps
+                .push(Submap::new(&self.matcher, node, local_from_robot)?);
+            self.active.push(self.submaps.len() - 1);
+            self.info.submaps += 1;
         }
-        // The local map: the recent keyframes' points in the map frame.
-        let mut local_points = Vec::new();
-        for id in &self.recent {
-            if let (Some(points), Some(vertex)) =
-                (self.keyframe_points.get(id), self.graph.vertex(*id))
-            {
-                local_points.extend(points.iter().map(|p| vertex.pose.transform_point(p)));
+        for &s in &self.active {
+            if let Some(submap) = self.submaps.get_mut(s) {
+                submap.insert(node, &local_from_robot, &points_in_robot)?;
             }
         }
-        self.local_map = self.matcher.target(&local_points).ok();
+        if self.active.len() > 2 {
+            let finished = self.active.remove(0);
+            self.finish_submap(finished)?;
+        }
+        self.keyframes.insert(
+            node,
+            KeyframeData {
+                points_in_robot,
+                travel_m: self.travel_m,
+            },
+        );
         Ok(node)
+    }
+
+    /// Finishes submap `s`: deep levels for loop search, its keyframes into the place index.
+    fn finish_submap(&mut self, s: usize) -> Result<(), FrontEndError> {
+        let Some(submap) = self.submaps.get_mut(s) else {
+            return Ok(());
+        };
+        submap.finish(LOOP_BRANCH_AND_BOUND_DEPTH)?;
+        let members: Vec<NodeId> = submap.keyframes.iter().map(|(node, _)| *node).collect();
+        for node in members {
+            // A keyframe inserted into two submaps is indexed with the first to finish.
+            let id = KeyframeId(node.0);
+            if self.place_ordinal.contains_key(&id) {
+                continue;
+            }
+            let Some(data) = self.keyframes.get(&node) else {
+                continue;
+            };
+            let descriptor =
+                ScanContext::new(&data.points_in_robot, &self.params.loops.place.descriptor);
+            self.place_index.insert(id, descriptor);
+            self.place_ordinal.insert(id, self.place_keyframes.len());
+            self.place_keyframes
+                .push((Keyframe::new(node.0, data.points_in_robot.clone()), s));
+        }
+        Ok(())
+    }
+
+    /// Searches loops from keyframe `node`; returns how many loop edges were added.
+    fn close_loops(&mut self, node: NodeId) -> usize {
+        let Some(map_from_robot) = self.graph.vertex(node).map(|v| v.pose) else {
+            return 0;
+        };
+        let Some(points) = self.keyframes.get(&node).map(|k| k.points_in_robot.clone()) else {
+            return 0;
+        };
+        let loops_params = self.params.loops.clone();
+        // Nearby finished submaps, nearest first.
+        let mut nearby: Vec<(f64, usize)> = self
+            .submaps
+            .iter()
+            .enumerate()
+            .filter(|(_, submap)| submap.finished)
+            .filter_map(|(s, submap)| {
+                let distance = submap
+                    .keyframes
+                    .iter()
+                    .filter_map(|(member, _)| self.graph.vertex(*member))
+                    .map(|v| (v.pose.translation() - map_from_robot.translation()).norm())
+                    .fold(f64::INFINITY, f64::min);
+                (distance <= loops_params.max_distance_m).then_some((distance, s))
+            })
+            .collect();
+        nearby.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut added = 0;
+        for &(_, s) in nearby.iter().take(loops_params.max_submaps_per_keyframe) {
+            let Some(submap) = self.submaps.get(s) else {
+                continue;
+            };
+            let Some(map_from_submap) = self.graph.vertex(submap.anchor).map(|v| v.pose) else {
+                continue;
+            };
+            // Uncertainty: travel since the submap ended or since the last loop.
+            let submap_end_travel = submap
+                .keyframes
+                .last()
+                .and_then(|(member, _)| self.keyframes.get(member))
+                .map_or(0.0, |k| k.travel_m);
+            let distance = (self.travel_m - submap_end_travel)
+                .min(self.travel_m - self.travel_at_last_loop_m)
+                .max(0.0);
+            let window = loops_params.local_window(distance);
+            let guess = map_from_submap.between(&map_from_robot);
+            self.info.local_searches += 1;
+            let Some(found) = self
+                .matcher
+                .match_scan(submap.target(), &points, &guess, &window)
+            else {
+                continue;
+            };
+            // ICP's covariance shows a corridor's ambiguity; the correlative one cannot.
+            if found.score < loops_params.min_score || found.icp.is_none() {
+                continue;
+            }
+            let Some((member, member_from_robot)) =
+                submap.relative_to_nearest(&found.target_from_query)
+            else {
+                continue;
+            };
+            let record = LoopRecord {
+                from: member,
+                to: node,
+                measurement: member_from_robot,
+                source: LoopSource::Local,
+                score: found.score,
+                covariance: found.covariance,
+            };
+            self.add_loop(record);
+            self.info.local_loops += 1;
+            added += 1;
+        }
+        if added > 0 {
+            self.travel_at_last_loop_m = self.travel_m;
+            return added;
+        }
+        // Place recognition after a long stretch without loops.
+        if self.travel_m - self.travel_at_last_loop_m < loops_params.place_after_m
+            || self.place_keyframes.is_empty()
+        {
+            return 0;
+        }
+        self.info.place_queries += 1;
+        let descriptor = ScanContext::new(&points, &loops_params.place.descriptor);
+        let retrieved = self
+            .place_index
+            .query(&descriptor, loops_params.place.candidates_per_query);
+        let candidates: Vec<PlaceCandidate> = retrieved
+            .iter()
+            .filter(|c| c.descriptor_distance <= loops_params.place.max_descriptor_distance)
+            .filter_map(|c| {
+                let ordinal = *self.place_ordinal.get(&c.keyframe)?;
+                let (keyframe, _) = self.place_keyframes.get(ordinal)?;
+                Some(PlaceCandidate {
+                    ordinal,
+                    keyframe,
+                    yaw_rad: c.yaw_rad,
+                    map_from_keyframe: self.graph.vertex(NodeId(c.keyframe.0)).map(|v| v.pose),
+                })
+            })
+            .collect();
+        if candidates.is_empty() {
+            return 0;
+        }
+        let locate = |id: KeyframeId| {
+            let ordinal = *self.place_ordinal.get(&id)?;
+            let (_, s) = self.place_keyframes.get(ordinal)?;
+            let pose = self.submaps.get(*s)?.submap_from_keyframe(NodeId(id.0))?;
+            Some((*s, pose))
+        };
+        let verifier = SubmapVerifier {
+            matcher: &self.matcher,
+            submaps: &self.submaps,
+            locate: &locate,
+            window: loops_params.place_window,
+        };
+        let query = Keyframe::new(node.0, points);
+        let Some(found) = verify_candidates(&query, &candidates, &verifier, &loops_params.place)
+        else {
+            return 0;
+        };
+        if found.confidence < loops_params.place_min_confidence {
+            return 0;
+        }
+        let Some((s, submap_from_candidate)) = locate(found.b) else {
+            return 0;
+        };
+        let Some(map_from_submap) = self
+            .submaps
+            .get(s)
+            .and_then(|submap| Some(self.graph.vertex(submap.anchor)?.pose))
+        else {
+            return 0;
+        };
+        // Gate by the estimate's uncertainty: the loop may move the keyframe only as far as
+        // the drift since the last loop can explain.
+        let measurement = submap_from_candidate.compose(&found.b_from_a);
+        let correction = map_from_robot.between(&map_from_submap.compose(&measurement));
+        let drift_m = self.travel_m - self.travel_at_last_loop_m;
+        let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
+        if correction.translation().norm() > gate_m + gate_per_m * drift_m
+            || correction.theta_rad.abs() > gate_rad + gate_rad_per_m * drift_m
+        {
+            self.info.place_gated += 1;
+            return 0;
+        }
+        let Some((member, member_from_robot)) = self
+            .submaps
+            .get(s)
+            .and_then(|submap| submap.relative_to_nearest(&measurement))
+        else {
+            return 0;
+        };
+        let record = LoopRecord {
+            from: member,
+            to: node,
+            measurement: member_from_robot,
+            source: LoopSource::Place,
+            score: found.score,
+            covariance: found.covariance,
+        };
+        self.add_loop(record);
+        self.info.place_loops += 1;
+        self.travel_at_last_loop_m = self.travel_m;
+        1
+    }
+
+    fn add_loop(&mut self, record: LoopRecord) {
+        let information = edge_information(
+            Some(record.covariance),
+            &record.measurement,
+            self.params.loops.min_edge_sigma,
+        );
+        let _ = self.graph.add_edge(Edge {
+            from: record.from,
+            to: record.to,
+            measurement: record.measurement,
+            information,
+            kind: EdgeKind::Loop,
+        });
+        self.loops.push(record);
+        self.loops_since_optimization += 1;
+    }
+
+    /// Optimises the graph (Levenberg–Marquardt, DCS on every edge) and re-derives
+    /// `map_from_local` from the newest keyframe. A failed optimisation keeps the graph's
+    /// last good state (the solver's contract).
+    fn optimize(&mut self) {
+        let params = OptimizerParams {
+            robust: RobustKernel::Dcs {
+                phi: chi2_quantile_99(3),
+            },
+            max_iterations: 20,
+            ..OptimizerParams::default()
+        };
+        let _ = optimize(&mut self.graph, &params);
+        self.info.optimizations += 1;
+        self.keyframes_since_optimization = 0;
+        self.loops_since_optimization = 0;
+        if let Some((node, local_from_robot, _, _)) = self.current {
+            if let Some(vertex) = self.graph.vertex(node) {
+                self.map_from_local = vertex.pose.compose(&local_from_robot.inverse());
+            }
+        }
     }
 }
 
-/// Information of a keyframe edge: the inverse of the match covariance with its standard
-/// deviations floored; without a match, a loose odometry model (10 % of the motion + 5 cm, 5°).
+/// Information of an edge: the inverse of `covariance` with its standard deviations floored
+/// at `min_sigma`.
 fn edge_information(
     covariance: Option<Matrix3<f64>>,
-    measurement: &Se2,
+    _measurement: &Se2,
     min_sigma: (f64, f64),
 ) -> Matrix3<f64> {
-    let floor = Matrix3::from_diagonal(&nalgebra::Vector3::new(
+    let floor = Matrix3::from_diagonal(&Vector3::new(
         min_sigma.0 * min_sigma.0,
         min_sigma.0 * min_sigma.0,
         min_sigma.1 * min_sigma.1,
     ));
     let covariance = covariance
         .filter(|c| c.iter().all(|v| v.is_finite()))
-        .unwrap_or_else(|| {
-            let d = measurement.translation().norm();
-            let (st, sr) = (
-                0.1 * d + 0.05,
-                0.1 * measurement.theta_rad.abs() + 5f64.to_radians(),
-            );
-            Matrix3::from_diagonal(&nalgebra::Vector3::new(st * st, st * st, sr * sr))
-        });
+        .unwrap_or(floor);
     (covariance + floor)
         .try_inverse()
         .filter(|i| i.iter().all(|v| v.is_finite()))
         .unwrap_or_else(|| floor.try_inverse().unwrap_or_else(Matrix3::identity))
+}
+
+/// Covariance of a wheel-odometry `increment` under the `(a, b, c, e, f)` model of
+/// [`FrontEndParams::odometry_prior`].
+fn odometry_covariance(increment: &Se2, model: &(f64, f64, f64, f64, f64)) -> Matrix3<f64> {
+    let (a, b, c, e, f) = *model;
+    let d = increment.translation().norm();
+    let translation = a + b * d;
+    let heading = c + e * increment.theta_rad.abs() + f * d;
+    Matrix3::from_diagonal(&Vector3::new(
+        translation * translation,
+        translation * translation,
+        heading * heading,
+    ))
+}
+
+/// The previous scan's local pose, or `fallback` for the first scan.
+fn previous_local_or(previous: &Option<(Se2, Se2)>, fallback: &Se2) -> Se2 {
+    previous.map_or(*fallback, |(_, local)| local)
+}
+
+/// Fuses a scan match (`matched`, covariance in its right tangent) with the odometry
+/// prediction (`prior`, covariance in the same tangent, which is close enough for the small
+/// differences involved): one Gauss–Newton step of `‖δ‖²_Ωm + ‖Log(prior⁻¹·matched) + δ‖²_Ωp`,
+/// so the match decides where it is confident and the prediction where it is not (a
+/// corridor's axis, Olson 2009's motivation for the prior in Sec. III).
+fn fuse_with_prior(
+    matched: &Se2,
+    matched_covariance: &Matrix3<f64>,
+    prior: &Se2,
+    prior_covariance: &Matrix3<f64>,
+) -> Se2 {
+    let (Some(matched_information), Some(prior_information)) = (
+        matched_covariance.try_inverse(),
+        prior_covariance.try_inverse(),
+    ) else {
+        return *matched;
+    };
+    let Some(inverse) = (matched_information + prior_information).try_inverse() else {
+        return *matched;
+    };
+    let offset = prior.local(matched);
+    let delta = -(inverse * (prior_information * offset));
+    let fused = matched.retract(&delta);
+    if fused.is_finite() {
+        fused
+    } else {
+        *matched
+    }
 }
 
 /// The result of [`run_front_end`]: every scan's pose and the counters.
@@ -297,6 +804,12 @@ fn edge_information(
 pub struct FrontEndRun {
     /// `map_from_robot` of every scan of the log, in log order (from the final graph).
     pub trajectory: Vec<Se2>,
+    /// The final pose graph (node `k` is keyframe `k`).
+    pub graph: PoseGraph2,
+    /// Scan index (log order) of every keyframe node, by node id.
+    pub keyframe_scans: Vec<usize>,
+    /// Every loop edge added, in order.
+    pub loops: Vec<LoopRecord>,
     /// Counters.
     pub info: FrontEndInfo,
     /// Wall time of the front-end alone (s).
@@ -309,13 +822,31 @@ pub fn run_front_end(
     log: &mapmerge_scan::LaserLog,
     params: FrontEndParams,
 ) -> Result<FrontEndRun, FrontEndError> {
+    run_front_end_with_progress(log, params, |_| {})
+}
+
+/// As [`run_front_end`], calling `progress(scans_done)` after every scan.
+pub fn run_front_end_with_progress(
+    log: &mapmerge_scan::LaserLog,
+    params: FrontEndParams,
+    mut progress: impl FnMut(usize),
+) -> Result<FrontEndRun, FrontEndError> {
     let mut front_end = FrontEnd::new(params)?;
     let started = std::time::Instant::now();
     let mut odometry = Se2::identity();
-    for record in &log.scans {
+    let mut keyframe_scans = Vec::new();
+    for (index, record) in log.scans.iter().enumerate() {
         odometry = record.odom_from_robot.unwrap_or(odometry);
-        front_end.add_scan(&odometry, &record.scan)?;
+        if front_end
+            .add_scan(&odometry, &record.scan)?
+            .keyframe
+            .is_some()
+        {
+            keyframe_scans.push(index);
+        }
+        progress(index + 1);
     }
+    front_end.finish();
     let seconds = started.elapsed().as_secs_f64();
     let trajectory = front_end
         .anchors()
@@ -326,6 +857,9 @@ pub fn run_front_end(
     Ok(FrontEndRun {
         trajectory,
         info: front_end.info(),
+        loops: front_end.loops,
+        graph: front_end.graph,
+        keyframe_scans,
         seconds,
     })
 }

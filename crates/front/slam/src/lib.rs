@@ -14,9 +14,14 @@
 mod anchors;
 mod front_end;
 mod keyframe;
+mod loop_closing;
+mod submap;
 
 pub use anchors::ScanAnchors;
 pub use front_end::{
-    run_front_end, FrontEnd, FrontEndError, FrontEndInfo, FrontEndParams, FrontEndRun, ScanStep,
+    run_front_end, run_front_end_with_progress, FrontEnd, FrontEndError, FrontEndInfo,
+    FrontEndParams, FrontEndRun, LoopRecord, LoopSource, ScanStep,
 };
 pub use keyframe::KeyframePolicy;
+pub use loop_closing::LoopClosureParams;
+pub use submap::Submap;

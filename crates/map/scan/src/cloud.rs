@@ -103,25 +103,78 @@ pub fn estimate_normals(
         if count < min_neighbours.max(2) {
             continue;
         }
-        let n = count as f64;
-        let mean = sum / n;
-        let covariance = sum_outer / n - mean * mean.transpose();
-        let eigen = SymmetricEigen::new(covariance);
-        let (small, large) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
-            (0, 1)
-        } else {
-            (1, 0)
-        };
-        let mut normal: Point2 = eigen.eigenvectors.column(small).into_owned();
-        if normal.dot(&(viewpoint - p)) < 0.0 {
-            normal = -normal;
+        out.extend(normal_from_moments(p, count, &sum, &sum_outer, viewpoint));
+    }
+    out
+}
+
+/// The PCA normal of a neighbourhood of `p` given by its point count, sum and sum of outer
+/// products, oriented towards `viewpoint`.
+fn normal_from_moments(
+    p: &Point2,
+    count: usize,
+    sum: &Point2,
+    sum_outer: &Matrix2<f64>,
+    viewpoint: &Point2,
+) -> Option<PointNormal> {
+    let n = count as f64;
+    let mean = sum / n;
+    let covariance = sum_outer / n - mean * mean.transpose();
+    let eigen = SymmetricEigen::new(covariance);
+    let (small, large) = if eigen.eigenvalues[0] <= eigen.eigenvalues[1] {
+        (0, 1)
+    } else {
+        (1, 0)
+    };
+    let mut normal: Point2 = eigen.eigenvectors.column(small).into_owned();
+    if !(normal.x.is_finite() && normal.y.is_finite()) {
+        return None;
+    }
+    if normal.dot(&(viewpoint - p)) < 0.0 {
+        normal = -normal;
+    }
+    let largest = eigen.eigenvalues[large].max(f64::MIN_POSITIVE);
+    Some(PointNormal {
+        point: *p,
+        normal,
+        planarity: (1.0 - eigen.eigenvalues[small].max(0.0) / largest).clamp(0.0, 1.0),
+    })
+}
+
+/// Normals of a scan's points in beam order, from the PCA of each point and its neighbours
+/// up to `half_window` positions before and after it that lie within
+/// `max(min_gap_m, gap_per_range · range)` of it (range from `viewpoint`): beams fan out with
+/// range, so the neighbourhood does too, and a jump to another surface breaks it. Points with
+/// fewer than 3 such neighbours (themselves included) are left out.
+pub fn scan_normals(
+    points_in_beam_order: &[Point2],
+    half_window: usize,
+    min_gap_m: f64,
+    gap_per_range: f64,
+    viewpoint: &Point2,
+) -> Vec<PointNormal> {
+    let mut out = Vec::with_capacity(points_in_beam_order.len());
+    for (k, p) in points_in_beam_order.iter().enumerate() {
+        if !(p.x.is_finite() && p.y.is_finite()) {
+            continue;
         }
-        let largest = eigen.eigenvalues[large].max(f64::MIN_POSITIVE);
-        out.push(PointNormal {
-            point: *p,
-            normal,
-            planarity: (1.0 - eigen.eigenvalues[small].max(0.0) / largest).clamp(0.0, 1.0),
-        });
+        let gap = min_gap_m.max(gap_per_range * (p - viewpoint).norm());
+        let gap_squared = gap * gap;
+        let first = k.saturating_sub(half_window);
+        let last = (k + half_window + 1).min(points_in_beam_order.len());
+        let mut count = 0usize;
+        let mut sum = Point2::zeros();
+        let mut sum_outer = Matrix2::zeros();
+        for q in points_in_beam_order.get(first..last).unwrap_or_default() {
+            if (q - p).norm_squared() <= gap_squared {
+                count += 1;
+                sum += q;
+                sum_outer += q * q.transpose();
+            }
+        }
+        if count >= 3 {
+            out.extend(normal_from_moments(p, count, &sum, &sum_outer, viewpoint));
+        }
     }
     out
 }
@@ -130,6 +183,27 @@ pub fn estimate_normals(
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn scan_normals_follow_walls_and_stop_at_jumps() {
+        // A wall at x = 2 seen by beams from the origin, then a jump to a wall at x = 6.
+        let mut points: Vec<Point2> = (-10..=10)
+            .map(|k| Point2::new(2.0, 0.1 * f64::from(k)))
+            .collect();
+        points.extend((0..10).map(|k| Point2::new(6.0, 1.5 + 0.3 * f64::from(k))));
+        let normals = scan_normals(&points, 3, 0.2, 0.06, &Point2::zeros());
+        let near: Vec<&PointNormal> = normals.iter().filter(|n| n.point.x < 3.0).collect();
+        assert_eq!(near.len(), 21, "every point of the near wall has a normal");
+        for n in &near {
+            assert!((n.normal.x + 1.0).abs() < 1e-9, "towards the viewpoint: {n:?}");
+            assert!(n.planarity > 0.99);
+        }
+        // The far wall's points are 0.3 m apart, within 6 % of their ~6.5 m range.
+        assert!(normals.iter().filter(|n| n.point.x > 3.0).count() >= 8);
+        // Across the jump no neighbourhood mixes the walls: normals stay axis-aligned.
+        assert!(normals.iter().all(|n| n.normal.y.abs() < 1e-6));
+        assert!(scan_normals(&points[..2], 3, 0.2, 0.06, &Point2::zeros()).is_empty());
+    }
 
     #[test]
     fn voxel_centroids() {

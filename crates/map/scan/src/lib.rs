@@ -19,7 +19,7 @@ mod cloud;
 mod log;
 mod scan;
 
-pub use cloud::{estimate_normals, transform_points, voxel_downsample, PointNormal};
+pub use cloud::{estimate_normals, scan_normals, transform_points, voxel_downsample, PointNormal};
 pub use log::{LaserLog, OdometryReading, ScanRecord};
 pub use scan::{BeamFilter, LaserScan};
 

@@ -51,8 +51,8 @@ pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
 pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
 pub use loops::{
-    find_loop_candidates, find_loop_candidates_with, find_loop_candidates_with_poses, PlaceParams,
-    VerifiedLoop,
+    find_loop_candidates, find_loop_candidates_with, find_loop_candidates_with_poses,
+    verify_candidates, PlaceCandidate, PlaceParams, VerifiedLoop,
 };
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::ScanMatchVerifier;

@@ -137,16 +137,28 @@ pub fn find_loop_candidates_with<E: DescriptorExtractor>(
     search(extractor, keyframes_a, keyframes_b, None, verifier, params)
 }
 
-/// True when candidates `(ordinal, verification)` `x` and `y` show the same place of B.
+/// A retrieved place to verify: keyframe `keyframe` of B (its position `ordinal` in B), the
+/// descriptor's yaw guess of the query in its frame, and its pose in B's map when known.
+#[derive(Clone, Copy, Debug)]
+pub struct PlaceCandidate<'a> {
+    /// Position of the keyframe in B (consecutive keyframes see the same place).
+    pub ordinal: usize,
+    /// The candidate keyframe.
+    pub keyframe: &'a Keyframe,
+    /// The descriptor's estimate of the query's yaw in the candidate's frame (rad).
+    pub yaw_rad: f64,
+    /// The candidate's pose in B's map, when known.
+    pub map_from_keyframe: Option<Se2>,
+}
+
+/// True when verified candidates `x` and `y` show the same place of B.
 fn same_place(
-    x: (usize, &Verification),
-    y: (usize, &Verification),
-    map_from_b: Option<&[Se2]>,
+    x: (&PlaceCandidate, &Verification),
+    y: (&PlaceCandidate, &Verification),
     params: &PlaceParams,
 ) -> bool {
-    let poses = map_from_b.and_then(|m| Some((m.get(x.0)?, m.get(y.0)?)));
-    match poses {
-        Some((map_from_x, map_from_y)) => {
+    match (x.0.map_from_keyframe, y.0.map_from_keyframe) {
+        (Some(map_from_x), Some(map_from_y)) => {
             // Where each candidate puts `a` in B's map.
             let a_via_x = map_from_x.compose(&x.1.candidate_from_query);
             let a_via_y = map_from_y.compose(&y.1.candidate_from_query);
@@ -154,8 +166,55 @@ fn same_place(
                 && wrap_angle_rad(a_via_x.theta_rad - a_via_y.theta_rad).abs()
                     <= params.same_place_rad
         }
-        None => x.0.abs_diff(y.0) <= params.distinct_index_gap,
+        _ => x.0.ordinal.abs_diff(y.0.ordinal) <= params.distinct_index_gap,
     }
+}
+
+/// Verifies the retrieved `candidates` of `query` (those within
+/// `params.max_descriptor_distance` should be passed; the guess is the descriptor's yaw with
+/// zero translation) and accepts the best when its score reaches `params.min_score`, with a
+/// confidence against the best rival showing a distinct place (see [`VerifiedLoop`]). The
+/// step shared by [`find_loop_candidates`] and incremental SLAM, which keeps its own index.
+pub fn verify_candidates(
+    query: &Keyframe,
+    candidates: &[PlaceCandidate],
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+) -> Option<VerifiedLoop> {
+    let verified: Vec<(&PlaceCandidate, Verification)> = candidates
+        .iter()
+        .filter_map(|c| {
+            let guess = Se2::new(0.0, 0.0, c.yaw_rad);
+            let v = verifier.verify(query, c.keyframe, &guess)?;
+            v.score.is_finite().then_some((c, v))
+        })
+        .collect();
+    let (best_candidate, best) = verified.iter().max_by(|x, y| {
+        x.1.score
+            .total_cmp(&y.1.score)
+            .then(y.0.ordinal.cmp(&x.0.ordinal))
+    })?;
+    if best.score < params.min_score {
+        return None;
+    }
+    let rival = verified
+        .iter()
+        .filter(|(c, v)| !same_place((best_candidate, best), (c, v), params))
+        .map(|(_, v)| v.score.max(0.0))
+        .fold(0.0f64, f64::max);
+    let confidence = if best.score > 0.0 {
+        ((best.score - rival) / best.score).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    Some(VerifiedLoop {
+        a: query.id,
+        b: best_candidate.keyframe.id,
+        b_from_a: best.candidate_from_query,
+        score: best.score,
+        confidence,
+        covariance: best.covariance,
+    })
 }
 
 /// The loop search shared by the public entry points.
@@ -180,50 +239,27 @@ fn search<E: DescriptorExtractor>(
     for (ordinal, keyframe) in keyframes_b.iter().enumerate() {
         ordinal_of.entry(keyframe.id).or_insert(ordinal);
     }
-    // 2. Query every keyframe of A, 3. verify its best candidates (the descriptor's yaw, zero
-    // translation), 4. accept the best by score and rate it against distinct rivals.
+    // 2. Query every keyframe of A, 3. verify its best candidates, 4. accept the best by
+    // score and rate it against distinct rivals.
     keyframes_a
         .par_iter()
         .filter_map(|query| {
             let descriptor = extractor.describe(&query.points_in_keyframe);
-            let candidates = index.query(&descriptor, params.candidates_per_query);
-            let verified: Vec<(usize, &Keyframe, Verification)> = candidates
+            let candidates: Vec<PlaceCandidate> = index
+                .query(&descriptor, params.candidates_per_query)
                 .iter()
                 .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
                 .filter_map(|c| {
                     let ordinal = *ordinal_of.get(&c.keyframe)?;
-                    let candidate = keyframes_b.get(ordinal)?;
-                    let guess = Se2::new(0.0, 0.0, c.yaw_rad);
-                    let v = verifier.verify(query, candidate, &guess)?;
-                    v.score.is_finite().then_some((ordinal, candidate, v))
+                    Some(PlaceCandidate {
+                        ordinal,
+                        keyframe: keyframes_b.get(ordinal)?,
+                        yaw_rad: c.yaw_rad,
+                        map_from_keyframe: map_from_b.and_then(|m| m.get(ordinal).copied()),
+                    })
                 })
                 .collect();
-            let (best_ordinal, best_keyframe, best) = verified
-                .iter()
-                .max_by(|x, y| x.2.score.total_cmp(&y.2.score).then(y.0.cmp(&x.0)))?;
-            if best.score < params.min_score {
-                return None;
-            }
-            let rival = verified
-                .iter()
-                .filter(|(ordinal, _, v)| {
-                    !same_place((*best_ordinal, best), (*ordinal, v), map_from_b, params)
-                })
-                .map(|(_, _, v)| v.score.max(0.0))
-                .fold(0.0f64, f64::max);
-            let confidence = if best.score > 0.0 {
-                ((best.score - rival) / best.score).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            Some(VerifiedLoop {
-                a: query.id,
-                b: best_keyframe.id,
-                b_from_a: best.candidate_from_query,
-                score: best.score,
-                confidence,
-                covariance: best.covariance,
-            })
+            verify_candidates(query, &candidates, verifier, params)
         })
         .collect()
 }

@@ -18,6 +18,8 @@ pub(crate) const LIKELIHOOD_MAX: u16 = u16::MAX;
 #[derive(Clone, Debug)]
 pub struct CorrelationGrid {
     resolution_m: f64,
+    sigma_cells: f64,
+    max_cells: u64,
     /// Corner (not centre) of cell (0, 0), in the target frame (m).
     origin_m: Point2,
     width: usize,
@@ -32,7 +34,48 @@ impl CorrelationGrid {
         points_in_target: &[Point2],
         params: &CorrelativeParams,
     ) -> Result<Self, ScanMatchError> {
+        let mut grid = Self::empty(params)?;
+        grid.insert(points_in_target, 0)?;
+        if grid.cells.is_empty() {
+            return Err(ScanMatchError::EmptyTarget);
+        }
+        Ok(grid)
+    }
+
+    /// A grid without cells; [`CorrelationGrid::insert`] grows it.
+    pub fn empty(params: &CorrelativeParams) -> Result<Self, ScanMatchError> {
         params.validate()?;
+        Ok(Self {
+            resolution_m: params.resolution_m,
+            sigma_cells: params.kernel_sigma_cells,
+            max_cells: params.max_grid_cells,
+            origin_m: Point2::zeros(),
+            width: 0,
+            height: 0,
+            cells: Vec::new(),
+        })
+    }
+
+    /// True when nothing was inserted.
+    pub fn is_empty(&self) -> bool {
+        self.cells.is_empty()
+    }
+
+    /// Kernel reach in cells (3σ).
+    fn reach(&self) -> i64 {
+        (3.0 * self.sigma_cells).ceil().max(1.0) as i64
+    }
+
+    /// Adds the finite `points_in_target` (the likelihood of a cell is the max over every
+    /// point inserted so far). The grid grows to cover them plus the kernel's reach, plus
+    /// `margin_cells` on each side that grows, so a map built scan by scan is not copied at
+    /// every scan. Returns the inserted cell rectangle `(i_min, j_min, i_max, j_max)` in the
+    /// grid's (possibly new) cell coordinates, `None` when no point was finite.
+    pub fn insert(
+        &mut self,
+        points_in_target: &[Point2],
+        margin_cells: usize,
+    ) -> Result<Option<(i64, i64, i64, i64)>, ScanMatchError> {
         let finite: Vec<&Point2> = points_in_target
             .iter()
             .filter(|p| p.x.is_finite() && p.y.is_finite())
@@ -43,40 +86,22 @@ impl CorrelationGrid {
             finite.iter().map(|p| p.x).reduce(f64::max),
             finite.iter().map(|p| p.y).reduce(f64::max),
         ) else {
-            return Err(ScanMatchError::EmptyTarget);
+            return Ok(None);
         };
-        let resolution_m = params.resolution_m;
-        let sigma_cells = params.kernel_sigma_cells;
-        let reach = (3.0 * sigma_cells).ceil().max(1.0) as i64;
-        let span_x = ((max_x - min_x) / resolution_m).ceil() + 1.0 + 2.0 * reach as f64;
-        let span_y = ((max_y - min_y) / resolution_m).ceil() + 1.0 + 2.0 * reach as f64;
-        let cells = span_x * span_y;
-        if !(cells.is_finite() && cells <= params.max_grid_cells as f64) {
-            return Err(ScanMatchError::TargetTooLarge {
-                cells: if cells.is_finite() {
-                    cells as u64
-                } else {
-                    u64::MAX
-                },
-                resolution_m,
-                max_cells: params.max_grid_cells,
-            });
-        }
-        let (width, height) = (span_x as usize, span_y as usize);
-        let origin_m = Point2::new(
-            min_x - reach as f64 * resolution_m,
-            min_y - reach as f64 * resolution_m,
-        );
-        let mut grid = Self {
-            resolution_m,
-            origin_m,
-            width,
-            height,
-            cells: vec![0; width * height],
-        };
-        let inv_two_sigma_sq = 1.0 / (2.0 * sigma_cells * sigma_cells);
+        self.cover(
+            Point2::new(min_x, min_y),
+            Point2::new(max_x, max_y),
+            margin_cells,
+        )?;
+        let resolution_m = self.resolution_m;
+        let origin_m = self.origin_m;
+        let reach = self.reach();
+        let inv_two_sigma_sq = 1.0 / (2.0 * self.sigma_cells * self.sigma_cells);
         let side = (2 * reach + 1) as usize;
         let (mut along_x, mut along_y) = (vec![0.0; side], vec![0.0; side]);
+        let mut row_values = vec![0u16; side];
+        let width = self.width as i64;
+        let height = self.height as i64;
         for p in finite {
             // Point position in cell units, relative to the grid corner.
             let u = (p.x - origin_m.x) / resolution_m;
@@ -90,21 +115,114 @@ impl CorrelationGrid {
                 *gx = (-du * du * inv_two_sigma_sq).exp();
                 *gy = (-dv * dv * inv_two_sigma_sq).exp();
             }
+            // `cover` made room for the whole kernel, so the block lies inside the grid.
+            let i0 = cu - reach;
+            if i0 < 0 || i0 + side as i64 > width {
+                continue;
+            }
             for (b, gy) in along_y.iter().enumerate() {
                 let j = cv + b as i64 - reach;
-                for (a, gx) in along_x.iter().enumerate() {
-                    let i = cu + a as i64 - reach;
-                    let Some(index) = grid.index(i, j) else {
-                        continue;
-                    };
-                    let value = (gx * gy * f64::from(LIKELIHOOD_MAX)).round() as u16;
-                    if let Some(cell) = grid.cells.get_mut(index) {
-                        *cell = (*cell).max(value);
+                if j < 0 || j >= height {
+                    continue;
+                }
+                for (value, gx) in row_values.iter_mut().zip(&along_x) {
+                    *value = (gx * gy * f64::from(LIKELIHOOD_MAX)).round() as u16;
+                }
+                let start = j as usize * self.width + i0 as usize;
+                if let Some(row) = self.cells.get_mut(start..start + side) {
+                    for (cell, value) in row.iter_mut().zip(&row_values) {
+                        *cell = (*cell).max(*value);
                     }
                 }
             }
         }
-        Ok(grid)
+        let (i_min, j_min) = self.cell_of(&Point2::new(min_x, min_y));
+        let (i_max, j_max) = self.cell_of(&Point2::new(max_x, max_y));
+        Ok(Some((
+            i_min - reach,
+            j_min - reach,
+            i_max + reach,
+            j_max + reach,
+        )))
+    }
+
+    /// Grows the grid (keeping its cells, on the same lattice) to cover `[min, max]` plus
+    /// the kernel's reach; sides that grow get `margin_cells` more.
+    fn cover(
+        &mut self,
+        min: Point2,
+        max: Point2,
+        margin_cells: usize,
+    ) -> Result<(), ScanMatchError> {
+        let reach = self.reach();
+        let resolution_m = self.resolution_m;
+        let too_large = |cells: f64| ScanMatchError::TargetTooLarge {
+            cells: if cells.is_finite() {
+                cells as u64
+            } else {
+                u64::MAX
+            },
+            resolution_m,
+            max_cells: self.max_cells,
+        };
+        if self.cells.is_empty() {
+            let span_x = ((max.x - min.x) / resolution_m).ceil() + 1.0 + 2.0 * reach as f64;
+            let span_y = ((max.y - min.y) / resolution_m).ceil() + 1.0 + 2.0 * reach as f64;
+            let margin = margin_cells as f64;
+            let cells = (span_x + 2.0 * margin) * (span_y + 2.0 * margin);
+            if !(cells.is_finite() && cells <= self.max_cells as f64) {
+                return Err(too_large(cells));
+            }
+            self.width = (span_x + 2.0 * margin) as usize;
+            self.height = (span_y + 2.0 * margin) as usize;
+            let corner = (reach + margin_cells as i64) as f64 * resolution_m;
+            self.origin_m = Point2::new(min.x - corner, min.y - corner);
+            self.cells = vec![0; self.width * self.height];
+            return Ok(());
+        }
+        // Needed cell range in the current lattice.
+        let inverse_resolution = 1.0 / resolution_m;
+        let lo_x = ((min.x - self.origin_m.x) * inverse_resolution).floor() - reach as f64;
+        let lo_y = ((min.y - self.origin_m.y) * inverse_resolution).floor() - reach as f64;
+        let hi_x = ((max.x - self.origin_m.x) * inverse_resolution).floor() + reach as f64;
+        let hi_y = ((max.y - self.origin_m.y) * inverse_resolution).floor() + reach as f64;
+        let (w, h) = (self.width as f64, self.height as f64);
+        if lo_x >= 0.0 && lo_y >= 0.0 && hi_x < w && hi_y < h {
+            return Ok(());
+        }
+        let margin = margin_cells as f64;
+        let grow_left = if lo_x < 0.0 { -lo_x + margin } else { 0.0 };
+        let grow_down = if lo_y < 0.0 { -lo_y + margin } else { 0.0 };
+        let grow_right = if hi_x >= w {
+            hi_x - w + 1.0 + margin
+        } else {
+            0.0
+        };
+        let grow_up = if hi_y >= h {
+            hi_y - h + 1.0 + margin
+        } else {
+            0.0
+        };
+        let new_w = w + grow_left + grow_right;
+        let new_h = h + grow_down + grow_up;
+        let cells = new_w * new_h;
+        if !(cells.is_finite() && cells <= self.max_cells as f64) {
+            return Err(too_large(cells));
+        }
+        let (new_w, new_h) = (new_w as usize, new_h as usize);
+        let (left, down) = (grow_left as usize, grow_down as usize);
+        let mut grown = vec![0u16; new_w * new_h];
+        for (j, row) in self.cells.chunks_exact(self.width).enumerate() {
+            let start = (j + down) * new_w + left;
+            if let Some(slot) = grown.get_mut(start..start + self.width) {
+                slot.copy_from_slice(row);
+            }
+        }
+        self.origin_m -= Point2::new(left as f64, down as f64) * resolution_m;
+        self.width = new_w;
+        self.height = new_h;
+        self.cells = grown;
+        Ok(())
     }
 
     /// Cell size (m).
@@ -166,6 +284,30 @@ pub(crate) fn fast_floor(v: f64) -> i64 {
     }
 }
 
+/// `new[k] = max(old[k − shift], old[k])` with missing entries 0; `new` is `shift` longer.
+/// Slices without bounds checks in the loops, so the compiler vectorises them.
+fn max_of_shifted(old: &[u16], new: &mut [u16], shift: usize) {
+    let n = old.len();
+    debug_assert_eq!(new.len(), n + shift);
+    if shift >= n {
+        let (head, tail) = new.split_at_mut(n.min(new.len()));
+        head.copy_from_slice(&old[..head.len()]);
+        let tail_len = tail.len();
+        tail[tail_len - n..].copy_from_slice(old);
+        return;
+    }
+    // k < shift: only old[k]; shift ≤ k < n: both; n ≤ k: only old[k − shift].
+    new[..shift].copy_from_slice(&old[..shift]);
+    for ((out, a), b) in new[shift..n]
+        .iter_mut()
+        .zip(&old[..n - shift])
+        .zip(&old[shift..])
+    {
+        *out = (*a).max(*b);
+    }
+    new[n..].copy_from_slice(&old[n - shift..]);
+}
+
 /// One precomputed level: cell (i, j) holds the max of the base cells
 /// `[i, i + 2^h) × [j, j + 2^h)`; it is stored for `i ∈ [−(2^h − 1), width)` (Hess et al.
 /// 2016, Sec. V-C: "the lower-left corner").
@@ -207,39 +349,37 @@ impl PrecomputedGrid {
     /// Level `height_level` from this one (level `height_level − 1`).
     fn coarser(&self, height_level: usize) -> Self {
         let half = 1usize << (height_level - 1);
-        let grow = half; // offset(h) − offset(h − 1) = 2^(h−1)
-        let (width, height) = (self.width + grow, self.height + grow);
-        let at = |cells: &[u16], stride: usize, len: usize, k: usize, other: usize| -> u16 {
-            // Index k of the new axis is index k − grow of the old one.
-            let get = |index: Option<usize>| {
-                index
-                    .filter(|&i| i < len)
-                    .and_then(|i| cells.get(i * stride + other))
-                    .copied()
-                    .unwrap_or(0)
-            };
-            // X and X + 2^(h−1) are old indices k − grow and k.
-            get(k.checked_sub(grow)).max(get(Some(k)))
-        };
-        // Pass 1: along x (rows of the old height).
+        // offset(h) − offset(h − 1) = 2^(h−1): new index k is old index k − half.
+        let (width, height) = (self.width + half, self.height + half);
+        // Pass 1, along x: row[k] = max(old[k − half], old[k]).
         let mut rows = vec![0u16; width * self.height];
-        for j in 0..self.height {
-            let Some(row) = self.cells.get(j * self.width..(j + 1) * self.width) else {
-                continue;
-            };
-            for (i, slot) in rows.iter_mut().skip(j * width).take(width).enumerate() {
-                *slot = at(row, 1, self.width, i, 0);
-            }
+        for (old, new) in self
+            .cells
+            .chunks_exact(self.width.max(1))
+            .zip(rows.chunks_exact_mut(width))
+        {
+            max_of_shifted(old, new, half);
         }
-        // Pass 2: along y.
+        // Pass 2, along y, whole rows at a time.
         let mut cells = vec![0u16; width * height];
-        for (j, out_row) in cells.chunks_mut(width).enumerate() {
-            for (i, slot) in out_row.iter_mut().enumerate() {
-                *slot = at(&rows, width, self.height, j, i);
+        for (k, out_row) in cells.chunks_exact_mut(width).enumerate() {
+            let row = |index: Option<usize>| {
+                index
+                    .filter(|&j| j < self.height)
+                    .and_then(|j| rows.get(j * width..(j + 1) * width))
+            };
+            match (row(k.checked_sub(half)), row(Some(k))) {
+                (Some(a), Some(b)) => {
+                    for ((out, x), y) in out_row.iter_mut().zip(a).zip(b) {
+                        *out = (*x).max(*y);
+                    }
+                }
+                (Some(a), None) | (None, Some(a)) => out_row.copy_from_slice(a),
+                (None, None) => {}
             }
         }
         Self {
-            offset: self.offset + grow as i64,
+            offset: self.offset + half as i64,
             width,
             height,
             cells,

@@ -46,6 +46,47 @@ impl MatchTarget {
         })
     }
 
+    /// A target with nothing in it yet (every match fails until points are inserted).
+    pub fn empty(params: &CorrelativeParams) -> Result<Self, ScanMatchError> {
+        Ok(Self {
+            params: *params,
+            grid: CorrelationGrid::empty(params)?,
+            levels: Vec::new(),
+            points_in_target: Vec::new(),
+        })
+    }
+
+    /// Adds `points_in_target` (a map built scan by scan): the grid grows with a margin of
+    /// `margin_cells`, and the coarse levels are recomputed.
+    pub fn insert(
+        &mut self,
+        points_in_target: &[Point2],
+        margin_cells: usize,
+    ) -> Result<(), ScanMatchError> {
+        if self.grid.insert(points_in_target, margin_cells)?.is_some() {
+            self.levels = PrecomputedGrid::levels(&self.grid, self.params.branch_and_bound_depth);
+            self.points_in_target.extend(
+                points_in_target
+                    .iter()
+                    .filter(|p| p.x.is_finite() && p.y.is_finite()),
+            );
+        }
+        Ok(())
+    }
+
+    /// Recomputes the coarse levels for a new branch-and-bound depth (a map that was
+    /// matched with small windows while it was built and with large ones once finished).
+    pub fn set_branch_and_bound_depth(&mut self, depth: usize) -> Result<(), ScanMatchError> {
+        let mut params = self.params;
+        params.branch_and_bound_depth = depth;
+        params.validate()?;
+        self.params = params;
+        if !self.grid.is_empty() {
+            self.levels = PrecomputedGrid::levels(&self.grid, depth);
+        }
+        Ok(())
+    }
+
     /// The parameters the target was built with (also used by every match against it).
     pub fn params(&self) -> &CorrelativeParams {
         &self.params

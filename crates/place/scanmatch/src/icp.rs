@@ -2,6 +2,8 @@
 //! by Gauss–Newton on SE(2) with a Huber kernel.
 
 use mapmerge_geometry::{LieGroup, Se2};
+use std::collections::HashSet;
+
 use mapmerge_scan::{estimate_normals, voxel_downsample, Point2, PointNormal};
 use nalgebra::{Matrix2, Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
@@ -9,69 +11,106 @@ use serde::Serialize;
 use crate::params::IcpParams;
 
 /// Target points with normals and a bucket grid for nearest-neighbour queries. Build once per
-/// target.
+/// target ([`IcpTarget::new`]) or grow it scan by scan ([`IcpTarget::insert`]).
 #[derive(Clone, Debug)]
 pub struct IcpTarget {
     points: Vec<PointNormal>,
     buckets: BucketGrid,
+    /// Voxels (of `voxel_m`) already holding a point, for [`IcpTarget::insert`].
+    occupied: HashSet<(i64, i64)>,
+    voxel_m: f64,
 }
 
-/// Point indices in square buckets of `cell_m` over the points' bounding box.
+/// Point indices in square buckets of `cell_m`, over a box that grows to cover the points.
 #[derive(Clone, Debug)]
 struct BucketGrid {
     cell_m: f64,
     min_m: Point2,
     width: i64,
     height: i64,
-    buckets: Vec<Vec<usize>>,
+    buckets: Vec<Vec<u32>>,
 }
 
+/// At most this many buckets; a huge, sparse target gets larger cells.
+const MAX_BUCKETS: f64 = 4e6;
+
 impl BucketGrid {
-    fn new(points: &[PointNormal], cell_m: f64) -> Self {
-        let min_m = Point2::new(
-            points
-                .iter()
-                .map(|p| p.point.x)
-                .fold(f64::INFINITY, f64::min),
-            points
-                .iter()
-                .map(|p| p.point.y)
-                .fold(f64::INFINITY, f64::min),
-        );
-        let max_m = Point2::new(
-            points
-                .iter()
-                .map(|p| p.point.x)
-                .fold(f64::NEG_INFINITY, f64::max),
-            points
-                .iter()
-                .map(|p| p.point.y)
-                .fold(f64::NEG_INFINITY, f64::max),
-        );
-        let mut grid = Self {
+    fn new(cell_m: f64) -> Self {
+        Self {
             cell_m,
-            min_m,
+            min_m: Point2::zeros(),
             width: 0,
             height: 0,
             buckets: Vec::new(),
-        };
-        if points.is_empty() {
-            return grid;
         }
-        // Too many buckets for a huge, sparse target: grow the cell.
-        let span = (max_m - min_m) / cell_m;
-        let scale = ((span.x + 1.0) * (span.y + 1.0) / 4e6).sqrt().max(1.0);
-        grid.cell_m = cell_m * scale;
-        grid.width = ((max_m.x - min_m.x) / grid.cell_m).floor() as i64 + 1;
-        grid.height = ((max_m.y - min_m.y) / grid.cell_m).floor() as i64 + 1;
-        grid.buckets = vec![Vec::new(); (grid.width * grid.height).max(0) as usize];
-        for (index, p) in points.iter().enumerate() {
-            let (i, j) = grid.cell_of(&p.point);
-            if let Some(bucket) = grid.bucket_mut(i, j) {
-                bucket.push(index);
+    }
+
+    /// Adds `points[first..]`, growing the box (with a margin of a few cells) and
+    /// re-bucketing everything when one falls outside it.
+    fn extend(&mut self, points: &[PointNormal], first: usize) {
+        let Some(new_points) = points.get(first..) else {
+            return;
+        };
+        if new_points.is_empty() {
+            return;
+        }
+        let inside = new_points.iter().all(|p| {
+            let (i, j) = self.cell_of(&p.point);
+            i >= 0 && j >= 0 && i < self.width && j < self.height
+        });
+        if !inside || self.buckets.is_empty() {
+            self.rebuild(points);
+            return;
+        }
+        for (index, p) in new_points.iter().enumerate() {
+            let (i, j) = self.cell_of(&p.point);
+            if let Some(bucket) = self.bucket_mut(i, j) {
+                bucket.push((first + index) as u32);
             }
         }
-        grid
+    }
+
+    fn rebuild(&mut self, points: &[PointNormal]) {
+        let bound = |f: fn(&PointNormal) -> f64, min: bool| {
+            points.iter().map(f).fold(
+                if min {
+                    f64::INFINITY
+                } else {
+                    f64::NEG_INFINITY
+                },
+                |a, b| {
+                    if min {
+                        a.min(b)
+                    } else {
+                        a.max(b)
+                    }
+                },
+            )
+        };
+        if points.is_empty() {
+            return;
+        }
+        // A margin of 8 cells, so a map built scan by scan is rarely re-bucketed.
+        let margin = 8.0 * self.cell_m;
+        let min_m = Point2::new(bound(|p| p.point.x, true), bound(|p| p.point.y, true))
+            - Point2::new(margin, margin);
+        let max_m = Point2::new(bound(|p| p.point.x, false), bound(|p| p.point.y, false))
+            + Point2::new(margin, margin);
+        let span = (max_m - min_m) / self.cell_m;
+        let scale = ((span.x + 1.0) * (span.y + 1.0) / MAX_BUCKETS)
+            .sqrt()
+            .max(1.0);
+        self.cell_m *= scale;
+        self.min_m = min_m;
+        self.width = ((max_m.x - min_m.x) / self.cell_m).floor() as i64 + 1;
+        self.height = ((max_m.y - min_m.y) / self.cell_m).floor() as i64 + 1;
+        self.buckets = vec![Vec::new(); (self.width * self.height).max(0) as usize];
+        for (index, p) in points.iter().enumerate() {
+            let (i, j) = self.cell_of(&p.point);
+            if let Some(bucket) = self.bucket_mut(i, j) {
+                bucket.push(index as u32);
+            }
+        }
     }
 
     fn cell_of(&self, p: &Point2) -> (i64, i64) {
@@ -83,14 +122,14 @@ impl BucketGrid {
         )
     }
 
-    fn bucket(&self, i: i64, j: i64) -> Option<&Vec<usize>> {
+    fn bucket(&self, i: i64, j: i64) -> Option<&Vec<u32>> {
         if i < 0 || j < 0 || i >= self.width || j >= self.height {
             return None;
         }
         self.buckets.get((j * self.width + i) as usize)
     }
 
-    fn bucket_mut(&mut self, i: i64, j: i64) -> Option<&mut Vec<usize>> {
+    fn bucket_mut(&mut self, i: i64, j: i64) -> Option<&mut Vec<u32>> {
         if i < 0 || j < 0 || i >= self.width || j >= self.height {
             return None;
         }
@@ -109,19 +148,53 @@ impl IcpTarget {
             .copied()
             .collect();
         let finite = voxel_downsample(&finite, params.target_voxel_m);
-        let points: Vec<PointNormal> =
-            estimate_normals(&finite, params.normal_radius_m, 3, &Point2::zeros())
-                .into_iter()
-                .filter(|p| p.planarity >= params.min_planarity)
-                .collect();
+        let points = estimate_normals(&finite, params.normal_radius_m, 3, &Point2::zeros());
+        let mut target = Self::empty(params);
+        target.insert(&points, params);
+        target
+    }
+
+    /// A target without points.
+    pub fn empty(params: &IcpParams) -> Self {
         let cell_m = if params.max_correspondence_m.is_finite() && params.max_correspondence_m > 0.0
         {
             params.max_correspondence_m
         } else {
             1.0
         };
-        let buckets = BucketGrid::new(&points, cell_m);
-        Self { points, buckets }
+        Self {
+            points: Vec::new(),
+            buckets: BucketGrid::new(cell_m),
+            occupied: HashSet::new(),
+            voxel_m: params.target_voxel_m,
+        }
+    }
+
+    /// Adds points with normals (e.g. a scan's, from `mapmerge_scan::scan_normals`, moved
+    /// into the target frame): finite ones at least `params.min_planarity` line-like, and
+    /// only one per `params.target_voxel_m` voxel (the first one; a map built from many
+    /// scans repeats each wall many times).
+    pub fn insert(&mut self, points_in_target: &[PointNormal], params: &IcpParams) {
+        let first = self.points.len();
+        let voxel_m = self.voxel_m;
+        for p in points_in_target {
+            let finite = p.point.iter().chain(p.normal.iter()).all(|v| v.is_finite());
+            if !finite || p.planarity < params.min_planarity {
+                continue;
+            }
+            if voxel_m.is_finite() && voxel_m > 0.0 {
+                const FAR: f64 = 1e15;
+                let key = (
+                    (p.point.x / voxel_m).floor().clamp(-FAR, FAR) as i64,
+                    (p.point.y / voxel_m).floor().clamp(-FAR, FAR) as i64,
+                );
+                if !self.occupied.insert(key) {
+                    continue;
+                }
+            }
+            self.points.push(*p);
+        }
+        self.buckets.extend(&self.points, first);
     }
 
     /// Number of target points that have a normal.
@@ -143,7 +216,7 @@ impl IcpTarget {
                 let Some(bucket) = self.buckets.bucket(cx + dx, cy + dy) else {
                     continue;
                 };
-                for q in bucket.iter().filter_map(|&i| self.points.get(i)) {
+                for q in bucket.iter().filter_map(|&i| self.points.get(i as usize)) {
                     let d2 = (q.point - p).norm_squared();
                     if best.is_none_or(|(_, b)| d2 < b) {
                         best = Some((q, d2));

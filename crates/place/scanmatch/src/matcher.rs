@@ -1,26 +1,71 @@
 //! The combined matcher: correlative search, then point-to-line ICP refinement.
 
 use mapmerge_geometry::Se2;
-use mapmerge_scan::{voxel_downsample, Point2};
+use mapmerge_scan::{scan_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix3;
 use serde::Serialize;
 
 use crate::correlative::{match_scan, MatchTarget};
 use crate::error::ScanMatchError;
 use crate::icp::{refine_icp, IcpInfo, IcpTarget};
-use crate::params::{ScanMatchParams, SearchWindow};
+use crate::params::{IcpParams, ScanMatchParams, SearchWindow};
 
 /// A target prepared for both stages: correlation grids and normals.
 #[derive(Clone, Debug)]
 pub struct ScanMatchTarget {
     correlative: MatchTarget,
     icp: Option<IcpTarget>,
+    icp_params: Option<IcpParams>,
 }
+
+/// Margin (cells) by which a target built scan by scan grows, so it is not copied per scan.
+const GROWTH_MARGIN_CELLS: usize = 100;
+
+/// Neighbourhood of a scan point's normal: 3 beams on each side within 0.2 m or 6 % of the
+/// range (about 3.4° of arc), see `mapmerge_scan::scan_normals`.
+const SCAN_NORMAL_HALF_WINDOW: usize = 3;
+const SCAN_NORMAL_MIN_GAP_M: f64 = 0.2;
+const SCAN_NORMAL_GAP_PER_RANGE: f64 = 0.06;
 
 impl ScanMatchTarget {
     /// The correlative target (grid and levels).
     pub fn correlative(&self) -> &MatchTarget {
         &self.correlative
+    }
+
+    /// Mutable access to the correlative target (e.g. to deepen its levels once a map is
+    /// finished and will be searched with large windows).
+    pub fn correlative_mut(&mut self) -> &mut MatchTarget {
+        &mut self.correlative
+    }
+
+    /// Adds one scan, `points_in_robot` in beam order, seen from `target_from_robot`: its
+    /// points join the correlation grid and its normals (from neighbouring beams) the ICP
+    /// target. The way a map is built scan by scan (Hess et al. 2016's submaps).
+    pub fn insert_scan(
+        &mut self,
+        target_from_robot: &Se2,
+        points_in_robot: &[Point2],
+    ) -> Result<(), ScanMatchError> {
+        let points_in_target = transform_points(target_from_robot, points_in_robot);
+        self.correlative
+            .insert(&points_in_target, GROWTH_MARGIN_CELLS)?;
+        if let (Some(icp), Some(params)) = (self.icp.as_mut(), self.icp_params.as_ref()) {
+            let mut normals = scan_normals(
+                points_in_robot,
+                SCAN_NORMAL_HALF_WINDOW,
+                SCAN_NORMAL_MIN_GAP_M,
+                SCAN_NORMAL_GAP_PER_RANGE,
+                &Point2::zeros(),
+            );
+            let rotation = target_from_robot.rotation_matrix();
+            for n in &mut normals {
+                n.point = target_from_robot.transform_point(&n.point);
+                n.normal = rotation * n.normal;
+            }
+            icp.insert(&normals, params);
+        }
+        Ok(())
     }
 }
 
@@ -69,7 +114,20 @@ impl ScanMatcher {
             .params
             .icp
             .map(|params| IcpTarget::new(correlative.points_in_target(), &params));
-        Ok(ScanMatchTarget { correlative, icp })
+        Ok(ScanMatchTarget {
+            correlative,
+            icp,
+            icp_params: self.params.icp,
+        })
+    }
+
+    /// An empty target to build scan by scan with [`ScanMatchTarget::insert_scan`].
+    pub fn empty_target(&self) -> Result<ScanMatchTarget, ScanMatchError> {
+        Ok(ScanMatchTarget {
+            correlative: MatchTarget::empty(&self.params.correlative)?,
+            icp: self.params.icp.map(|params| IcpTarget::empty(&params)),
+            icp_params: self.params.icp,
+        })
     }
 
     /// Matches `query_points_in_robot` against `target` within `window` around

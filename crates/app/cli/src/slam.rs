@@ -1,0 +1,188 @@
+//! `mapmerge slam`: the 2D graph-SLAM front-end on a laser log, writing the pose graph, the
+//! map, a picture and one pose per scan.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use anyhow::Context;
+use clap::Args;
+use mapmerge_eval::{
+    add_odometry_noise, make_relations, scan_poses, trajectory_report, OdometryNoiseProfile,
+    RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
+};
+use mapmerge_geometry::Se2;
+use mapmerge_grid::{ClassThresholds, InsertParams};
+use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
+use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
+use mapmerge_slam::{run_front_end_with_progress, FrontEndInfo, FrontEndParams};
+use serde::Serialize;
+
+use crate::grid::{build_grid, PosedLog};
+use crate::{bad_file, bad_input, check_resolution, print_json};
+
+/// Arguments of `mapmerge slam`.
+#[derive(Args, Debug)]
+pub struct SlamArgs {
+    /// CARMEN laser log (`.xz` accepted); its scans' odometry poses are the wheel odometry.
+    pub log: PathBuf,
+    /// Output folder: graph.g2o, map.yaml + map.pgm, map.png, trajectory.tum.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Replace the log's odometry by seeded noisy odometry first (`default` or `harsh`; for
+    /// the public *corrected* logs, whose odometry is the corrected path). The result is
+    /// then scored against the log's own poses.
+    #[arg(long)]
+    pub odometry_noise: Option<String>,
+    /// Seed of `--odometry-noise`.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Cell side of the map (m).
+    #[arg(long, default_value_t = 0.05)]
+    pub resolution: f64,
+    /// Print one JSON summary instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// What `slam` did.
+#[derive(Serialize)]
+struct SlamReport<'a> {
+    log: &'a Path,
+    scans: usize,
+    seconds: f64,
+    ms_per_scan: f64,
+    front_end: FrontEndInfo,
+    graph_vertices: usize,
+    graph_edges: usize,
+    /// With `--odometry-noise`: the SLAM trajectory and the noisy odometry scored against
+    /// the log's own (corrected) poses.
+    score: Option<TrajectoryReport>,
+    odometry_score: Option<TrajectoryReport>,
+    output: &'a Path,
+}
+
+/// Runs `mapmerge slam`.
+pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
+    check_resolution(args.resolution)?;
+    let mut log = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
+    if log.scans.is_empty() {
+        return Err(bad_input(format!("{}: no laser scans", args.log.display())));
+    }
+    // With noise: the log's poses become the reference, its odometry the noisy one.
+    let mut reference = None;
+    if let Some(name) = &args.odometry_noise {
+        let profile = OdometryNoiseProfile::from_name(name).map_err(bad_input)?;
+        let corrected =
+            scan_poses(&log).map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
+        let noisy = add_odometry_noise(&log, &profile, args.seed)
+            .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
+        reference = Some((corrected, noisy.odometry_poses()));
+        log = noisy.log;
+    }
+    let bar = if args.json {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(log.scans.len() as u64)
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} scans ({eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("slam");
+    let run = run_front_end_with_progress(&log, FrontEndParams::default(), |done| {
+        bar.set_position(done as u64);
+    })
+    .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
+    bar.finish_and_clear();
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
+    // Trajectory: one pose per scan, with the scan's stamp.
+    let stamped: Vec<(f64, Se2)> = log
+        .scans
+        .iter()
+        .zip(&run.trajectory)
+        .map(|(record, pose)| (record.stamp_secs, *pose))
+        .collect();
+    mapmerge_io::write_tum_planar(&args.output.join("trajectory.tum"), &stamped)?;
+    let graph = AnyGraph::Planar(run.graph.clone());
+    mapmerge_io::write_graph(&args.output.join("graph.g2o"), &graph, GraphFormat::G2o)?;
+    // The map from every scan at its final pose.
+    let posed = PosedLog {
+        log,
+        poses: run.trajectory.clone(),
+    };
+    let (grid, _) = build_grid(
+        &posed,
+        args.resolution,
+        &InsertParams::default(),
+        !args.json,
+    )?;
+    let thresholds = ClassThresholds::default();
+    let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
+    mapmerge_io::write_ros_map(&args.output.join("map.yaml"), &map).context("writing the map")?;
+    let style = PictureStyle {
+        pixels_per_cell: 1,
+        classes: Some(thresholds),
+    };
+    let mut picture = Picture::of_grid(&grid, &style);
+    picture.draw_trajectory(&run.trajectory, Rgb::RED, 1.0);
+    picture.draw_graph(&run.graph, &GraphStyle::default());
+    picture.save_png(&args.output.join("map.png"))?;
+    let (score, odometry_score) = match &reference {
+        Some((corrected, odometry)) => {
+            let relations = make_relations(corrected, &RelationsParams::default())?;
+            (
+                Some(trajectory_report(
+                    corrected,
+                    &run.trajectory,
+                    &relations,
+                    &DEFAULT_RPE_DELTAS,
+                )?),
+                Some(trajectory_report(
+                    corrected,
+                    odometry,
+                    &relations,
+                    &DEFAULT_RPE_DELTAS,
+                )?),
+            )
+        }
+        None => (None, None),
+    };
+    let report = SlamReport {
+        log: &args.log,
+        scans: run.trajectory.len(),
+        seconds: run.seconds,
+        ms_per_scan: 1e3 * run.seconds / run.trajectory.len().max(1) as f64,
+        front_end: run.info,
+        graph_vertices: run.graph.num_vertices(),
+        graph_edges: run.graph.num_edges(),
+        score,
+        odometry_score,
+        output: &args.output,
+    };
+    if args.json {
+        print_json(&report)?;
+    } else {
+        let info = &report.front_end;
+        println!(
+            "{} scans in {:.2} s ({:.1} ms/scan): {} keyframes, {} submaps, {} loops ({} local, {} by place recognition), {} optimisations; wrote {}",
+            report.scans,
+            report.seconds,
+            report.ms_per_scan,
+            info.keyframes,
+            info.submaps,
+            info.local_loops + info.place_loops,
+            info.local_loops,
+            info.place_loops,
+            info.optimizations,
+            args.output.display()
+        );
+        if let (Some(score), Some(odometry)) = (&report.score, &report.odometry_score) {
+            println!(
+                "ATE against the log's poses: {:.3} m (noisy odometry: {:.3} m)",
+                score.ate.rms_m, odometry.ate.rms_m
+            );
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,117 @@
+//! Loop closing: where to search and what to accept. Local loop closures search the finished
+//! submaps near the current estimate within a window that grows with the distance travelled
+//! since the last loop (the estimate's uncertainty); global ones come from place recognition
+//! (`mapmerge-place`) when the robot has been without a loop for a while.
+
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_place::{GeometricVerifier, Keyframe, KeyframeId, PlaceParams, Verification};
+use mapmerge_scanmatch::{ScanMatcher, SearchWindow};
+use serde::{Deserialize, Serialize};
+
+use crate::submap::Submap;
+
+/// Parameters of loop closing, one default for every log.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct LoopClosureParams {
+    /// Search for loops at all (default: true).
+    pub enabled: bool,
+    /// A loop match is accepted when its score reaches this (default: 0.6).
+    pub min_score: f64,
+    /// Finished submaps with a keyframe within this distance (m) of the current estimate
+    /// are searched (default: 5).
+    pub max_distance_m: f64,
+    /// At most this many nearby submaps are searched per keyframe, nearest first (default: 2).
+    pub max_submaps_per_keyframe: usize,
+    /// Translation half-width of the local search: `min + per_m · d`, at most `max`, with
+    /// `d` the distance travelled since the last loop (m) (default: 0.5, 0.05, 5).
+    pub window_linear: (f64, f64, f64),
+    /// Heading half-width the same way (rad) (default: 10°, 0.5°/m, 45°).
+    pub window_angular: (f64, f64, f64),
+    /// Place recognition runs once the robot travelled this far (m) without a loop
+    /// (default: 5).
+    pub place_after_m: f64,
+    /// Place recognition's retrieval and acceptance (default: 3 candidates within
+    /// descriptor distance 0.4, score ≥ 0.65).
+    pub place: PlaceParams,
+    /// A place-recognition loop also needs this confidence (the gap to the best rival place,
+    /// see `mapmerge_place::VerifiedLoop`) (default: 0.1): look-alike places are refused.
+    pub place_min_confidence: f64,
+    /// Window of the verification around the descriptor's guess (default: ±2 m, ±20°).
+    pub place_window: SearchWindow,
+    /// A place-recognition loop may move the keyframe's estimate by at most
+    /// `a + b·d` (m) and `c + e·d` (rad), `d` the distance travelled since the last loop (m)
+    /// (default: 1 m + 10 %, 5° + 0.5°/m): Mahalanobis-style gating by the drift a
+    /// scan-matching front-end accumulates, which refuses look-alike places far away.
+    pub place_gate: (f64, f64, f64, f64),
+    /// The graph is optimised after a loop when at least this many keyframes passed since
+    /// the last optimisation (default: 10), and once at the end.
+    pub optimize_every_keyframes: usize,
+    /// Smallest standard deviations of a loop edge (m, rad) (default: 2 cm, 0.5°).
+    pub min_edge_sigma: (f64, f64),
+}
+
+impl Default for LoopClosureParams {
+    fn default() -> Self {
+        let place = PlaceParams {
+            candidates_per_query: 3,
+            max_descriptor_distance: 0.4,
+            min_score: 0.65,
+            ..PlaceParams::default()
+        };
+        Self {
+            enabled: true,
+            min_score: 0.6,
+            max_distance_m: 5.0,
+            max_submaps_per_keyframe: 2,
+            window_linear: (0.5, 0.05, 5.0),
+            window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
+            place_after_m: 5.0,
+            place,
+            place_min_confidence: 0.1,
+            place_window: SearchWindow::new(2.0, 20f64.to_radians()),
+            place_gate: (1.0, 0.1, 5f64.to_radians(), 0.5f64.to_radians()),
+            optimize_every_keyframes: 10,
+            min_edge_sigma: (0.02, 0.5f64.to_radians()),
+        }
+    }
+}
+
+impl LoopClosureParams {
+    /// The local search window after travelling `distance_m` without a loop.
+    pub fn local_window(&self, distance_m: f64) -> SearchWindow {
+        let grow = |(min, per_m, max): (f64, f64, f64)| (min + per_m * distance_m).clamp(min, max);
+        SearchWindow::new(grow(self.window_linear), grow(self.window_angular))
+    }
+}
+
+/// Verifies a place-recognition candidate keyframe against the submap it belongs to (a
+/// richer target than its single scan).
+pub(crate) struct SubmapVerifier<'a> {
+    pub matcher: &'a ScanMatcher,
+    pub submaps: &'a [Submap],
+    /// For a candidate keyframe: its submap and its pose in it.
+    pub locate: &'a (dyn Fn(KeyframeId) -> Option<(usize, Se2)> + Sync),
+    pub window: SearchWindow,
+}
+
+impl GeometricVerifier for SubmapVerifier<'_> {
+    fn verify(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<Verification> {
+        let (submap, submap_from_candidate) = (self.locate)(candidate.id)?;
+        let target = self.submaps.get(submap)?.target();
+        let guess = submap_from_candidate.compose(guess_candidate_from_query);
+        let found =
+            self.matcher
+                .match_scan(target, &query.points_in_keyframe, &guess, &self.window)?;
+        Some(Verification {
+            candidate_from_query: submap_from_candidate.between(&found.target_from_query),
+            score: found.score,
+            covariance: found.covariance,
+        })
+    }
+}
