@@ -10,11 +10,11 @@ use mapmerge_eval::{
     add_odometry_noise, make_relations, scan_poses, trajectory_report, OdometryNoiseProfile,
     RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
 };
-use mapmerge_geometry::Se2;
+use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, InsertParams};
 use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
 use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
-use mapmerge_slam::{run_front_end_with_progress, FrontEndInfo, FrontEndParams};
+use mapmerge_slam::{run_front_end_with_progress, FrontEndInfo, FrontEndParams, LoopSource};
 use serde::Serialize;
 
 use crate::grid::{build_grid, PosedLog};
@@ -39,6 +39,11 @@ pub struct SlamArgs {
     /// Cell side of the map (m).
     #[arg(long, default_value_t = 0.05)]
     pub resolution: f64,
+    /// Front-end parameters as JSON (any subset of the fields `--json` reports under
+    /// `params`; the rest keep their defaults). Default: the one configuration used for
+    /// every public log.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
@@ -58,7 +63,73 @@ struct SlamReport<'a> {
     /// the log's own (corrected) poses.
     score: Option<TrajectoryReport>,
     odometry_score: Option<TrajectoryReport>,
+    /// With `--odometry-noise`: the accepted loop edges judged against the log's poses.
+    loops: Option<LoopPrecision>,
     output: &'a Path,
+    params: &'a FrontEndParams,
+}
+
+/// Accepted loop edges judged against reference poses: true when within 0.5 m and 10° of
+/// the reference relative pose (the rule for a verified candidate).
+#[derive(Serialize)]
+struct LoopPrecision {
+    accepted: usize,
+    accepted_local: usize,
+    accepted_place: usize,
+    true_local: usize,
+    true_place: usize,
+    precision: Option<f64>,
+    worst_translation_error_m: f64,
+    worst_rotation_error_deg: f64,
+}
+
+/// Judges every loop of `run` against `reference` (one pose per scan).
+fn loop_precision(run: &mapmerge_slam::FrontEndRun, reference: &[Se2]) -> LoopPrecision {
+    let mut precision = LoopPrecision {
+        accepted: run.loops.len(),
+        accepted_local: 0,
+        accepted_place: 0,
+        true_local: 0,
+        true_place: 0,
+        precision: None,
+        worst_translation_error_m: 0.0,
+        worst_rotation_error_deg: 0.0,
+    };
+    let pose_of = |node: mapmerge_posegraph::NodeId| {
+        let scan = *run.keyframe_scans.get(usize::try_from(node.0).ok()?)?;
+        reference.get(scan).copied()
+    };
+    for record in &run.loops {
+        let is_place = record.source == LoopSource::Place;
+        if is_place {
+            precision.accepted_place += 1;
+        } else {
+            precision.accepted_local += 1;
+        }
+        let (Some(from), Some(to)) = (pose_of(record.from), pose_of(record.to)) else {
+            continue;
+        };
+        let error = from.between(&to).between(&record.measurement);
+        let (translation_m, rotation_deg) = (
+            error.translation().norm(),
+            error.theta_rad.abs().to_degrees(),
+        );
+        precision.worst_translation_error_m =
+            precision.worst_translation_error_m.max(translation_m);
+        precision.worst_rotation_error_deg = precision.worst_rotation_error_deg.max(rotation_deg);
+        if translation_m <= 0.5 && rotation_deg <= 10.0 {
+            if is_place {
+                precision.true_place += 1;
+            } else {
+                precision.true_local += 1;
+            }
+        }
+    }
+    if precision.accepted > 0 {
+        precision.precision =
+            Some((precision.true_local + precision.true_place) as f64 / precision.accepted as f64);
+    }
+    precision
 }
 
 /// Runs `mapmerge slam`.
@@ -89,7 +160,16 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
             .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message("slam");
-    let run = run_front_end_with_progress(&log, FrontEndParams::default(), |done| {
+    let params: FrontEndParams = match &args.config {
+        None => FrontEndParams::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+            serde_json::from_str(&text)
+                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
+        }
+    };
+    let run = run_front_end_with_progress(&log, params.clone(), |done| {
         bar.set_position(done as u64);
     })
     .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
@@ -128,7 +208,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     picture.draw_trajectory(&run.trajectory, Rgb::RED, 1.0);
     picture.draw_graph(&run.graph, &GraphStyle::default());
     picture.save_png(&args.output.join("map.png"))?;
-    let (score, odometry_score) = match &reference {
+    let (score, odometry_score, loops) = match &reference {
         Some((corrected, odometry)) => {
             let relations = make_relations(corrected, &RelationsParams::default())?;
             (
@@ -144,9 +224,10 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
                     &relations,
                     &DEFAULT_RPE_DELTAS,
                 )?),
+                Some(loop_precision(&run, corrected)),
             )
         }
-        None => (None, None),
+        None => (None, None, None),
     };
     let report = SlamReport {
         log: &args.log,
@@ -158,7 +239,9 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
         graph_edges: run.graph.num_edges(),
         score,
         odometry_score,
+        loops,
         output: &args.output,
+        params: &params,
     };
     if args.json {
         print_json(&report)?;
@@ -181,6 +264,13 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
             println!(
                 "ATE against the log's poses: {:.3} m (noisy odometry: {:.3} m)",
                 score.ate.rms_m, odometry.ate.rms_m
+            );
+        }
+        if let Some(loops) = &report.loops {
+            println!(
+                "loop edges within 0.5 m / 10° of the log's poses: {} of {}",
+                loops.true_local + loops.true_place,
+                loops.accepted
             );
         }
     }

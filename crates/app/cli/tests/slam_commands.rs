@@ -16,7 +16,13 @@ fn slam_on_the_simulated_session_writes_graph_map_picture_and_trajectory() {
     let front_end = &report["front_end"];
     assert!(front_end["keyframes"].as_u64().unwrap() > 100, "{report}");
     assert!(front_end["local_loops"].as_u64().unwrap() > 0, "{report}");
-    for file in ["graph.g2o", "map.yaml", "map.pgm", "map.png", "trajectory.tum"] {
+    for file in [
+        "graph.g2o",
+        "map.yaml",
+        "map.pgm",
+        "map.png",
+        "trajectory.tum",
+    ] {
         assert!(dir.join(file).is_file(), "{file} missing");
     }
     // One pose per scan, line k = scan k, stamped with the scan's time; close to the truth.

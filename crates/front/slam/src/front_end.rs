@@ -15,6 +15,7 @@
 //! optimisation from the newest keyframe.
 
 use std::collections::{BTreeMap, HashMap};
+use std::time::Instant;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_place::{
@@ -48,7 +49,7 @@ pub enum FrontEndError {
 
 /// Parameters of the front-end, one default for every log (no per-log tuning).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct FrontEndParams {
     /// When scans become keyframes.
     pub keyframes: KeyframePolicy,
@@ -56,6 +57,8 @@ pub struct FrontEndParams {
     pub matcher: ScanMatchParams,
     /// Search window around the odometry prediction (m, rad).
     pub odometry_window: SearchWindow,
+    /// When ICP from the prediction is trusted without the correlative search.
+    pub refine_first: RefineFirst,
     /// Keyframes inserted into a submap before the next one starts; a submap is finished
     /// with twice this many (default: 20) ...
     pub submap_keyframes: usize,
@@ -83,6 +86,7 @@ impl Default for FrontEndParams {
             keyframes: KeyframePolicy::default(),
             matcher: odometry_matcher_params(),
             odometry_window: SearchWindow::new(0.5, 15f64.to_radians()),
+            refine_first: RefineFirst::default(),
             submap_keyframes: 20,
             submap_travel_m: 10.0,
             max_match_range_m: 20.0,
@@ -90,6 +94,48 @@ impl Default for FrontEndParams {
             odometry_prior: (0.02, 0.1, 1f64.to_radians(), 0.1, 2f64.to_radians()),
             loops: LoopClosureParams::default(),
         }
+    }
+}
+
+/// ICP from the odometry prediction is trusted, and the correlative search skipped, when
+/// nearly every point found a correspondence, the scan fits the map as well as a searched
+/// match would, and ICP moved the pose only a little (Hess et al. 2016 likewise refine from
+/// the prediction and keep the correlative search for when it is needed).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RefineFirst {
+    /// Try ICP first at all (default: true).
+    pub enabled: bool,
+    /// Fraction of query points with a correspondence (default: 0.8).
+    pub min_inlier_fraction: f64,
+    /// Correlative score at the refined pose (default: 0.6).
+    pub min_score: f64,
+    /// Largest correction of the prediction (m, rad) (default: 0.15 m, 3°).
+    pub max_correction: (f64, f64),
+}
+
+impl Default for RefineFirst {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            min_inlier_fraction: 0.8,
+            min_score: 0.6,
+            max_correction: (0.15, 3f64.to_radians()),
+        }
+    }
+}
+
+impl RefineFirst {
+    /// True when the ICP-only match `refined` of a scan predicted at `guess` can be kept.
+    fn accepts(&self, refined: &mapmerge_scanmatch::Match, guess: &Se2) -> bool {
+        let correction = guess.between(&refined.target_from_query);
+        self.enabled
+            && refined
+                .icp
+                .is_some_and(|icp| icp.inlier_fraction >= self.min_inlier_fraction)
+            && refined.score >= self.min_score
+            && correction.translation().norm() <= self.max_correction.0
+            && correction.theta_rad.abs() <= self.max_correction.1
     }
 }
 
@@ -118,7 +164,7 @@ pub struct ScanStep {
 }
 
 /// Counters over a run.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct FrontEndInfo {
     /// Scans seen.
     pub scans: usize,
@@ -126,6 +172,8 @@ pub struct FrontEndInfo {
     pub matched: usize,
     /// Scans that fell back on odometry (no submap yet, or no acceptable match).
     pub odometry_only: usize,
+    /// Matched scans for which ICP from the prediction sufficed (no correlative search).
+    pub refined: usize,
     /// Keyframes.
     pub keyframes: usize,
     /// Submaps started.
@@ -143,6 +191,24 @@ pub struct FrontEndInfo {
     pub place_gated: usize,
     /// Graph optimisations run.
     pub optimizations: usize,
+    /// Wall time (s) of scan-to-submap matching, submap insertion, loop search, place
+    /// recognition and optimisation.
+    pub seconds: StageSeconds,
+}
+
+/// Where the front-end's time went (s).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct StageSeconds {
+    /// Scan-to-submap matching.
+    pub matching: f64,
+    /// Inserting keyframes into submaps and finishing submaps.
+    pub submaps: f64,
+    /// Searching nearby submaps for loops.
+    pub local_loops: f64,
+    /// Place recognition (descriptors, retrieval, verification).
+    pub place: f64,
+    /// Graph optimisation.
+    pub optimization: f64,
 }
 
 /// How a loop edge was found.
@@ -206,6 +272,10 @@ pub struct FrontEnd {
     keyframes_since_optimization: usize,
     loops_since_optimization: usize,
     loops: Vec<LoopRecord>,
+    /// Loops with large corrections awaiting confirmation, with the pose they imply.
+    pending_loops: Vec<(LoopRecord, Se2)>,
+    /// The submap each keyframe was first inserted into.
+    keyframe_submap: HashMap<NodeId, usize>,
     info: FrontEndInfo,
 }
 
@@ -231,6 +301,8 @@ impl FrontEnd {
             keyframes_since_optimization: 0,
             loops_since_optimization: 0,
             loops: Vec::new(),
+            pending_loops: Vec::new(),
+            keyframe_submap: HashMap::new(),
             info: FrontEndInfo::default(),
         })
     }
@@ -291,20 +363,35 @@ impl FrontEnd {
             ..BeamFilter::default()
         };
         let points = scan.points_in_robot(&filter);
+        let started = Instant::now();
+        if let Some(submap) = self.active.first().and_then(|&s| self.submaps.get_mut(s)) {
+            submap.prepare();
+        }
+        let mut refined = false;
         let matched = self.active.first().and_then(|&s| {
             let submap = self.submaps.get(s)?;
             if submap.is_empty() {
                 return None;
             }
             let guess = submap.local_from_submap.between(&predicted);
-            let found = self.matcher.match_scan(
-                submap.target(),
-                &points,
-                &guess,
-                &self.params.odometry_window,
-            )?;
+            // ICP from the prediction when it clearly lands in the right basin, else the
+            // full correlative search over the window.
+            let fast = self
+                .matcher
+                .refine(submap.target(), &points, &guess)
+                .filter(|m| self.params.refine_first.accepts(m, &guess));
+            refined = fast.is_some();
+            let found = fast.or_else(|| {
+                self.matcher.match_scan(
+                    submap.target(),
+                    &points,
+                    &guess,
+                    &self.params.odometry_window,
+                )
+            })?;
             Some((s, found))
         });
+        self.info.refined += usize::from(refined);
         // Directions the match does not constrain (a corridor's axis) keep the prediction.
         let matched = matched.map(|(s, mut m)| {
             let local_from_submap = self
@@ -322,6 +409,7 @@ impl FrontEnd {
             );
             (s, m)
         });
+        self.info.seconds.matching += started.elapsed().as_secs_f64();
         let (local_from_robot, score) = match &matched {
             Some((s, m)) => {
                 self.info.matched += 1;
@@ -368,7 +456,9 @@ impl FrontEnd {
             });
         }
         let submap_match = matched.map(|(s, m)| (s, m.target_from_query, m.covariance));
+        let started = Instant::now();
         let node = self.add_keyframe(local_from_robot, *odom_from_robot, points, submap_match)?;
+        self.info.seconds.submaps += started.elapsed().as_secs_f64();
         // 4. Loops.
         let loops = if self.params.loops.enabled {
             self.close_loops(node)
@@ -479,6 +569,7 @@ impl FrontEnd {
         for &s in &self.active {
             if let Some(submap) = self.submaps.get_mut(s) {
                 submap.insert(node, &local_from_robot, &points_in_robot)?;
+                self.keyframe_submap.entry(node).or_insert(s);
             }
         }
         if self.active.len() > 2 {
@@ -548,6 +639,7 @@ impl FrontEnd {
             .collect();
         nearby.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         let mut added = 0;
+        let started = Instant::now();
         for &(_, s) in nearby.iter().take(loops_params.max_submaps_per_keyframe) {
             let Some(submap) = self.submaps.get(s) else {
                 continue;
@@ -555,15 +647,11 @@ impl FrontEnd {
             let Some(map_from_submap) = self.graph.vertex(submap.anchor).map(|v| v.pose) else {
                 continue;
             };
-            // Uncertainty: travel since the submap ended or since the last loop.
-            let submap_end_travel = submap
+            // Uncertainty: travel since the submap ended or since the last long loop.
+            let distance = submap
                 .keyframes
                 .last()
-                .and_then(|(member, _)| self.keyframes.get(member))
-                .map_or(0.0, |k| k.travel_m);
-            let distance = (self.travel_m - submap_end_travel)
-                .min(self.travel_m - self.travel_at_last_loop_m)
-                .max(0.0);
+                .map_or(0.0, |(member, _)| self.drift_since(*member));
             let window = loops_params.local_window(distance);
             let guess = map_from_submap.between(&map_from_robot);
             self.info.local_searches += 1;
@@ -590,12 +678,10 @@ impl FrontEnd {
                 score: found.score,
                 covariance: found.covariance,
             };
-            self.add_loop(record);
-            self.info.local_loops += 1;
-            added += 1;
+            added += self.propose_loop(record);
         }
+        self.info.seconds.local_loops += started.elapsed().as_secs_f64();
         if added > 0 {
-            self.travel_at_last_loop_m = self.travel_m;
             return added;
         }
         // Place recognition after a long stretch without loops.
@@ -604,22 +690,40 @@ impl FrontEnd {
         {
             return 0;
         }
+        let started = Instant::now();
+        let found = self.recognise_place(node, points, map_from_robot);
+        self.info.seconds.place += started.elapsed().as_secs_f64();
+        found
+    }
+
+    /// Place recognition for keyframe `node` (points, current estimate): a gated loop edge
+    /// or nothing; returns how many loop edges were added.
+    fn recognise_place(&mut self, node: NodeId, points: Vec<Point2>, map_from_robot: Se2) -> usize {
+        let loops_params = self.params.loops.clone();
         self.info.place_queries += 1;
         let descriptor = ScanContext::new(&points, &loops_params.place.descriptor);
         let retrieved = self
             .place_index
             .query(&descriptor, loops_params.place.candidates_per_query);
+        // Candidates the gate would refuse anyway are not verified: the query must lie within
+        // the verifier's window of the candidate, and the candidate within the gate.
+        let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
         let candidates: Vec<PlaceCandidate> = retrieved
             .iter()
             .filter(|c| c.descriptor_distance <= loops_params.place.max_descriptor_distance)
             .filter_map(|c| {
                 let ordinal = *self.place_ordinal.get(&c.keyframe)?;
                 let (keyframe, _) = self.place_keyframes.get(ordinal)?;
-                Some(PlaceCandidate {
+                let map_from_keyframe = self.graph.vertex(NodeId(c.keyframe.0))?.pose;
+                let distance_m =
+                    (map_from_keyframe.translation() - map_from_robot.translation()).norm();
+                let drift_m = self.drift_since(NodeId(c.keyframe.0));
+                let reach_m = gate_m + gate_per_m * drift_m + loops_params.place_window.linear_m;
+                (distance_m <= reach_m).then_some(PlaceCandidate {
                     ordinal,
                     keyframe,
                     yaw_rad: c.yaw_rad,
-                    map_from_keyframe: self.graph.vertex(NodeId(c.keyframe.0)).map(|v| v.pose),
+                    map_from_keyframe: Some(map_from_keyframe),
                 })
             })
             .collect();
@@ -660,8 +764,7 @@ impl FrontEnd {
         // the drift since the last loop can explain.
         let measurement = submap_from_candidate.compose(&found.b_from_a);
         let correction = map_from_robot.between(&map_from_submap.compose(&measurement));
-        let drift_m = self.travel_m - self.travel_at_last_loop_m;
-        let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
+        let drift_m = self.drift_since(NodeId(found.b.0));
         if correction.translation().norm() > gate_m + gate_per_m * drift_m
             || correction.theta_rad.abs() > gate_rad + gate_rad_per_m * drift_m
         {
@@ -683,13 +786,95 @@ impl FrontEnd {
             score: found.score,
             covariance: found.covariance,
         };
+        self.propose_loop(record)
+    }
+
+    /// Travel (m) up to keyframe `node`.
+    fn travel_at(&self, node: NodeId) -> f64 {
+        self.keyframes
+            .get(&node)
+            .map_or(self.travel_m, |k| k.travel_m)
+    }
+
+    /// How far the robot may have drifted from where it was at keyframe `node`: the path
+    /// since then, or since the last loop that spanned a long path, whichever is shorter.
+    fn drift_since(&self, node: NodeId) -> f64 {
+        (self.travel_m - self.travel_at(node))
+            .min(self.travel_m - self.travel_at_last_loop_m)
+            .max(0.0)
+    }
+
+    /// Proposes a loop edge. One that moves the keyframe's estimate by little is added at
+    /// once; a large correction must be confirmed by another loop from a different submap
+    /// or a later keyframe that implies the same correction (temporal consistency, as
+    /// look-alike places rarely agree twice), until then it waits. Returns the loop edges
+    /// added.
+    fn propose_loop(&mut self, record: LoopRecord) -> usize {
+        let (Some(map_from_member), Some(map_from_robot)) = (
+            self.graph.vertex(record.from).map(|v| v.pose),
+            self.graph.vertex(record.to).map(|v| v.pose),
+        ) else {
+            return 0;
+        };
+        let implied = map_from_member.compose(&record.measurement);
+        let params = &self.params.loops;
+        let (small_m, small_rad) = params.confirm_above;
+        let correction = map_from_robot.between(&implied);
+        if correction.translation().norm() <= small_m && correction.theta_rad.abs() <= small_rad {
+            self.add_loop(record);
+            return 1;
+        }
+        // The map-frame correction this loop asks for, applied to the other's estimate.
+        let map_correction = implied.compose(&map_from_robot.inverse());
+        let oldest = record
+            .to
+            .0
+            .saturating_sub(params.confirm_within_keyframes as u64);
+        self.pending_loops
+            .retain(|(pending, _)| pending.to.0 >= oldest);
+        let (agree_m, agree_rad) = params.confirm_agreement;
+        let submap_of = |node: NodeId| self.keyframe_submap.get(&node).copied();
+        let agreeing: Vec<usize> = self
+            .pending_loops
+            .iter()
+            .enumerate()
+            .filter(|(_, (pending, pending_implied))| {
+                let distinct =
+                    pending.to != record.to || submap_of(pending.from) != submap_of(record.from);
+                let Some(estimate) = self.graph.vertex(pending.to).map(|v| v.pose) else {
+                    return false;
+                };
+                let difference = map_correction.compose(&estimate).between(pending_implied);
+                distinct
+                    && difference.translation().norm() <= agree_m
+                    && difference.theta_rad.abs() <= agree_rad
+            })
+            .map(|(index, _)| index)
+            .collect();
+        if agreeing.is_empty() {
+            self.pending_loops.push((record, implied));
+            return 0;
+        }
+        let mut added = 0;
+        for index in agreeing.into_iter().rev() {
+            let (pending, _) = self.pending_loops.remove(index);
+            self.add_loop(pending);
+            added += 1;
+        }
         self.add_loop(record);
-        self.info.place_loops += 1;
-        self.travel_at_last_loop_m = self.travel_m;
-        1
+        added + 1
     }
 
     fn add_loop(&mut self, record: LoopRecord) {
+        // A loop across a long path bounds the drift from then on; short ones (to the
+        // submap just finished) say little about it.
+        if self.travel_m - self.travel_at(record.from) >= self.params.loops.long_loop_span_m {
+            self.travel_at_last_loop_m = self.travel_m;
+        }
+        match record.source {
+            LoopSource::Local => self.info.local_loops += 1,
+            LoopSource::Place => self.info.place_loops += 1,
+        }
         let information = edge_information(
             Some(record.covariance),
             &record.measurement,
@@ -710,6 +895,7 @@ impl FrontEnd {
     /// `map_from_local` from the newest keyframe. A failed optimisation keeps the graph's
     /// last good state (the solver's contract).
     fn optimize(&mut self) {
+        let started = Instant::now();
         let params = OptimizerParams {
             robust: RobustKernel::Dcs {
                 phi: chi2_quantile_99(3),
@@ -719,6 +905,7 @@ impl FrontEnd {
         };
         let _ = optimize(&mut self.graph, &params);
         self.info.optimizations += 1;
+        self.info.seconds.optimization += started.elapsed().as_secs_f64();
         self.keyframes_since_optimization = 0;
         self.loops_since_optimization = 0;
         if let Some((node, local_from_robot, _, _)) = self.current {

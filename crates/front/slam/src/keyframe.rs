@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 /// A scan becomes a keyframe when the robot moved or turned enough since the last keyframe, or
 /// after too many scans without one (distance / angle / count, as Cartographer's motion filter).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct KeyframePolicy {
     /// Distance since the last keyframe (m).
     pub min_translation_m: f64,

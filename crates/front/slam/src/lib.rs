@@ -20,7 +20,7 @@ mod submap;
 pub use anchors::ScanAnchors;
 pub use front_end::{
     run_front_end, run_front_end_with_progress, FrontEnd, FrontEndError, FrontEndInfo,
-    FrontEndParams, FrontEndRun, LoopRecord, LoopSource, ScanStep,
+    FrontEndParams, FrontEndRun, LoopRecord, LoopSource, RefineFirst, ScanStep, StageSeconds,
 };
 pub use keyframe::KeyframePolicy;
 pub use loop_closing::LoopClosureParams;

@@ -12,7 +12,7 @@ use crate::submap::Submap;
 
 /// Parameters of loop closing, one default for every log.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct LoopClosureParams {
     /// Search for loops at all (default: true).
     pub enabled: bool,
@@ -24,13 +24,17 @@ pub struct LoopClosureParams {
     /// At most this many nearby submaps are searched per keyframe, nearest first (default: 2).
     pub max_submaps_per_keyframe: usize,
     /// Translation half-width of the local search: `min + per_m · d`, at most `max`, with
-    /// `d` the distance travelled since the last loop (m) (default: 0.5, 0.05, 5).
+    /// `d` the path since the submap or since the last long loop, whichever is shorter (m)
+    /// (default: 0.5, 0.05, 5).
     pub window_linear: (f64, f64, f64),
     /// Heading half-width the same way (rad) (default: 10°, 0.5°/m, 45°).
     pub window_angular: (f64, f64, f64),
-    /// Place recognition runs once the robot travelled this far (m) without a loop
-    /// (default: 5).
+    /// Place recognition runs once the robot travelled this far (m) without a long loop
+    /// (default: 5) and the local search found nothing.
     pub place_after_m: f64,
+    /// A loop whose ends are this far apart along the path (m) bounds the drift from then
+    /// on (default: 30); shorter ones (to the submap just finished) do not reset it.
+    pub long_loop_span_m: f64,
     /// Place recognition's retrieval and acceptance (default: 3 candidates within
     /// descriptor distance 0.4, score ≥ 0.65).
     pub place: PlaceParams,
@@ -40,14 +44,25 @@ pub struct LoopClosureParams {
     /// Window of the verification around the descriptor's guess (default: ±2 m, ±20°).
     pub place_window: SearchWindow,
     /// A place-recognition loop may move the keyframe's estimate by at most
-    /// `a + b·d` (m) and `c + e·d` (rad), `d` the distance travelled since the last loop (m)
+    /// `a + b·d` (m) and `c + e·d` (rad), `d` the path since the candidate keyframe or since
+    /// the last long loop, whichever is shorter (m)
     /// (default: 1 m + 10 %, 5° + 0.5°/m): Mahalanobis-style gating by the drift a
     /// scan-matching front-end accumulates, which refuses look-alike places far away.
     pub place_gate: (f64, f64, f64, f64),
     /// The graph is optimised after a loop when at least this many keyframes passed since
     /// the last optimisation (default: 10), and once at the end.
     pub optimize_every_keyframes: usize,
-    /// Smallest standard deviations of a loop edge (m, rad) (default: 2 cm, 0.5°).
+    /// A loop that corrects the keyframe's estimate by more than this (m, rad) needs a
+    /// second loop implying the same correction (default: 0.3 m, 3°) ...
+    pub confirm_above: (f64, f64),
+    /// ... within this many keyframes (default: 5) ...
+    pub confirm_within_keyframes: usize,
+    /// ... agreeing within this (m, rad) (default: 0.3 m, 2°).
+    pub confirm_agreement: (f64, f64),
+    /// Smallest standard deviations of a loop edge (m, rad) (default: 10 cm, 2°). Loop edges
+    /// come in dozens per revisit and each leans on a rigid submap whose shape carries the
+    /// front-end's drift at building time; floored this loosely they close loops without
+    /// bending the graph (simulated office ATE 10.6 → 4.4 cm, infinite corridor 5.0 → 0.96 m).
     pub min_edge_sigma: (f64, f64),
 }
 
@@ -67,12 +82,16 @@ impl Default for LoopClosureParams {
             window_linear: (0.5, 0.05, 5.0),
             window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
             place_after_m: 5.0,
+            long_loop_span_m: 30.0,
             place,
             place_min_confidence: 0.1,
             place_window: SearchWindow::new(2.0, 20f64.to_radians()),
             place_gate: (1.0, 0.1, 5f64.to_radians(), 0.5f64.to_radians()),
             optimize_every_keyframes: 10,
-            min_edge_sigma: (0.02, 0.5f64.to_radians()),
+            confirm_above: (0.3, 3f64.to_radians()),
+            confirm_within_keyframes: 5,
+            confirm_agreement: (0.3, 2f64.to_radians()),
+            min_edge_sigma: (0.1, 2f64.to_radians()),
         }
     }
 }

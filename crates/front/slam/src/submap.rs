@@ -58,7 +58,14 @@ impl Submap {
         self.finished = true;
         self.target
             .correlative_mut()
-            .set_branch_and_bound_depth(depth)
+            .set_branch_and_bound_depth(depth)?;
+        self.target.prepare();
+        Ok(())
+    }
+
+    /// Brings the match target up to date with the scans inserted so far.
+    pub fn prepare(&mut self) {
+        self.target.prepare();
     }
 
     /// The match target (submap frame).

@@ -33,8 +33,11 @@ fn slam_on_intel_closes_loops_and_beats_the_noisy_odometry_tenfold() {
     // the corrected relative pose.
     assert!(run.loops.len() > 100, "{}", run.loops.len());
     for record in &run.loops {
-        let scan = |node: mapmerge_posegraph::NodeId| corrected[run.keyframe_scans[node.0 as usize]];
-        let error = scan(record.from).between(&scan(record.to)).between(&record.measurement);
+        let scan =
+            |node: mapmerge_posegraph::NodeId| corrected[run.keyframe_scans[node.0 as usize]];
+        let error = scan(record.from)
+            .between(&scan(record.to))
+            .between(&record.measurement);
         assert!(
             error.translation().norm() <= 0.5 && error.theta_rad.abs() <= 10f64.to_radians(),
             "{record:?}: {error:?}"

@@ -22,7 +22,11 @@ fn simulated_session_is_mapped_within_ten_centimetres() {
             .into_iter()
             .map(|(_, pose)| pose)
             .collect();
-    let odometry: Vec<Se2> = log.scans.iter().map(|s| s.odom_from_robot.unwrap()).collect();
+    let odometry: Vec<Se2> = log
+        .scans
+        .iter()
+        .map(|s| s.odom_from_robot.unwrap())
+        .collect();
     let run = run_front_end(&log, FrontEndParams::default()).unwrap();
     let ate = absolute_trajectory_error(&truth, &run.trajectory, true).unwrap();
     let ate_odometry = absolute_trajectory_error(&truth, &odometry, true).unwrap();

@@ -320,52 +320,94 @@ pub(crate) struct PrecomputedGrid {
 }
 
 impl PrecomputedGrid {
-    /// Height 0: the base grid itself.
-    fn from_base(base: &CorrelationGrid) -> Self {
+    /// An empty level (filled by [`PrecomputedGrid::levels_into`]).
+    fn empty() -> Self {
         Self {
             offset: 0,
-            width: base.width,
-            height: base.height,
-            cells: base.cells.clone(),
+            width: 0,
+            height: 0,
+            cells: Vec::new(),
         }
     }
 
     /// Heights 1 ..= `depth`, each from the one below: a `2^h` block is two `2^(h−1)` blocks
     /// side by side, so `M_h(i, j) = max` of `M_(h−1)` at `i, i + 2^(h−1)` (then the same in
     /// `j`), two passes of one comparison per cell.
+    #[cfg(test)]
     pub(crate) fn levels(base: &CorrelationGrid, depth: usize) -> Vec<Self> {
-        let mut levels: Vec<Self> = Vec::with_capacity(depth);
-        let mut previous = Self::from_base(base);
-        for height_level in 1..=depth {
-            let next = previous.coarser(height_level);
-            levels.push(std::mem::replace(&mut previous, next));
-        }
-        levels.push(previous);
-        // `levels[0]` is the base copy; drop it.
-        levels.remove(0);
+        let mut levels = Vec::new();
+        let mut scratch = Vec::new();
+        Self::levels_into(base, depth, &mut levels, &mut scratch);
         levels
     }
 
-    /// Level `height_level` from this one (level `height_level − 1`).
-    fn coarser(&self, height_level: usize) -> Self {
+    /// As [`PrecomputedGrid::levels`], into `levels`, reusing its buffers (and `scratch` for
+    /// the first pass): a map matched after every insertion recomputes its levels often, and
+    /// fresh allocations of this size cost more in page faults than the max passes.
+    pub(crate) fn levels_into(
+        base: &CorrelationGrid,
+        depth: usize,
+        levels: &mut Vec<Self>,
+        scratch: &mut Vec<u16>,
+    ) {
+        levels.truncate(depth);
+        while levels.len() < depth {
+            levels.push(Self::empty());
+        }
+        for height_level in 1..=depth {
+            let (below, rest) = levels.split_at_mut(height_level - 1);
+            let Some(out) = rest.first_mut() else {
+                return;
+            };
+            match below.last() {
+                None => Self::coarser_into(
+                    (&base.cells, base.width, base.height, 0),
+                    height_level,
+                    out,
+                    scratch,
+                ),
+                Some(previous) => Self::coarser_into(
+                    (
+                        &previous.cells,
+                        previous.width,
+                        previous.height,
+                        previous.offset,
+                    ),
+                    height_level,
+                    out,
+                    scratch,
+                ),
+            }
+        }
+    }
+
+    /// Level `height_level` into `out` from the level below, given as
+    /// `(cells, width, height, offset)`.
+    fn coarser_into(
+        (cells, old_width, old_height, old_offset): (&[u16], usize, usize, i64),
+        height_level: usize,
+        out: &mut Self,
+        rows: &mut Vec<u16>,
+    ) {
         let half = 1usize << (height_level - 1);
         // offset(h) − offset(h − 1) = 2^(h−1): new index k is old index k − half.
-        let (width, height) = (self.width + half, self.height + half);
+        let (width, height) = (old_width + half, old_height + half);
         // Pass 1, along x: row[k] = max(old[k − half], old[k]).
-        let mut rows = vec![0u16; width * self.height];
-        for (old, new) in self
-            .cells
-            .chunks_exact(self.width.max(1))
+        rows.clear();
+        rows.resize(width * old_height, 0);
+        for (old, new) in cells
+            .chunks_exact(old_width.max(1))
             .zip(rows.chunks_exact_mut(width))
         {
             max_of_shifted(old, new, half);
         }
         // Pass 2, along y, whole rows at a time.
-        let mut cells = vec![0u16; width * height];
-        for (k, out_row) in cells.chunks_exact_mut(width).enumerate() {
+        out.cells.clear();
+        out.cells.resize(width * height, 0);
+        for (k, out_row) in out.cells.chunks_exact_mut(width).enumerate() {
             let row = |index: Option<usize>| {
                 index
-                    .filter(|&j| j < self.height)
+                    .filter(|&j| j < old_height)
                     .and_then(|j| rows.get(j * width..(j + 1) * width))
             };
             match (row(k.checked_sub(half)), row(Some(k))) {
@@ -378,12 +420,9 @@ impl PrecomputedGrid {
                 (None, None) => {}
             }
         }
-        Self {
-            offset: self.offset + half as i64,
-            width,
-            height,
-            cells,
-        }
+        out.offset = old_offset + half as i64;
+        out.width = width;
+        out.height = height;
     }
 
     /// Max of the base block whose lower-left corner is (i, j); 0 where the block misses the

@@ -5,7 +5,9 @@
 //! ICRA 2016, Sec. V (the angular step, Eq. 7; the search, Algorithms 2–3; the bounds from
 //! precomputed grids, Sec. V-C).
 
-use mapmerge_geometry::Se2;
+use std::borrow::Cow;
+
+use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::{voxel_downsample, Point2};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
@@ -20,8 +22,12 @@ use crate::params::{CorrelativeParams, SearchWindow};
 pub struct MatchTarget {
     params: CorrelativeParams,
     grid: CorrelationGrid,
-    /// `levels[h − 1]` is height `h` (1 ..= depth); height 0 is `grid`.
+    /// `levels[h − 1]` is height `h` (1 ..= depth); height 0 is `grid`. Stale after an
+    /// insertion until [`MatchTarget::prepare`] (a map that grows scan by scan pays only when
+    /// it is matched, and reuses the buffers).
     levels: Vec<PrecomputedGrid>,
+    levels_fresh: bool,
+    scratch: Vec<u16>,
     points_in_target: Vec<Point2>,
 }
 
@@ -33,11 +39,20 @@ impl MatchTarget {
         params: &CorrelativeParams,
     ) -> Result<Self, ScanMatchError> {
         let grid = CorrelationGrid::new(points_in_target, params)?;
-        let levels = PrecomputedGrid::levels(&grid, params.branch_and_bound_depth);
+        let mut levels = Vec::new();
+        let mut scratch = Vec::new();
+        PrecomputedGrid::levels_into(
+            &grid,
+            params.branch_and_bound_depth,
+            &mut levels,
+            &mut scratch,
+        );
         Ok(Self {
             params: *params,
             grid,
             levels,
+            levels_fresh: true,
+            scratch,
             points_in_target: points_in_target
                 .iter()
                 .filter(|p| p.x.is_finite() && p.y.is_finite())
@@ -52,19 +67,21 @@ impl MatchTarget {
             params: *params,
             grid: CorrelationGrid::empty(params)?,
             levels: Vec::new(),
+            levels_fresh: true,
+            scratch: Vec::new(),
             points_in_target: Vec::new(),
         })
     }
 
     /// Adds `points_in_target` (a map built scan by scan): the grid grows with a margin of
-    /// `margin_cells`, and the coarse levels are recomputed.
+    /// `margin_cells`; the coarse levels are recomputed when next needed.
     pub fn insert(
         &mut self,
         points_in_target: &[Point2],
         margin_cells: usize,
     ) -> Result<(), ScanMatchError> {
         if self.grid.insert(points_in_target, margin_cells)?.is_some() {
-            self.levels = PrecomputedGrid::levels(&self.grid, self.params.branch_and_bound_depth);
+            self.levels_fresh = false;
             self.points_in_target.extend(
                 points_in_target
                     .iter()
@@ -81,10 +98,38 @@ impl MatchTarget {
         params.branch_and_bound_depth = depth;
         params.validate()?;
         self.params = params;
-        if !self.grid.is_empty() {
-            self.levels = PrecomputedGrid::levels(&self.grid, depth);
-        }
+        self.levels_fresh = false;
         Ok(())
+    }
+
+    /// Brings the coarse levels up to date after insertions (cheap when they are). Matching
+    /// a target that was not prepared still works, computing its levels for that match alone.
+    pub fn prepare(&mut self) {
+        if !self.levels_fresh {
+            PrecomputedGrid::levels_into(
+                &self.grid,
+                self.params.branch_and_bound_depth,
+                &mut self.levels,
+                &mut self.scratch,
+            );
+            self.levels_fresh = true;
+        }
+    }
+
+    /// The coarse levels: the stored ones, or computed now when stale.
+    fn levels(&self) -> Cow<'_, [PrecomputedGrid]> {
+        if self.levels_fresh {
+            Cow::Borrowed(&self.levels)
+        } else {
+            let (mut levels, mut scratch) = (Vec::new(), Vec::new());
+            PrecomputedGrid::levels_into(
+                &self.grid,
+                self.params.branch_and_bound_depth,
+                &mut levels,
+                &mut scratch,
+            );
+            Cow::Owned(levels)
+        }
     }
 
     /// The parameters the target was built with (also used by every match against it).
@@ -222,7 +267,15 @@ impl Search {
 
     /// Σ of the height-`height` values of the scan at angle `a` shifted by (x, y) cells: the
     /// exact score (height 0) or an upper bound of every leaf in the block (Hess, Sec. V-C).
-    fn score(&self, target: &MatchTarget, a: i64, x: i64, y: i64, height: usize) -> u64 {
+    fn score(
+        &self,
+        target: &MatchTarget,
+        levels: &[PrecomputedGrid],
+        a: i64,
+        x: i64,
+        y: i64,
+        height: usize,
+    ) -> u64 {
         let Some(scan) = usize::try_from(a - self.angle_min)
             .ok()
             .and_then(|k| self.scans.get(k))
@@ -234,7 +287,7 @@ impl Search {
                 .iter()
                 .map(|&(i, j)| u64::from(target.grid.value(i + x, j + y)))
                 .sum(),
-            Some(level) => match target.levels.get(level) {
+            Some(level) => match levels.get(level) {
                 Some(grid) => scan
                     .iter()
                     .map(|&(i, j)| u64::from(grid.value(i + x, j + y)))
@@ -283,7 +336,7 @@ impl Search {
             }
             for dx in -k..=k {
                 for dy in -k..=k {
-                    let sum = self.score(target, a, best.1 + dx, best.2 + dy, 0);
+                    let sum = self.score(target, &[], a, best.1 + dx, best.2 + dy, 0);
                     let offset = Vector3::new(
                         dx as f64 * resolution,
                         dy as f64 * resolution,
@@ -390,7 +443,9 @@ pub fn match_scan(
     // The lowest level whose block covers the whole window (one root per angle), or the
     // tallest precomputed one.
     let mut top = 0usize;
-    while top < target.levels.len() && (1i64 << top) < 2 * n + 1 {
+    let levels = target.levels();
+    let level_count = levels.len();
+    while top < level_count && (1i64 << top) < 2 * n + 1 {
         top += 1;
     }
     let block = 1i64 << top;
@@ -409,7 +464,7 @@ pub fn match_scan(
         while x <= n {
             let mut y = -n;
             while y <= n {
-                roots.push((search.score(target, a, x, y, top), (a, x, y)));
+                roots.push((search.score(target, &levels, a, x, y, top), (a, x, y)));
                 candidates += 1;
                 y += block;
             }
@@ -452,7 +507,7 @@ pub fn match_scan(
                     if x > n || y > n {
                         continue;
                     }
-                    let child_bound = search.score(target, a, x, y, height - 1);
+                    let child_bound = search.score(target, &levels, a, x, y, height - 1);
                     candidates += 1;
                     children.push((child_bound, (a, x, y), height - 1));
                 }
@@ -463,6 +518,39 @@ pub fn match_scan(
         }
     }
     search.finish(target, best, candidates)
+}
+
+/// The score (mean likelihood in [0, 1], as [`match_scan`] reports it) of the query points at
+/// one pose, after the same voxel downsampling; `None` for empty or non-finite input.
+pub fn score_at(
+    target: &MatchTarget,
+    query_points_in_robot: &[Point2],
+    target_from_robot: &Se2,
+) -> Option<f64> {
+    if !target_from_robot.is_finite() {
+        return None;
+    }
+    let finite: Vec<Point2> = query_points_in_robot
+        .iter()
+        .filter(|p| p.x.is_finite() && p.y.is_finite())
+        .copied()
+        .collect();
+    let points = if target.params.query_voxel_m > 0.0 {
+        voxel_downsample(&finite, target.params.query_voxel_m)
+    } else {
+        finite
+    };
+    if points.is_empty() {
+        return None;
+    }
+    let sum: u64 = points
+        .iter()
+        .map(|p| {
+            let (i, j) = target.grid.cell_of(&target_from_robot.transform_point(p));
+            u64::from(target.grid.value(i, j))
+        })
+        .sum();
+    Some(sum as f64 / (points.len() as f64 * f64::from(LIKELIHOOD_MAX)))
 }
 
 /// The reference: scores every discretised pose of the same search as [`match_scan`]. Slow
@@ -485,7 +573,7 @@ pub fn match_scan_brute_force(
     for a in search.angle_min..=search.angle_max {
         for x in -n..=n {
             for y in -n..=n {
-                let sum = search.score(target, a, x, y, 0);
+                let sum = search.score(target, &[], a, x, y, 0);
                 candidates += 1;
                 if better(sum, (a, x, y), &best) {
                     best = Some((sum, (a, x, y)));

@@ -46,7 +46,9 @@ mod matcher;
 mod params;
 
 pub use correlation_grid::CorrelationGrid;
-pub use correlative::{match_scan, match_scan_brute_force, CorrelativeMatch, MatchTarget};
+pub use correlative::{
+    match_scan, match_scan_brute_force, score_at, CorrelativeMatch, MatchTarget,
+};
 pub use error::ScanMatchError;
 pub use icp::{refine_icp, IcpInfo, IcpTarget};
 pub use matcher::{Match, ScanMatchTarget, ScanMatcher};

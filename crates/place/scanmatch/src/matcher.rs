@@ -5,7 +5,7 @@ use mapmerge_scan::{scan_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix3;
 use serde::Serialize;
 
-use crate::correlative::{match_scan, MatchTarget};
+use crate::correlative::{match_scan, score_at, MatchTarget};
 use crate::error::ScanMatchError;
 use crate::icp::{refine_icp, IcpInfo, IcpTarget};
 use crate::params::{IcpParams, ScanMatchParams, SearchWindow};
@@ -37,6 +37,12 @@ impl ScanMatchTarget {
     /// finished and will be searched with large windows).
     pub fn correlative_mut(&mut self) -> &mut MatchTarget {
         &mut self.correlative
+    }
+
+    /// Brings the correlative target's coarse levels up to date after insertions (see
+    /// [`MatchTarget::prepare`]); call before matching a map that grows.
+    pub fn prepare(&mut self) {
+        self.correlative.prepare();
     }
 
     /// Adds one scan, `points_in_robot` in beam order, seen from `target_from_robot`: its
@@ -127,6 +133,32 @@ impl ScanMatcher {
             correlative: MatchTarget::empty(&self.params.correlative)?,
             icp: self.params.icp.map(|params| IcpTarget::empty(&params)),
             icp_params: self.params.icp,
+        })
+    }
+
+    /// ICP alone from `guess_target_from_robot` (no search), scored like
+    /// [`ScanMatcher::match_scan`] at the refined pose: the fast path when the guess is
+    /// already in the right basin (a good odometry prediction). `None` when ICP is disabled,
+    /// finds fewer than 3 correspondences, or the inputs are empty or non-finite.
+    pub fn refine(
+        &self,
+        target: &ScanMatchTarget,
+        query_points_in_robot: &[Point2],
+        guess_target_from_robot: &Se2,
+    ) -> Option<Match> {
+        let (Some(icp_params), Some(icp_target)) = (self.params.icp, &target.icp) else {
+            return None;
+        };
+        let query = voxel_downsample(query_points_in_robot, self.params.correlative.query_voxel_m);
+        let info = refine_icp(icp_target, &query, guess_target_from_robot, &icp_params)?;
+        let score = score_at(&target.correlative, &query, &info.target_from_query)?;
+        Some(Match {
+            target_from_query: info.target_from_query,
+            score,
+            covariance: info.covariance,
+            candidates: 0,
+            correlative_target_from_query: *guess_target_from_robot,
+            icp: Some(info),
         })
     }
 

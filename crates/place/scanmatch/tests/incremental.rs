@@ -11,7 +11,13 @@ use proptest::prelude::*;
 
 /// The quantised kernel value a cell centre gets from point `q` (the definition the grid
 /// must follow: Olson 2009's rasterised Gaussian, max over points).
-fn expected_cell(grid: &CorrelationGrid, i: i64, j: i64, points: &[Point2], sigma_cells: f64) -> u16 {
+fn expected_cell(
+    grid: &CorrelationGrid,
+    i: i64,
+    j: i64,
+    points: &[Point2],
+    sigma_cells: f64,
+) -> u16 {
     let resolution = grid.resolution_m();
     let origin = grid.origin_m();
     let reach = (3.0 * sigma_cells).ceil() as i64;
@@ -26,7 +32,8 @@ fn expected_cell(grid: &CorrelationGrid, i: i64, j: i64, points: &[Point2], sigm
         let du = i as f64 + 0.5 - u;
         let dv = j as f64 + 0.5 - v;
         let two_sigma_sq = 2.0 * sigma_cells * sigma_cells;
-        let value = ((-du * du / two_sigma_sq).exp() * (-dv * dv / two_sigma_sq).exp()
+        let value = ((-du * du / two_sigma_sq).exp()
+            * (-dv * dv / two_sigma_sq).exp()
             * f64::from(u16::MAX))
         .round() as u16;
         best = best.max(value);
@@ -147,7 +154,9 @@ fn scan_matches_a_submap_built_scan_by_scan() {
     let found_batch = matcher
         .match_scan(&batch, &query, &guess, &SearchWindow::new(0.5, 0.2))
         .unwrap();
-    let difference = found_batch.target_from_query.between(&found.target_from_query);
+    let difference = found_batch
+        .target_from_query
+        .between(&found.target_from_query);
     assert!(difference.translation().norm() < 0.01, "{difference:?}");
 }
 
