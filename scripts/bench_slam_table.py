@@ -11,7 +11,12 @@ def fmt(value, digits=3):
 
 
 def relations(report):
-    r = (report or {}).get("relations") if report else None
+    """Relations error of a trajectory report (nested) or of `eval relations` (flat)."""
+    r = None
+    if report:
+        r = report.get("relations") if "relations" in report else None
+        if r is None and "translation_mean_m" in report:
+            r = report
     if not r:
         return "—"
     return (f"{r['translation_mean_m']:.3f} ± {r['translation_std_m']:.3f} m, "

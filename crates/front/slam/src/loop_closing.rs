@@ -29,6 +29,9 @@ pub struct LoopClosureParams {
     pub window_linear: (f64, f64, f64),
     /// Heading half-width the same way (rad) (default: 10°, 0.5°/m, 45°).
     pub window_angular: (f64, f64, f64),
+    /// While that `d` is below this (m), ICP from the estimate is tried first and kept
+    /// under the odometry's [`crate::RefineFirst`] rule (default: 5).
+    pub refine_below_drift_m: f64,
     /// Place recognition runs once the robot travelled this far (m) without a long loop
     /// (default: 5) and the local search found nothing.
     pub place_after_m: f64,
@@ -81,6 +84,7 @@ impl Default for LoopClosureParams {
             max_submaps_per_keyframe: 2,
             window_linear: (0.5, 0.05, 5.0),
             window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
+            refine_below_drift_m: 5.0,
             place_after_m: 5.0,
             long_loop_span_m: 30.0,
             place,
