@@ -81,6 +81,21 @@ struct LoopPrecision {
     precision: Option<f64>,
     worst_translation_error_m: f64,
     worst_rotation_error_deg: f64,
+    /// The loop edges that are not true, with their errors.
+    false_loops: Vec<FalseLoop>,
+}
+
+/// A loop edge beyond 0.5 m or 10° of the reference.
+#[derive(Serialize)]
+struct FalseLoop {
+    from: u64,
+    to: u64,
+    from_scan: usize,
+    to_scan: usize,
+    source: LoopSource,
+    score: f64,
+    translation_error_m: f64,
+    rotation_error_deg: f64,
 }
 
 /// Judges every loop of `run` against `reference` (one pose per scan).
@@ -94,11 +109,14 @@ fn loop_precision(run: &mapmerge_slam::FrontEndRun, reference: &[Se2]) -> LoopPr
         precision: None,
         worst_translation_error_m: 0.0,
         worst_rotation_error_deg: 0.0,
+        false_loops: Vec::new(),
     };
-    let pose_of = |node: mapmerge_posegraph::NodeId| {
-        let scan = *run.keyframe_scans.get(usize::try_from(node.0).ok()?)?;
-        reference.get(scan).copied()
+    let scan_of = |node: mapmerge_posegraph::NodeId| {
+        run.keyframe_scans
+            .get(usize::try_from(node.0).ok()?)
+            .copied()
     };
+    let pose_of = |node| reference.get(scan_of(node)?).copied();
     for record in &run.loops {
         let is_place = record.source == LoopSource::Place;
         if is_place {
@@ -123,6 +141,17 @@ fn loop_precision(run: &mapmerge_slam::FrontEndRun, reference: &[Se2]) -> LoopPr
             } else {
                 precision.true_local += 1;
             }
+        } else {
+            precision.false_loops.push(FalseLoop {
+                from: record.from.0,
+                to: record.to.0,
+                from_scan: scan_of(record.from).unwrap_or_default(),
+                to_scan: scan_of(record.to).unwrap_or_default(),
+                source: record.source,
+                score: record.score,
+                translation_error_m: translation_m,
+                rotation_error_deg: rotation_deg,
+            });
         }
     }
     if precision.accepted > 0 {

@@ -23,11 +23,11 @@ pub struct LoopClosureParams {
     pub max_distance_m: f64,
     /// At most this many nearby submaps are searched per keyframe, nearest first (default: 2).
     pub max_submaps_per_keyframe: usize,
-    /// Translation half-width of the local search: `min + per_m · d`, at most `max`, with
+    /// Translation half-width of the local search: `min + per_m · d`, not searched beyond `max`, with
     /// `d` the path since the submap or since the last long loop, whichever is shorter (m)
-    /// (default: 0.5, 0.05, 5).
+    /// (default: 0.5, 0.05, 7).
     pub window_linear: (f64, f64, f64),
-    /// Heading half-width the same way (rad) (default: 10°, 0.5°/m, 45°).
+    /// Heading half-width the same way (rad), clamped at `max` (default: 10°, 0.5°/m, 45°).
     pub window_angular: (f64, f64, f64),
     /// While that `d` is below this (m), ICP from the estimate is tried first and kept
     /// under the odometry's [`crate::RefineFirst`] rule (default: 5).
@@ -49,7 +49,7 @@ pub struct LoopClosureParams {
     /// A place-recognition loop may move the keyframe's estimate by at most
     /// `a + b·d` (m) and `c + e·d` (rad), `d` the path since the candidate keyframe or since
     /// the last long loop, whichever is shorter (m)
-    /// (default: 1 m + 10 %, 5° + 0.5°/m): Mahalanobis-style gating by the drift a
+    /// (default: 1 m + 10 %, 5° + 0.1°/m): Mahalanobis-style gating by the drift a
     /// scan-matching front-end accumulates, which refuses look-alike places far away.
     pub place_gate: (f64, f64, f64, f64),
     /// The graph is optimised after a loop when at least this many keyframes passed since
@@ -82,7 +82,7 @@ impl Default for LoopClosureParams {
             min_score: 0.6,
             max_distance_m: 5.0,
             max_submaps_per_keyframe: 2,
-            window_linear: (0.5, 0.05, 5.0),
+            window_linear: (0.5, 0.05, 7.0),
             window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
             refine_below_drift_m: 5.0,
             place_after_m: 5.0,
@@ -90,7 +90,7 @@ impl Default for LoopClosureParams {
             place,
             place_min_confidence: 0.1,
             place_window: SearchWindow::new(2.0, 20f64.to_radians()),
-            place_gate: (1.0, 0.1, 5f64.to_radians(), 0.5f64.to_radians()),
+            place_gate: (1.0, 0.1, 5f64.to_radians(), 0.1f64.to_radians()),
             optimize_every_keyframes: 10,
             confirm_above: (0.3, 3f64.to_radians()),
             confirm_within_keyframes: 5,
@@ -101,10 +101,18 @@ impl Default for LoopClosureParams {
 }
 
 impl LoopClosureParams {
-    /// The local search window after travelling `distance_m` without a loop.
-    pub fn local_window(&self, distance_m: f64) -> SearchWindow {
-        let grow = |(min, per_m, max): (f64, f64, f64)| (min + per_m * distance_m).clamp(min, max);
-        SearchWindow::new(grow(self.window_linear), grow(self.window_angular))
+    /// The local search window after travelling `distance_m` without a loop; `None` once
+    /// the drift may exceed the largest window, where a search would find only look-alikes
+    /// of the place (place recognition, gated by the drift, takes over).
+    pub fn local_window(&self, distance_m: f64) -> Option<SearchWindow> {
+        let grow = |(min, per_m, _): (f64, f64, f64)| min + per_m * distance_m.max(0.0);
+        let linear_m = grow(self.window_linear);
+        (linear_m <= self.window_linear.2).then(|| {
+            SearchWindow::new(
+                linear_m,
+                grow(self.window_angular).min(self.window_angular.2),
+            )
+        })
     }
 }
 

@@ -53,7 +53,9 @@ impl FrontEnd {
                 .keyframes
                 .last()
                 .map_or(0.0, |(member, _)| self.drift_since(*member));
-            let window = loops_params.local_window(distance);
+            let Some(window) = loops_params.local_window(distance) else {
+                continue;
+            };
             let guess = map_from_submap.between(&map_from_robot);
             self.info.local_searches += 1;
             // Right after a long loop the estimate is good: ICP from it, trusted as the
