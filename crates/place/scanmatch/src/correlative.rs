@@ -196,19 +196,7 @@ impl Search {
         {
             return None;
         }
-        let finite: Vec<Point2> = query_points_in_robot
-            .iter()
-            .filter(|p| p.x.is_finite() && p.y.is_finite())
-            .copied()
-            .collect();
-        let points = if params.query_voxel_m > 0.0 {
-            voxel_downsample(&finite, params.query_voxel_m)
-        } else {
-            finite
-        };
-        if points.is_empty() {
-            return None;
-        }
+        let points = query_points(params, query_points_in_robot)?;
         let resolution = params.resolution_m;
         // Hess et al. 2016, Eq. 7: the step that moves the farthest point by ≤ one cell.
         let max_range = points.iter().map(|p| p.norm()).fold(0.0, f64::max);
@@ -520,6 +508,24 @@ pub fn match_scan(
     search.finish(target, best, candidates)
 }
 
+/// The finite query points, voxel-downsampled as `params` say; `None` when none is left.
+fn query_points(
+    params: &CorrelativeParams,
+    query_points_in_robot: &[Point2],
+) -> Option<Vec<Point2>> {
+    let finite: Vec<Point2> = query_points_in_robot
+        .iter()
+        .filter(|p| p.x.is_finite() && p.y.is_finite())
+        .copied()
+        .collect();
+    let points = if params.query_voxel_m > 0.0 {
+        voxel_downsample(&finite, params.query_voxel_m)
+    } else {
+        finite
+    };
+    (!points.is_empty()).then_some(points)
+}
+
 /// The score (mean likelihood in [0, 1], as [`match_scan`] reports it) of the query points at
 /// one pose, after the same voxel downsampling; `None` for empty or non-finite input.
 pub fn score_at(
@@ -530,19 +536,7 @@ pub fn score_at(
     if !target_from_robot.is_finite() {
         return None;
     }
-    let finite: Vec<Point2> = query_points_in_robot
-        .iter()
-        .filter(|p| p.x.is_finite() && p.y.is_finite())
-        .copied()
-        .collect();
-    let points = if target.params.query_voxel_m > 0.0 {
-        voxel_downsample(&finite, target.params.query_voxel_m)
-    } else {
-        finite
-    };
-    if points.is_empty() {
-        return None;
-    }
+    let points = query_points(&target.params, query_points_in_robot)?;
     let sum: u64 = points
         .iter()
         .map(|p| {

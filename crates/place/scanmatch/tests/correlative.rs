@@ -10,14 +10,8 @@ use mapmerge_scanmatch::{
 };
 use proptest::prelude::*;
 
-/// Points every 2 cm along a segment.
-fn segment(points: &mut Vec<Point2>, from: (f64, f64), to: (f64, f64)) {
-    let (a, b) = (Point2::new(from.0, from.1), Point2::new(to.0, to.1));
-    let count = ((b - a).norm() / 0.02).ceil().max(1.0) as usize;
-    for k in 0..=count {
-        points.push(a + (b - a) * (k as f64 / count as f64));
-    }
-}
+mod common;
+use common::segment;
 
 /// An 8 × 5 m room with no symmetry: an alcove, a cabinet, a pillar and a desk.
 fn room() -> Vec<Point2> {

@@ -9,6 +9,9 @@ use mapmerge_scan::Point2;
 use mapmerge_scanmatch::{CorrelationGrid, CorrelativeParams, ScanMatcher, SearchWindow};
 use proptest::prelude::*;
 
+mod common;
+use common::segment;
+
 /// The quantised kernel value a cell centre gets from point `q` (the definition the grid
 /// must follow: Olson 2009's rasterised Gaussian, max over points).
 fn expected_cell(
@@ -74,15 +77,6 @@ proptest! {
                 );
             }
         }
-    }
-}
-
-/// Points every 2 cm along a segment.
-fn segment(points: &mut Vec<Point2>, from: (f64, f64), to: (f64, f64)) {
-    let (a, b) = (Point2::new(from.0, from.1), Point2::new(to.0, to.1));
-    let count = ((b - a).norm() / 0.02).ceil().max(1.0) as usize;
-    for k in 0..=count {
-        points.push(a + (b - a) * (k as f64 / count as f64));
     }
 }
 
