@@ -508,11 +508,7 @@ impl FrontEnd {
                 .and_then(|submap| submap.relative_to_nearest(&submap_from_robot))
             {
                 if member != node {
-                    let information = edge_information(
-                        Some(covariance),
-                        &member_from_robot,
-                        self.params.min_edge_sigma,
-                    );
+                    let information = edge_information(&covariance, self.params.min_edge_sigma);
                     let _ = self.graph.add_edge(Edge {
                         from: member,
                         to: node,
@@ -527,11 +523,7 @@ impl FrontEnd {
         if let Some((previous, _, previous_odom, _)) = self.current {
             let measurement = previous_odom.between(&odom_from_robot);
             let information = edge_information(
-                Some(odometry_covariance(
-                    &measurement,
-                    &self.params.odometry_prior,
-                )),
-                &measurement,
+                &odometry_covariance(&measurement, &self.params.odometry_prior),
                 self.params.min_edge_sigma,
             );
             let _ = self.graph.add_edge(Edge {
@@ -637,19 +629,17 @@ impl FrontEnd {
 
 /// Information of an edge: the inverse of `covariance` with its standard deviations floored
 /// at `min_sigma`.
-fn edge_information(
-    covariance: Option<Matrix3<f64>>,
-    _measurement: &Se2,
-    min_sigma: (f64, f64),
-) -> Matrix3<f64> {
+fn edge_information(covariance: &Matrix3<f64>, min_sigma: (f64, f64)) -> Matrix3<f64> {
     let floor = Matrix3::from_diagonal(&Vector3::new(
         min_sigma.0 * min_sigma.0,
         min_sigma.0 * min_sigma.0,
         min_sigma.1 * min_sigma.1,
     ));
-    let covariance = covariance
-        .filter(|c| c.iter().all(|v| v.is_finite()))
-        .unwrap_or(floor);
+    let covariance = if covariance.iter().all(|v| v.is_finite()) {
+        *covariance
+    } else {
+        floor
+    };
     (covariance + floor)
         .try_inverse()
         .filter(|i| i.iter().all(|v| v.is_finite()))
@@ -763,4 +753,55 @@ pub fn run_front_end_with_progress(
         keyframe_scans,
         seconds,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn diagonal(x: f64, y: f64, theta: f64) -> Matrix3<f64> {
+        Matrix3::from_diagonal(&Vector3::new(x * x, y * y, theta * theta))
+    }
+
+    #[test]
+    fn fusion_keeps_the_match_where_it_is_sure_and_the_prior_where_it_is_not() {
+        let matched = Se2::new(1.0, 0.5, 0.1);
+        let prior = Se2::new(1.3, 0.4, 0.12);
+        // A corridor along the match's x axis: x is unconstrained, y and θ are sharp.
+        let corridor = diagonal(10.0, 0.005, 0.001);
+        let odometry = diagonal(0.1, 0.1, 0.05);
+        let fused = fuse_with_prior(&matched, &corridor, &prior, &odometry);
+        let in_match = matched.between(&fused);
+        let prior_in_match = matched.between(&prior);
+        assert!(
+            (in_match.x_m - prior_in_match.x_m).abs() < 0.01,
+            "{in_match:?}"
+        );
+        assert!(in_match.y_m.abs() < 0.01 && in_match.theta_rad.abs() < 0.002);
+        // A sure match everywhere stays put; a singular covariance returns the match.
+        let sure = fuse_with_prior(&matched, &diagonal(1e-4, 1e-4, 1e-5), &prior, &odometry);
+        assert!(matched.between(&sure).translation().norm() < 1e-3);
+        let singular = fuse_with_prior(&matched, &Matrix3::zeros(), &prior, &odometry);
+        assert_eq!(singular, matched);
+    }
+
+    #[test]
+    fn odometry_noise_grows_with_motion() {
+        let model = FrontEndParams::default().odometry_prior;
+        let still = odometry_covariance(&Se2::identity(), &model);
+        let moved = odometry_covariance(&Se2::new(2.0, 0.0, 0.5), &model);
+        for i in 0..3 {
+            assert!(moved[(i, i)] > still[(i, i)]);
+        }
+        assert!((still[(0, 0)] - 0.02f64.powi(2)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn edge_information_is_floored_and_finite() {
+        let information = edge_information(&Matrix3::zeros(), (0.01, 0.01));
+        assert!((information[(0, 0)] - 1e4).abs() < 1e-6);
+        let nan = Matrix3::from_element(f64::NAN);
+        let information = edge_information(&nan, (0.1, 0.1));
+        assert!(information.iter().all(|v| v.is_finite()));
+    }
 }

@@ -146,3 +146,22 @@ impl GeometricVerifier for SubmapVerifier<'_> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn local_window_grows_with_drift_and_stops_beyond_its_largest() {
+        let params = LoopClosureParams::default();
+        let (min_m, per_m, max_m) = params.window_linear;
+        let near = params.local_window(0.0).map(|w| w.linear_m);
+        assert_eq!(near, Some(min_m));
+        let far = params.local_window(50.0).map(|w| w.linear_m);
+        assert_eq!(far, Some(min_m + per_m * 50.0));
+        assert!(params.local_window((max_m - min_m) / per_m + 1.0).is_none());
+        // The heading window is clamped, not a reason to stop.
+        let window = params.local_window(100.0).map(|w| w.angular_rad);
+        assert_eq!(window, Some(params.window_angular.2));
+    }
+}

@@ -287,11 +287,7 @@ impl FrontEnd {
             LoopSource::Local => self.info.local_loops += 1,
             LoopSource::Place => self.info.place_loops += 1,
         }
-        let information = edge_information(
-            Some(record.covariance),
-            &record.measurement,
-            self.params.loops.min_edge_sigma,
-        );
+        let information = edge_information(&record.covariance, self.params.loops.min_edge_sigma);
         let _ = self.graph.add_edge(Edge {
             from: record.from,
             to: record.to,
