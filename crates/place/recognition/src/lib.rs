@@ -13,6 +13,11 @@
 //!   [`VerifiedLoop`]s with a confidence that is low for look-alike places;
 //!   [`find_loop_candidates_with_poses`] does the same when B's poses are known, which lets
 //!   places B visited several times count as one place.
+//! - [`verify_candidates`] (and [`verify_candidates_by`] with the caller's same-place rule):
+//!   the per-query step for a caller that keeps its own index, e.g. a SLAM front-end.
+//! - [`ScanMatchVerifier`]: the production verifier; [`ScanMatchVerifier::with_evidence`]
+//!   scores alignments by their [`Evidence`], which is what searches without a pose prior need
+//!   (`examples/place_benchmark.rs` measures precision and recall on the public logs).
 //!
 //! ```
 //! use mapmerge_place::{KeyframeId, PlaceDescriptor, PlaceIndex, ScanContext, ScanContextParams};
@@ -40,6 +45,7 @@
 #![warn(missing_docs)]
 
 mod descriptor;
+mod evidence;
 mod index;
 mod keyframe;
 mod loops;
@@ -48,11 +54,12 @@ mod scan_match_verifier;
 mod verify;
 
 pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
+pub use evidence::{evidence, Evidence, EvidenceParams};
 pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
 pub use loops::{
     find_loop_candidates, find_loop_candidates_with, find_loop_candidates_with_poses,
-    verify_candidates, PlaceCandidate, PlaceParams, VerifiedLoop,
+    verify_candidates, verify_candidates_by, PlaceCandidate, PlaceParams, VerifiedLoop,
 };
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::ScanMatchVerifier;

@@ -151,22 +151,27 @@ pub struct PlaceCandidate<'a> {
     pub map_from_keyframe: Option<Se2>,
 }
 
-/// True when verified candidates `x` and `y` show the same place of B.
-fn same_place(
-    x: (&PlaceCandidate, &Verification),
-    y: (&PlaceCandidate, &Verification),
-    params: &PlaceParams,
-) -> bool {
-    match (x.0.map_from_keyframe, y.0.map_from_keyframe) {
-        (Some(map_from_x), Some(map_from_y)) => {
-            // Where each candidate puts `a` in B's map.
-            let a_via_x = map_from_x.compose(&x.1.candidate_from_query);
-            let a_via_y = map_from_y.compose(&y.1.candidate_from_query);
-            (a_via_x.translation() - a_via_y.translation()).norm() <= params.same_place_m
-                && wrap_angle_rad(a_via_x.theta_rad - a_via_y.theta_rad).abs()
-                    <= params.same_place_rad
+impl PlaceParams {
+    /// The default same-place rule of [`verify_candidates`]: verified candidates `x` and `y`
+    /// show the same place of B when the poses of the query they imply in B's map agree
+    /// within `same_place_m` and `same_place_rad` (both with `map_from_keyframe`), else when
+    /// their ordinals differ by at most `distinct_index_gap`.
+    pub fn same_place(
+        &self,
+        x: (&PlaceCandidate, &Verification),
+        y: (&PlaceCandidate, &Verification),
+    ) -> bool {
+        match (x.0.map_from_keyframe, y.0.map_from_keyframe) {
+            (Some(map_from_x), Some(map_from_y)) => {
+                // Where each candidate puts `a` in B's map.
+                let a_via_x = map_from_x.compose(&x.1.candidate_from_query);
+                let a_via_y = map_from_y.compose(&y.1.candidate_from_query);
+                (a_via_x.translation() - a_via_y.translation()).norm() <= self.same_place_m
+                    && wrap_angle_rad(a_via_x.theta_rad - a_via_y.theta_rad).abs()
+                        <= self.same_place_rad
+            }
+            _ => x.0.ordinal.abs_diff(y.0.ordinal) <= self.distinct_index_gap,
         }
-        _ => x.0.ordinal.abs_diff(y.0.ordinal) <= params.distinct_index_gap,
     }
 }
 
@@ -180,6 +185,21 @@ pub fn verify_candidates(
     candidates: &[PlaceCandidate],
     verifier: &impl GeometricVerifier,
     params: &PlaceParams,
+) -> Option<VerifiedLoop> {
+    verify_candidates_by(query, candidates, verifier, params, |x, y| {
+        params.same_place(x, y)
+    })
+}
+
+/// As [`verify_candidates`], with the caller's rule for when two verified candidates show the
+/// same place (and so are no rivals): e.g. candidates already joined by accepted loops, which
+/// a search without poses cannot know from `map_from_keyframe`.
+pub fn verify_candidates_by(
+    query: &Keyframe,
+    candidates: &[PlaceCandidate],
+    verifier: &impl GeometricVerifier,
+    params: &PlaceParams,
+    same_place: impl Fn((&PlaceCandidate, &Verification), (&PlaceCandidate, &Verification)) -> bool,
 ) -> Option<VerifiedLoop> {
     let verified: Vec<(&PlaceCandidate, Verification)> = candidates
         .iter()
@@ -199,7 +219,7 @@ pub fn verify_candidates(
     }
     let rival = verified
         .iter()
-        .filter(|(c, v)| !same_place((best_candidate, best), (c, v), params))
+        .filter(|(c, v)| !same_place((best_candidate, best), (c, v)))
         .map(|(_, v)| v.score.max(0.0))
         .fold(0.0f64, f64::max);
     let confidence = if best.score > 0.0 {

@@ -1,17 +1,26 @@
 //! The production [`GeometricVerifier`]: the correlative scan matcher with ICP
-//! (`mapmerge-scanmatch`), searching a window around the descriptor's yaw guess.
+//! (`mapmerge-scanmatch`), searching a window around the descriptor's yaw guess, optionally
+//! scored by the [`Evidence`] the alignment gives.
 
 use mapmerge_geometry::Se2;
 use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
 
+use crate::evidence::{evidence, Evidence, EvidenceParams};
 use crate::{GeometricVerifier, Keyframe, Verification};
 
 /// Verifies candidates with [`ScanMatcher`]: the candidate's points become the match target and
 /// the query's points are searched within `window` around the guess. Scan Context's yaw is good
 /// to a sector or two and its translation guess is zero, so the default window is ±2 m, ±15°.
+///
+/// By default the score is the matcher's (mean likelihood of the query points). With
+/// [`ScanMatchVerifier::with_evidence`] it is the [`Evidence::score`] instead, which also
+/// searches the query turned by 180° (twice the matching time) and is what place recognition
+/// without a pose prior needs: the matcher's score is as high in the wrong section of a
+/// corridor as in the right one.
 pub struct ScanMatchVerifier {
     matcher: ScanMatcher,
     window: SearchWindow,
+    evidence: Option<EvidenceParams>,
 }
 
 impl ScanMatchVerifier {
@@ -23,7 +32,66 @@ impl ScanMatchVerifier {
         Ok(Self {
             matcher: ScanMatcher::new(params)?,
             window,
+            evidence: None,
         })
+    }
+
+    /// The same verifier scoring by [`Evidence::score`] with `params`.
+    pub fn with_evidence(mut self, params: EvidenceParams) -> Self {
+        self.evidence = Some(params);
+        self
+    }
+
+    /// As [`GeometricVerifier::verify`], with the evidence (computed with the default
+    /// [`EvidenceParams`] when the verifier has none; the score is then still the matcher's).
+    pub fn verify_with_evidence(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<(Verification, Evidence)> {
+        // Building a target costs tens of ms; verification runs on a few candidates per query.
+        let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
+        let found = self.matcher.match_scan(
+            &target,
+            &query.points_in_keyframe,
+            guess_candidate_from_query,
+            &self.window,
+        )?;
+        // The same search with the query turned around: symmetric places fit both ways.
+        let turned = Se2::new(
+            guess_candidate_from_query.x_m,
+            guess_candidate_from_query.y_m,
+            guess_candidate_from_query.theta_rad + std::f64::consts::PI,
+        );
+        let flip_ratio =
+            match self
+                .matcher
+                .match_scan(&target, &query.points_in_keyframe, &turned, &self.window)
+            {
+                Some(flipped) if found.score > 0.0 => flipped.score / found.score,
+                _ => 0.0,
+            };
+        let params = self.evidence.unwrap_or_default();
+        let proof = evidence(
+            &query.points_in_keyframe,
+            &candidate.points_in_keyframe,
+            &found.target_from_query,
+            flip_ratio,
+            &params,
+        );
+        Some((
+            Verification {
+                candidate_from_query: found.target_from_query,
+                score: if self.evidence.is_some() {
+                    proof.score
+                } else {
+                    found.score
+                },
+                covariance: found.covariance,
+            },
+            proof,
+        ))
     }
 }
 
@@ -32,6 +100,7 @@ impl Default for ScanMatchVerifier {
         Self {
             matcher: ScanMatcher::default(),
             window: SearchWindow::new(2.0, 15f64.to_radians()),
+            evidence: None,
         }
     }
 }
@@ -43,7 +112,11 @@ impl GeometricVerifier for ScanMatchVerifier {
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
     ) -> Option<Verification> {
-        // Building a target costs tens of ms; verification runs on a few candidates per query.
+        if self.evidence.is_some() {
+            return self
+                .verify_with_evidence(query, candidate, guess_candidate_from_query)
+                .map(|(v, _)| v);
+        }
         let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
         let found = self.matcher.match_scan(
             &target,

@@ -1,0 +1,326 @@
+//! How much an alignment of two keyframes proves that they show the same place.
+//!
+//! A scan matcher's score says how well the query's points fit the candidate's; in corridors,
+//! at corners and in look-alike rooms a wrong place fits as well. Without a pose prior a loop
+//! must be refused unless the fit is also
+//! - *complete*: most query points have a candidate point nearby (`inlier_fraction`),
+//! - *free-space consistent*: few candidate points lie where the query saw through, i.e. in
+//!   front of its returns (`violation_fraction`; the negative evidence the likelihood score
+//!   ignores),
+//! - *constrained*: the matched line-like structure pins the translation in every direction
+//!   (`constraint_m`, the smallest eigenvalue of `Σ n nᵀ` over matched points thinned to
+//!   `voxel_m`, in metres of wall; a corridor's two walls leave the axis along it free), and
+//! - *unique in heading*: the query turned by 180° does not fit nearly as well (`flip_ratio`,
+//!   from a second search; symmetric corridors and rooms fit both ways).
+//!
+//! [`Evidence::score`] folds these into one number in `[0, 1]`, so that rivals in
+//! [`crate::verify_candidates`] are compared on the same scale.
+//!
+//! The free space is the query keyframe's own: the nearest return per 1° bearing from its
+//! origin. For a single scan that is exact; for a local map (points seen from several poses
+//! along the path) it is an approximation that holds where the path passed in the open.
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_scan::{estimate_normals, transform_points, voxel_downsample, Point2};
+use nalgebra::Matrix2;
+use serde::{Deserialize, Serialize};
+
+/// Bearing bins of the free-space profile (1° each).
+const BEARING_BINS: usize = 360;
+
+/// Parameters of the evidence check.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct EvidenceParams {
+    /// Both point sets are thinned to one point per cell of this size (m) (default: 0.1), so
+    /// counts measure length of structure, not scanner density.
+    pub voxel_m: f64,
+    /// A query point with a candidate point within this distance is an inlier (m)
+    /// (default: 0.15).
+    pub inlier_m: f64,
+    /// A candidate point violates the query's free space when it lies this far (m) in front
+    /// of the query's returns on its bearing and its neighbours' (default: 0.3) …
+    pub free_space_margin_m: f64,
+    /// … and farther than this (m) from every query point (default: 0.3).
+    pub violation_clearance_m: f64,
+    /// Weight of `violation_fraction` in the score (default: 3: 5 % of the candidate's
+    /// structure in the query's free space costs 0.15). Higher refuses more look-alikes and
+    /// more true places whose doors or furniture moved.
+    pub violation_weight: f64,
+    /// Weight of the part of `flip_ratio` above `flip_tolerance` in the score (default: 2).
+    pub flip_weight: f64,
+    /// See `flip_weight` (default: 0.5: a turned query that fits half as well is normal).
+    pub flip_tolerance: f64,
+    /// Matched structure (m of line-like wall in the weakest direction) from which the score is
+    /// not reduced; below it the score shrinks in proportion (default: 3). Higher refuses
+    /// more corridor-like places.
+    pub full_constraint_m: f64,
+    /// Radius of the neighbourhood that gives a point's normal (m) (default: 0.2).
+    pub normal_radius_m: f64,
+    /// Points whose neighbourhood is less line-like than this count as no structure
+    /// (`planarity`, 0..1) (default: 0.5).
+    pub min_planarity: f64,
+}
+
+impl Default for EvidenceParams {
+    fn default() -> Self {
+        Self {
+            voxel_m: 0.1,
+            inlier_m: 0.15,
+            free_space_margin_m: 0.3,
+            violation_clearance_m: 0.3,
+            violation_weight: 3.0,
+            flip_weight: 2.0,
+            flip_tolerance: 0.5,
+            full_constraint_m: 3.0,
+            normal_radius_m: 0.2,
+            min_planarity: 0.5,
+        }
+    }
+}
+
+/// What an alignment proves (see the module documentation).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Evidence {
+    /// Thinned query points.
+    pub query_points: usize,
+    /// Fraction of them with a candidate point within `inlier_m`.
+    pub inlier_fraction: f64,
+    /// Thinned candidate points on bearings the query observed.
+    pub candidate_points_in_view: usize,
+    /// Fraction of those in the query's free space.
+    pub violation_fraction: f64,
+    /// Matched line-like structure in the weakest direction (m of wall).
+    pub constraint_m: f64,
+    /// Scan-matcher score with the query turned by 180° over the score of the alignment
+    /// (0 when that search found nothing).
+    pub flip_ratio: f64,
+    /// The evidence in `[0, 1]`: `(inlier_fraction − violation_weight · violation_fraction −
+    /// flip_weight · max(0, flip_ratio − flip_tolerance)) · min(1, constraint_m /
+    /// full_constraint_m)`.
+    pub score: f64,
+}
+
+/// A 2D k-d tree and nearest-neighbour distances (m).
+struct Nearest(Option<ImmutableKdTree<f64, 2>>);
+
+impl Nearest {
+    fn new(points: &[Point2]) -> Self {
+        let coords: Vec<[f64; 2]> = points.iter().map(|p| [p.x, p.y]).collect();
+        Self(ImmutableKdTree::new_from_slice(&coords).ok())
+    }
+
+    fn distance_m(&self, p: &Point2) -> f64 {
+        self.0.as_ref().map_or(f64::INFINITY, |tree| {
+            tree.query(&[p.x, p.y])
+                .nearest_one::<SquaredEuclidean<f64>>()
+                .execute()
+                .distance
+                .sqrt()
+        })
+    }
+}
+
+/// Bearing bin of a point seen from the origin.
+fn bearing_bin(p: &Point2) -> usize {
+    let turns = (p.y.atan2(p.x) / std::f64::consts::TAU).rem_euclid(1.0);
+    ((turns * BEARING_BINS as f64) as usize).min(BEARING_BINS - 1)
+}
+
+/// The evidence for `candidate_from_query` aligning `query_points` (query frame) to
+/// `candidate_points` (candidate frame); `flip_ratio` is passed in (it needs a second scan
+/// match) and enters the score. Non-finite points are ignored.
+pub fn evidence(
+    query_points: &[Point2],
+    candidate_points: &[Point2],
+    candidate_from_query: &Se2,
+    flip_ratio: f64,
+    params: &EvidenceParams,
+) -> Evidence {
+    let finite = |points: &[Point2]| -> Vec<Point2> {
+        let kept: Vec<Point2> = points
+            .iter()
+            .filter(|p| p.x.is_finite() && p.y.is_finite())
+            .copied()
+            .collect();
+        voxel_downsample(&kept, params.voxel_m)
+    };
+    let query = finite(query_points);
+    let candidate = finite(candidate_points);
+    let mut out = Evidence {
+        query_points: query.len(),
+        flip_ratio,
+        ..Evidence::default()
+    };
+    if query.is_empty() || candidate.is_empty() {
+        return out;
+    }
+    let query_in_candidate = transform_points(candidate_from_query, &query);
+    let candidate_in_query = transform_points(&candidate_from_query.inverse(), &candidate);
+    let near_candidate = Nearest::new(&candidate);
+    let near_query = Nearest::new(&query);
+    // 1. Completeness.
+    let inliers = query_in_candidate
+        .iter()
+        .filter(|p| near_candidate.distance_m(p) <= params.inlier_m)
+        .count();
+    out.inlier_fraction = inliers as f64 / query.len() as f64;
+    // 2. Constraint: Σ n nᵀ over line-like matched query points (one per voxel, so each
+    // stands for `voxel_m` of wall).
+    let mut information = Matrix2::<f64>::zeros();
+    let viewpoint = candidate_from_query.translation();
+    for normal in estimate_normals(&query_in_candidate, params.normal_radius_m, 3, &viewpoint) {
+        if normal.planarity >= params.min_planarity
+            && near_candidate.distance_m(&normal.point) <= params.inlier_m
+        {
+            information += normal.normal * normal.normal.transpose();
+        }
+    }
+    out.constraint_m = params.voxel_m * information.symmetric_eigenvalues().min().max(0.0);
+    // 3. Free space: the query's nearest return per bearing, and candidate points in front.
+    let mut range_m = [f64::INFINITY; BEARING_BINS];
+    for p in &query {
+        if let Some(r) = range_m.get_mut(bearing_bin(p)) {
+            *r = r.min(p.norm());
+        }
+    }
+    let (mut in_view, mut violations) = (0usize, 0usize);
+    for p in &candidate_in_query {
+        let bin = bearing_bin(p);
+        let seen = [bin + BEARING_BINS - 1, bin, bin + 1].map(|b| {
+            range_m
+                .get(b % BEARING_BINS)
+                .copied()
+                .unwrap_or(f64::INFINITY)
+        });
+        if seen.iter().any(|r| !r.is_finite()) {
+            continue;
+        }
+        in_view += 1;
+        let in_front = seen
+            .iter()
+            .all(|r| p.norm() < r - params.free_space_margin_m);
+        if in_front && near_query.distance_m(p) > params.violation_clearance_m {
+            violations += 1;
+        }
+    }
+    out.candidate_points_in_view = in_view;
+    out.violation_fraction = if in_view > 0 {
+        violations as f64 / in_view as f64
+    } else {
+        0.0
+    };
+    // 4. One number.
+    let support = out.inlier_fraction
+        - params.violation_weight * out.violation_fraction
+        - params.flip_weight * (flip_ratio - params.flip_tolerance).max(0.0);
+    let constrained = if params.full_constraint_m > 0.0 {
+        (out.constraint_m / params.full_constraint_m).min(1.0)
+    } else {
+        1.0
+    };
+    out.score = (support * constrained).clamp(0.0, 1.0);
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use super::*;
+
+    /// Points every 2 cm along the segment `a`–`b`.
+    fn wall(a: (f64, f64), b: (f64, f64)) -> Vec<Point2> {
+        let (a, b) = (Point2::new(a.0, a.1), Point2::new(b.0, b.1));
+        let n = ((b - a).norm() / 0.02).ceil() as usize;
+        (0..=n)
+            .map(|i| a + (b - a) * (i as f64 / n as f64))
+            .collect()
+    }
+
+    /// A room with an alcove, seen from inside.
+    fn room() -> Vec<Point2> {
+        [
+            ((-3.0, -2.0), (4.0, -2.0)),
+            ((4.0, -2.0), (4.0, 3.0)),
+            ((4.0, 3.0), (1.0, 3.0)),
+            ((1.0, 3.0), (1.0, 2.0)),
+            ((1.0, 2.0), (-3.0, 2.0)),
+            ((-3.0, 2.0), (-3.0, -2.0)),
+        ]
+        .iter()
+        .flat_map(|(a, b)| wall(*a, *b))
+        .collect()
+    }
+
+    #[test]
+    fn a_true_alignment_scores_high() {
+        let e = evidence(
+            &room(),
+            &room(),
+            &Se2::new(0.0, 0.0, 0.0),
+            0.0,
+            &EvidenceParams::default(),
+        );
+        assert!(e.inlier_fraction > 0.99, "{e:?}");
+        assert_eq!(e.violation_fraction, 0.0);
+        assert!(e.constraint_m > 6.0, "{e:?}");
+        assert!(e.score > 0.99, "{e:?}");
+    }
+
+    #[test]
+    fn a_corridor_is_not_constrained() {
+        let corridor: Vec<Point2> = wall((-8.0, -1.0), (8.0, -1.0))
+            .into_iter()
+            .chain(wall((-8.0, 1.0), (8.0, 1.0)))
+            .collect();
+        let e = evidence(
+            &corridor,
+            &corridor,
+            &Se2::new(0.0, 0.0, 0.0),
+            0.0,
+            &EvidenceParams::default(),
+        );
+        assert!(e.inlier_fraction > 0.99);
+        assert!(e.constraint_m < 0.3, "{e:?}");
+        assert!(e.score < 0.1, "{e:?}");
+    }
+
+    #[test]
+    fn candidate_walls_in_the_query_free_space_count_against() {
+        // The candidate has a wall across the room where the query saw through.
+        let mut candidate = room();
+        candidate.extend(wall((2.0, -2.0), (2.0, 2.0)));
+        let e = evidence(
+            &room(),
+            &candidate,
+            &Se2::new(0.0, 0.0, 0.0),
+            0.0,
+            &EvidenceParams::default(),
+        );
+        assert!(e.violation_fraction > 0.1, "{e:?}");
+        let clean = evidence(
+            &room(),
+            &room(),
+            &Se2::new(0.0, 0.0, 0.0),
+            0.0,
+            &EvidenceParams::default(),
+        );
+        assert!(e.score < clean.score - 0.1);
+    }
+
+    #[test]
+    fn a_good_flip_lowers_the_score_and_empty_input_scores_zero() {
+        let params = EvidenceParams::default();
+        let identity = Se2::new(0.0, 0.0, 0.0);
+        let flipped = evidence(&room(), &room(), &identity, 0.8, &params);
+        assert!(
+            (flipped.score - (1.0 - 2.0 * 0.3)).abs() < 0.02,
+            "{flipped:?}"
+        );
+        assert_eq!(evidence(&[], &room(), &identity, 0.0, &params).score, 0.0);
+        let nan = [Point2::new(f64::NAN, 1.0)];
+        assert_eq!(evidence(&nan, &nan, &identity, 0.0, &params).score, 0.0);
+    }
+}

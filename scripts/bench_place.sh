@@ -1,0 +1,66 @@
+#!/usr/bin/env bash
+# Place recognition (issue 4, part 5): precision and recall of verified loops, one default
+# configuration, on the 13 public corrected logs (intra-log, no pose guess) and on the
+# simulator's look-alike office (sessions 1 and 2 against session 0).
+# Definitions: crates/place/recognition/examples/support/place_eval.rs.
+# Usage: scripts/bench_place.sh [--only NAME]... (NAME = a log, or `sim`)
+# Writes bench-out/place.md (+ bench-out/place/runs.jsonl).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+only=()
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --only) only+=("$2"); shift 2 ;;
+    *) echo "usage: $0 [--only NAME]..." >&2; exit 2 ;;
+  esac
+done
+data="${MAPMERGE_DATA:-../shared/data}"
+out="${OUT_DIR:-bench-out}"
+mkdir -p "$out/place"
+cargo build --release -q -p mapmerge-place --example place_benchmark
+bin=target/release/examples/place_benchmark
+names=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus infinite-corridor intel orebro seattle sim)
+[[ ${#only[@]} -gt 0 ]] && names=("${only[@]}")
+results="$out/place/runs.jsonl"; : > "$results"
+for name in "${names[@]}"; do
+  if [[ "$name" == sim ]]; then
+    "$bin" --sim testdata/sim/office-aliased >> "$results"
+  else
+    "$bin" "$data/carmen/$name-corrected.log.xz" >> "$results"
+  fi
+  echo "done $name" >&2
+done
+python3 - "$results" "$*" > "$out/place.md" <<'PY'
+import json, sys
+runs = [json.loads(l) for l in open(sys.argv[1])]
+print("Place recognition with the default configuration (`BenchConfig::default()` in")
+print("crates/place/recognition/examples/support/place_eval.rs), measured by")
+print("`scripts/bench_place.sh" + (" " + sys.argv[2] if sys.argv[2] else "") + "`.\n")
+print("Public logs: intra-log, each keyframe against the keyframes ≥ 10 m of travel earlier, no pose")
+print("guess. sim: sessions 1 and 2 of testdata/sim/office-aliased against session 0. A loop is true")
+print("within 0.5 m and 10° of the reference relative pose; a revisit is an indexed keyframe within")
+print("1 m and 30° (sim: any heading, 360° lidar). *retrieved*: revisits with a keyframe within 1 m and")
+print("30° among the retrieved candidates, descriptor yaw within 20°; *verified*: revisits with a")
+print("candidate verified to the true pose (the ceiling of any acceptance rule). *refused*: queries whose")
+print("best verified candidate missed the score or the confidence threshold, how many of those were")
+print("wrong, and how many of the wrong ones put the query into a look-alike room (sim).\n")
+print("| log | keyframes | queries | revisits | accepted | true | precision | recall | retrieved | verified | refused by score: all / wrong / look-alike | refused by confidence: all / wrong / look-alike | ms per query |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+tot = dict(revisits=0, accepted=0, true=0, recalled=0)
+for r in runs:
+    by_score = f"{r['refused_by_score']} / {r['refused_by_score_wrong']} / {r['refused_by_score_look_alike']}"
+    refused = f"{by_score} | {r['refused_by_confidence']} / {r['refused_by_confidence_wrong']} / {r['refused_by_confidence_look_alike']}"
+    print(f"| {r['name']} | {r['keyframes']} | {r['queries']} | {r['revisits']} | {r['accepted']} | {r['true']} "
+          f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['retrieved']} | {r['verified']} | {refused} | {r['ms_per_query']:.0f} |")
+    if not r['name'].startswith('sim'):
+        for k in tot: tot[k] += r[k]
+if tot['revisits']:
+    p = tot['true'] / tot['accepted'] if tot['accepted'] else 1.0
+    print(f"| all public logs | | | {tot['revisits']} | {tot['accepted']} | {tot['true']} | {p:.3f} | "
+          f"{tot['recalled'] / tot['revisits']:.3f} | | | | | |")
+sims = [r for r in runs if r['name'].startswith('sim')]
+for r in sims:
+    print(f"\n{r['name']}: {r['revisits_in_look_alike_rooms']} of the {r['revisits']} revisits are in rooms with "
+          f"look-alikes ({r['recalled_in_look_alike_rooms']} recalled).")
+PY
+cat "$out/place.md"
