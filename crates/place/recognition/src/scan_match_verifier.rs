@@ -3,7 +3,7 @@
 //! scored by the [`Evidence`] the alignment gives.
 
 use mapmerge_geometry::Se2;
-use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
+use mapmerge_scanmatch::{Match, ScanMatchParams, ScanMatchTarget, ScanMatcher, SearchWindow};
 
 use crate::evidence::{evidence, Evidence, EvidenceParams};
 use crate::{GeometricVerifier, Keyframe, Verification};
@@ -42,6 +42,25 @@ impl ScanMatchVerifier {
         self
     }
 
+    /// The candidate as a match target, and the query matched against it within the window
+    /// around the guess. Building a target costs tens of ms; verification runs on a few
+    /// candidates per query.
+    fn search(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<(ScanMatchTarget, Match)> {
+        let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
+        let found = self.matcher.match_scan(
+            &target,
+            &query.points_in_keyframe,
+            guess_candidate_from_query,
+            &self.window,
+        )?;
+        Some((target, found))
+    }
+
     /// As [`GeometricVerifier::verify`], with the evidence (computed with the default
     /// [`EvidenceParams`] when the verifier has none; the score is then still the matcher's).
     pub fn verify_with_evidence(
@@ -50,14 +69,7 @@ impl ScanMatchVerifier {
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
     ) -> Option<(Verification, Evidence)> {
-        // Building a target costs tens of ms; verification runs on a few candidates per query.
-        let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
-        let found = self.matcher.match_scan(
-            &target,
-            &query.points_in_keyframe,
-            guess_candidate_from_query,
-            &self.window,
-        )?;
+        let (target, found) = self.search(query, candidate, guess_candidate_from_query)?;
         // The same search with the query turned around: symmetric places fit both ways.
         let turned = Se2::new(
             guess_candidate_from_query.x_m,
@@ -117,13 +129,7 @@ impl GeometricVerifier for ScanMatchVerifier {
                 .verify_with_evidence(query, candidate, guess_candidate_from_query)
                 .map(|(v, _)| v);
         }
-        let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
-        let found = self.matcher.match_scan(
-            &target,
-            &query.points_in_keyframe,
-            guess_candidate_from_query,
-            &self.window,
-        )?;
+        let (_, found) = self.search(query, candidate, guess_candidate_from_query)?;
         Some(Verification {
             candidate_from_query: found.target_from_query,
             score: found.score,
