@@ -195,7 +195,10 @@ mod tests {
         let near: Vec<&PointNormal> = normals.iter().filter(|n| n.point.x < 3.0).collect();
         assert_eq!(near.len(), 21, "every point of the near wall has a normal");
         for n in &near {
-            assert!((n.normal.x + 1.0).abs() < 1e-9, "towards the viewpoint: {n:?}");
+            assert!(
+                (n.normal.x + 1.0).abs() < 1e-9,
+                "towards the viewpoint: {n:?}"
+            );
             assert!(n.planarity > 0.99);
         }
         // The far wall's points are 0.3 m apart, within 6 % of their ~6.5 m range.
