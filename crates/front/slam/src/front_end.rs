@@ -368,16 +368,9 @@ impl FrontEnd {
         let matched = self.match_to_submap(&points, &predicted);
         self.info.seconds.matching += started.elapsed().as_secs_f64();
         let (local_from_robot, score) = match &matched {
-            Some((s, m)) => {
+            Some((_, m, local_from_robot)) => {
                 self.info.matched += 1;
-                let local_from_submap = self
-                    .submaps
-                    .get(*s)
-                    .map_or_else(Se2::identity, |submap| submap.local_from_submap);
-                (
-                    local_from_submap.compose(&m.target_from_query),
-                    Some(m.score),
-                )
+                (*local_from_robot, Some(m.score))
             }
             None => {
                 self.info.odometry_only += 1;
@@ -412,7 +405,7 @@ impl FrontEnd {
                 loops: 0,
             });
         }
-        let submap_match = matched.map(|(s, m)| (s, m.target_from_query, m.covariance));
+        let submap_match = matched.map(|(s, m, _)| (s, m.target_from_query, m.covariance));
         let started = Instant::now();
         let node = self.add_keyframe(local_from_robot, *odom_from_robot, points, submap_match)?;
         self.info.seconds.submaps += started.elapsed().as_secs_f64();
@@ -439,13 +432,13 @@ impl FrontEnd {
     /// Matches `points` (robot frame) predicted at `predicted` (local frame) against the
     /// older active submap: ICP from the prediction when it clearly lands in the right basin,
     /// else the correlative search over the odometry window; then directions the match does
-    /// not constrain (a corridor's axis) keep the prediction. The submap's index and the
-    /// match, in the submap frame.
+    /// not constrain (a corridor's axis) keep the prediction. The submap's index, the match
+    /// in the submap frame, and the matched pose in the local frame.
     fn match_to_submap(
         &mut self,
         points: &[Point2],
         predicted: &Se2,
-    ) -> Option<(usize, mapmerge_scanmatch::Match)> {
+    ) -> Option<(usize, mapmerge_scanmatch::Match, Se2)> {
         let s = *self.active.first()?;
         let submap = self.submaps.get_mut(s)?;
         if submap.is_empty() {
@@ -474,7 +467,8 @@ impl FrontEnd {
             &guess,
             &prior_covariance,
         );
-        Some((s, found))
+        let local_from_robot = submap.local_from_submap.compose(&found.target_from_query);
+        Some((s, found, local_from_robot))
     }
 
     /// Optimises the graph if loops were added since the last optimisation (call after the
