@@ -1,0 +1,207 @@
+//! Parameters of grid matching and of the acceptance rule.
+
+use mapmerge_grid::ClassThresholds;
+use serde::{Deserialize, Serialize};
+
+use crate::error::GridMatchError;
+
+/// When the best hypothesis is accepted (Birk & Carpin 2006's acceptance index plus a margin
+/// over the runner-up, Carpin 2008, Sec. 5).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AcceptanceParams {
+    /// Smallest acceptance index ω = agree / (agree + disagree) (default: 0.9). Higher
+    /// rejects more wrong matches and more correct ones between maps of different quality.
+    pub min_acceptance: f64,
+    /// Smallest overlap, as a fraction of the known cells of the smaller map (default: 0.1).
+    /// A tiny overlap agrees by chance.
+    pub min_overlap_fraction: f64,
+    /// Smallest relative lead of the best hypothesis's score over the best distinct runner-up,
+    /// `(best − runner_up) / best` (default: 0.15). This is what refuses look-alike places
+    /// (a corridor shifted by one door, a symmetric room turned by 180°), whose ω is as high
+    /// as the right one's.
+    pub min_margin: f64,
+    /// Largest DM (cells) of the best hypothesis (default: 4). Right placements of maps of
+    /// one place measure 0.2–1.5 cells on the building maps (Andersone, Table 4: up to 2.4
+    /// between maps of different sessions); look-alikes whose ω passes measure 6 and more,
+    /// because DM sees how far each wall is from the other map's (Andersone, Sec. 3.3).
+    pub max_dm_cells: f64,
+}
+
+impl Default for AcceptanceParams {
+    fn default() -> Self {
+        Self {
+            min_acceptance: 0.9,
+            min_overlap_fraction: 0.1,
+            min_margin: 0.15,
+            max_dm_cells: 4.0,
+        }
+    }
+}
+
+/// Parameters of [`crate::match_grids`]. Defaults work on building maps of 0.02–0.2 m cells.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GridMatchParams {
+    /// Log-odds → free / occupied / unknown (default: 0.65 / 0.35, see `ClassThresholds`).
+    pub thresholds: ClassThresholds,
+    /// Angle bins of the Hough spectrum over [0, π) (default: 360, i.e. 0.5°). More bins give
+    /// finer rotation hypotheses and cost linearly.
+    pub hough_angle_bins: usize,
+    /// ρ bin of the Hough transform, in cells of the common resolution (default: 2); occupied
+    /// cells are pooled to this size first. Larger is faster and blurs the spectrum.
+    pub hough_rho_cells: usize,
+    /// Peaks of the spectra's cross-correlation kept (default: 4); each gives θ and θ + π, so
+    /// 4 peaks keep the 90° and 180° ambiguities of rectilinear buildings.
+    pub rotation_peaks: usize,
+    /// Translations kept per rotation hypothesis (default: 2).
+    pub translation_peaks: usize,
+    /// The coarse correlation raster has at most this many cells along its longest side
+    /// (default: 200); the pooling factor follows. Smaller is faster and needs a larger
+    /// refinement window.
+    pub coarse_max_cells: usize,
+    /// Weight of an occupied cell against a free one in the coarse correlation (default: 3):
+    /// occupied-occupied counts `w²`, free-free 1, occupied-free `−w`. Walls are few; without
+    /// the weight free space decides alone.
+    pub occupied_weight: f64,
+    /// Ranking score of a cell occupied in both maps, in units of a cell free in both
+    /// (default: 10). About the log-likelihood ratio of a wall seen in both under a right
+    /// and a random placement (walls cover ~10 % of a building map).
+    pub rank_occupied_weight: f64,
+    /// Ranking penalty of a cell occupied in one map and free in the other (default: 10).
+    /// About `log(0.2 / 0.02) / log(0.98 / 0.8)`: a right placement disagrees on ~2 % of its
+    /// cells, a look-alike on ~5–20 %, so a disagreement costs as much as ten agreements; a
+    /// smaller weight lets a larger, wrong overlap outrank a smaller right one.
+    pub rank_disagree_weight: f64,
+    /// Coarse candidates refined at full resolution (default: 10): first the best of each
+    /// rotation hypothesis, then the next best overall.
+    pub refine_candidates: usize,
+    /// Half-width of the refinement's heading window (rad) (default: 1.2° = 0.0209); must
+    /// cover half a Hough bin plus the spectrum's error.
+    pub refine_angle_rad: f64,
+    /// The refinement's translation window is the coarse cell plus this many fine cells on
+    /// each side (default: 2).
+    pub refine_margin_cells: f64,
+    /// At most this many of B's occupied cells (evenly strided) enter the refinement search
+    /// (default: 6000). Fewer is faster and less precise.
+    pub refine_max_points: usize,
+    /// Candidates after the first are searched only for poses scoring at least this fraction
+    /// of the first one's refinement score (default: 0.5); the others keep their coarse pose.
+    /// Higher prunes hopeless rotations sooner.
+    pub refine_min_score_ratio: f64,
+    /// The best this many hypotheses get a point-to-line ICP step (default: 2), kept when it
+    /// raises their score.
+    pub polish_candidates: usize,
+    /// Standard deviation of the refinement's likelihood kernel, in cells (default: 1.0).
+    pub refine_kernel_sigma_cells: f64,
+    /// Two hypotheses closer than this many cells at B's centroid … (default: 3)
+    pub distinct_cells: f64,
+    /// … and this heading difference (rad) are one hypothesis (default: 1.5° = 0.0262).
+    pub distinct_rad: f64,
+    /// Largest map accepted, in cells after resampling (default: 25 M).
+    pub max_cells: usize,
+    /// The acceptance rule.
+    pub acceptance: AcceptanceParams,
+}
+
+impl Default for GridMatchParams {
+    fn default() -> Self {
+        Self {
+            thresholds: ClassThresholds::default(),
+            hough_angle_bins: 360,
+            hough_rho_cells: 2,
+            rotation_peaks: 4,
+            translation_peaks: 2,
+            coarse_max_cells: 200,
+            occupied_weight: 3.0,
+            rank_occupied_weight: 10.0,
+            rank_disagree_weight: 10.0,
+            refine_candidates: 10,
+            refine_angle_rad: 1.2f64.to_radians(),
+            refine_margin_cells: 2.0,
+            refine_max_points: 6000,
+            refine_min_score_ratio: 0.5,
+            polish_candidates: 2,
+            refine_kernel_sigma_cells: 1.0,
+            distinct_cells: 3.0,
+            distinct_rad: 1.5f64.to_radians(),
+            max_cells: 25_000_000,
+            acceptance: AcceptanceParams::default(),
+        }
+    }
+}
+
+impl GridMatchParams {
+    /// Checks every field's domain.
+    pub fn validate(&self) -> Result<(), GridMatchError> {
+        let invalid = |field, reason| Err(GridMatchError::InvalidParams { field, reason });
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !(4..=10_000).contains(&self.hough_angle_bins) {
+            return invalid("hough_angle_bins", "must be in 4..=10000");
+        }
+        if self.hough_rho_cells == 0 {
+            return invalid("hough_rho_cells", "must be at least 1");
+        }
+        if self.rotation_peaks == 0 || self.translation_peaks == 0 || self.refine_candidates == 0 {
+            return invalid(
+                "rotation_peaks",
+                "peak and candidate counts must be at least 1",
+            );
+        }
+        if self.coarse_max_cells < 8 {
+            return invalid("coarse_max_cells", "must be at least 8");
+        }
+        if !(positive(self.rank_occupied_weight) && positive(self.rank_disagree_weight)) {
+            return invalid(
+                "rank_occupied_weight",
+                "ranking weights must be finite and positive",
+            );
+        }
+        if !positive(self.occupied_weight) {
+            return invalid("occupied_weight", "must be finite and positive");
+        }
+        if !(positive(self.refine_angle_rad) && self.refine_angle_rad < 0.5) {
+            return invalid("refine_angle_rad", "must be in (0, 0.5)");
+        }
+        if !(self.refine_margin_cells.is_finite()
+            && (0.0..=64.0).contains(&self.refine_margin_cells))
+        {
+            return invalid("refine_margin_cells", "must be in [0, 64]");
+        }
+        if self.refine_max_points == 0 {
+            return invalid("refine_max_points", "must be at least 1");
+        }
+        if !(self.refine_min_score_ratio.is_finite()
+            && (0.0..=1.0).contains(&self.refine_min_score_ratio))
+        {
+            return invalid("refine_min_score_ratio", "must be in [0, 1]");
+        }
+        if !positive(self.refine_kernel_sigma_cells) {
+            return invalid("refine_kernel_sigma_cells", "must be finite and positive");
+        }
+        let non_negative = |v: f64| v.is_finite() && v >= 0.0;
+        if !(non_negative(self.distinct_cells) && non_negative(self.distinct_rad)) {
+            return invalid(
+                "distinct_cells",
+                "distinct_cells and distinct_rad must be finite, ≥ 0",
+            );
+        }
+        let a = &self.acceptance;
+        if !(a.min_acceptance.is_finite()
+            && a.min_overlap_fraction.is_finite()
+            && a.min_margin.is_finite()
+            && a.max_dm_cells.is_finite())
+        {
+            return invalid("acceptance", "thresholds must be finite");
+        }
+        if self
+            .thresholds
+            .free_max
+            .partial_cmp(&self.thresholds.occupied_min)
+            != Some(std::cmp::Ordering::Less)
+        {
+            return invalid("thresholds", "free_max must be below occupied_min");
+        }
+        Ok(())
+    }
+}
