@@ -1,0 +1,586 @@
+//! Merging an inactive graph into the active graph and undoing every such merge
+//! (Holoch et al., Sec. III-A and III-B).
+
+use std::collections::BTreeSet;
+
+use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_place::GeometricVerifier;
+use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::atlas::{epochs_of, optimize_holding, AppliedMerge, Atlas};
+use crate::backup::BackupStore;
+use crate::error::AtlasError;
+use crate::events::{pose_array, AtlasEvent, MergeEvent, MergeReason, UnmergeEvent, UnmergeReason};
+use crate::ids::{EpochId, MapId, MergeId};
+use crate::recognition::local_map_keyframes;
+
+/// How merges join two graphs.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MergeParams {
+    /// Smallest standard deviations of a loop edge made from a verified match (m, rad)
+    /// (default: 10 cm, 2°, the front-end's loop floor): a scan matcher's covariance is
+    /// over-confident across sessions.
+    pub loop_min_sigma: (f64, f64),
+    /// Standard deviations of the edge a forced merge with a transform only gets, from the
+    /// robot's vertex to the nearest merged vertex (m, rad) (default: 10 cm, 2°).
+    pub forced_edge_sigma: (f64, f64),
+    /// The search for further loop closures in the overlap after a merge (see
+    /// [`OverlapParams`]).
+    pub overlap: OverlapParams,
+}
+
+impl Default for MergeParams {
+    fn default() -> Self {
+        Self {
+            loop_min_sigma: (0.1, 2f64.to_radians()),
+            forced_edge_sigma: (0.1, 2f64.to_radians()),
+            overlap: OverlapParams::default(),
+        }
+    }
+}
+
+/// "After merging two maps, it makes sense to try to find additional loop closures where the
+/// maps overlap" (Sec. III-A): active vertices are paired with the nearest merged vertex under
+/// the merge's transform and verified from that guess.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OverlapParams {
+    /// Search at all (default: true; it needs a verifier, see [`Atlas::merge`]).
+    pub enabled: bool,
+    /// A merged vertex within this distance (m) of an active one is its partner (default: 2).
+    pub radius_m: f64,
+    /// ... and within this heading difference (rad) (default: 60°): the views must overlap.
+    pub max_heading_rad: f64,
+    /// Every `stride`-th active vertex is tried, newest first (default: 3).
+    pub stride: usize,
+    /// At most this many verifications per merge (default: 40; each builds a match target,
+    /// tens of ms).
+    pub max_verifications: usize,
+    /// At most this many overlap edges per merge (default: 20).
+    pub max_loops: usize,
+    /// A verification is accepted from this score in the verifier's units (default: 0.85, the
+    /// evidence score of [`crate::default_verifier`]).
+    pub min_score: f64,
+    /// ... and when it corrects the guess by at most this (m) (default: 0.5) ...
+    pub gate_m: f64,
+    /// ... and this (rad) (default: 5°): the merge's transform is known now, so a match far
+    /// from it is a look-alike.
+    pub gate_rad: f64,
+}
+
+impl Default for OverlapParams {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            radius_m: 2.0,
+            max_heading_rad: 60f64.to_radians(),
+            stride: 3,
+            max_verifications: 40,
+            max_loops: 20,
+            min_score: 0.85,
+            gate_m: 0.5,
+            gate_rad: 5f64.to_radians(),
+        }
+    }
+}
+
+/// A loop closure between the active graph and an inactive graph.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LoopEdge {
+    /// The vertex of the active graph.
+    pub active: NodeId,
+    /// The vertex of the inactive graph.
+    pub inactive: NodeId,
+    /// The active vertex's pose in the inactive vertex's frame (what a verifier returns as
+    /// `candidate_from_query` with the active keyframe as the query).
+    pub inactive_from_active: Se2,
+    /// Information of `inactive_from_active` in its right tangent `(vx, vy, ω)`.
+    pub information: Matrix3<f64>,
+}
+
+impl LoopEdge {
+    /// The pose-graph edge: `from` the inactive vertex `to` the active one, kind `Merge`.
+    pub fn edge(&self) -> Edge<Se2, 3> {
+        Edge {
+            from: self.inactive,
+            to: self.active,
+            measurement: self.inactive_from_active,
+            information: self.information,
+            kind: EdgeKind::Merge,
+        }
+    }
+}
+
+/// What to merge and how: the inactive graph, where it goes, the loop edges that join it.
+/// Built by place recognition ([`crate::MergeProposal::into_request`]) or by a caller that
+/// forces a merge ([`MergeRequest::forced`], the evaluation's "merge at a given time with a
+/// given transform").
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MergeRequest {
+    /// The inactive graph.
+    pub map: MapId,
+    /// The inactive graph's frame in the active graph's frame; `None` = implied by the first
+    /// loop edge and the current poses.
+    pub active_from_inactive: Option<Se2>,
+    /// Loop edges; with none, the merge adds one from the robot's vertex to the merged vertex
+    /// nearest to it, consistent with the transform.
+    pub loops: Vec<LoopEdge>,
+    /// Why.
+    pub reason: MergeReason,
+}
+
+impl MergeRequest {
+    /// A forced merge with a transform only.
+    pub fn forced(map: MapId, active_from_inactive: Se2, note: impl Into<String>) -> Self {
+        Self {
+            map,
+            active_from_inactive: Some(active_from_inactive),
+            loops: Vec::new(),
+            reason: MergeReason::Forced { note: note.into() },
+        }
+    }
+}
+
+/// Information of an edge: the inverse of `covariance` with standard deviations floored at
+/// `min_sigma` (m, rad).
+pub(crate) fn information_from_covariance(
+    covariance: &Matrix3<f64>,
+    min_sigma: (f64, f64),
+) -> Matrix3<f64> {
+    let floor = Matrix3::from_diagonal(&Vector3::new(
+        min_sigma.0 * min_sigma.0,
+        min_sigma.0 * min_sigma.0,
+        min_sigma.1 * min_sigma.1,
+    ));
+    let covariance = if covariance.iter().all(|v| v.is_finite()) {
+        covariance + floor
+    } else {
+        floor
+    };
+    covariance
+        .try_inverse()
+        .filter(|i| i.iter().all(|v| v.is_finite()))
+        .or_else(|| floor.try_inverse())
+        .unwrap_or_else(Matrix3::identity)
+}
+
+impl<B: BackupStore> Atlas<B> {
+    /// Merges inactive graph `request.map` into the active graph (Sec. III-A):
+    /// 1. back up the inactive graph as it is (graph structure only; scans stay shared);
+    /// 2. move it into the active graph's frame by `active_from_inactive` (the robot's pose
+    ///    must not jump), its vertices no longer fixed: the active frame is the gauge;
+    /// 3. union both graphs plus the loop edges (kind `Merge`);
+    /// 4. with a `verifier`, search further loop closures in the overlap;
+    /// 5. re-optimise with the robot's vertex held.
+    ///
+    /// Merges stack: each later one is undone with the earlier ones by
+    /// [`Atlas::unmerge_all`]. On error the atlas is unchanged.
+    pub fn merge(
+        &mut self,
+        request: MergeRequest,
+        verifier: Option<&dyn GeometricVerifier>,
+    ) -> Result<MergeEvent, AtlasError> {
+        let map = request.map;
+        let robot = self.robot.ok_or(AtlasError::EmptyActive(self.epoch))?;
+        let inactive = self.inactive.get(&map).ok_or(AtlasError::MissingMap(map))?;
+        let bad = |reason: String| AtlasError::BadMerge { map, reason };
+        for l in &request.loops {
+            if !self.active.contains_vertex(l.active) || !inactive.contains_vertex(l.inactive) {
+                return Err(bad(format!(
+                    "loop {} -> {} must join the active graph to the inactive one",
+                    l.active, l.inactive
+                )));
+            }
+            if !(l.inactive_from_active.is_finite() && l.information.iter().all(|v| v.is_finite()))
+            {
+                return Err(bad(format!(
+                    "loop {} -> {} is not finite",
+                    l.active, l.inactive
+                )));
+            }
+        }
+
+        // 2. Where the inactive graph goes: given, or implied by the first loop (a active,
+        // b inactive): active_from_b = active_from_a · b_from_a⁻¹, and
+        // active_from_inactive = active_from_b · inactive_from_b⁻¹.
+        let active_from_inactive = match (request.active_from_inactive, request.loops.first()) {
+            (Some(t), _) => t,
+            (None, Some(l)) => {
+                let (Some(a), Some(b)) =
+                    (self.active.vertex(l.active), inactive.vertex(l.inactive))
+                else {
+                    return Err(bad("loop vertices vanished".into()));
+                };
+                a.pose
+                    .compose(&l.inactive_from_active.inverse())
+                    .compose(&b.pose.inverse())
+            }
+            (None, None) => return Err(bad("neither a transform nor loop edges".into())),
+        };
+        if !active_from_inactive.is_finite() {
+            return Err(bad("non-finite transform".into()));
+        }
+        if inactive.num_vertices() == 0 {
+            return Err(bad("the inactive graph is empty".into()));
+        }
+        let mut moved = inactive.clone();
+        moved.reanchor(&active_from_inactive);
+        for (_, v) in moved.vertices_mut() {
+            v.fixed = false;
+        }
+
+        // 3. Union with the loop edges; a transform alone gets one consistent edge.
+        let mut connecting: Vec<Edge<Se2, 3>> = request.loops.iter().map(LoopEdge::edge).collect();
+        if connecting.is_empty() {
+            connecting.push(self.forced_edge(robot, &moved)?);
+        }
+        let chi2_before = self.active.chi2();
+        let active_before: Vec<NodeId> = self.active.vertices().map(|(id, _)| id).collect();
+        let mut merged = self.active.clone();
+        merged.union(&moved, &connecting)?;
+
+        // 4. Further loops in the overlap, from the now-known poses.
+        let overlap = match verifier {
+            Some(verifier) if self.params.merge.overlap.enabled => {
+                let joined: BTreeSet<NodeId> = request.loops.iter().map(|l| l.active).collect();
+                self.overlap_loops(&merged, &active_before, &moved, &joined, verifier)
+            }
+            _ => Vec::new(),
+        };
+        for l in &overlap {
+            merged.add_edge(l.edge())?;
+        }
+
+        // 5. Re-optimise, the robot held.
+        optimize_holding(&mut merged, Some(robot), &self.params.optimizer)?;
+        let chi2_after = merged.chi2();
+
+        // 1. Back up before anything changes (the only fallible step left), then commit.
+        let merged_epochs: Vec<EpochId> = epochs_of(inactive).into_iter().collect();
+        let merged_vertices = inactive.num_vertices();
+        let merge = MergeId(self.next_merge);
+        self.backups.store(merge, inactive)?;
+        self.next_merge += 1;
+        self.inactive.remove(&map);
+        self.active = merged;
+        self.merges.push(AppliedMerge { merge, map });
+        let event = MergeEvent {
+            merge,
+            active_epoch: self.epoch,
+            map,
+            merged_epochs,
+            merged_vertices,
+            loop_edges: connecting.len(),
+            overlap_edges: overlap.len(),
+            active_from_inactive: pose_array(&active_from_inactive),
+            reason: request.reason,
+            chi2: [chi2_before, chi2_after],
+        };
+        self.events.push(AtlasEvent::Merged(event.clone()));
+        Ok(event)
+    }
+
+    /// The edge a forced merge without loops gets: from the merged vertex nearest to the
+    /// robot to the robot, measuring exactly what the transform implies.
+    fn forced_edge(&self, robot: NodeId, moved: &PoseGraph2) -> Result<Edge<Se2, 3>, AtlasError> {
+        let robot_pose = self
+            .active
+            .vertex(robot)
+            .ok_or(AtlasError::MissingVertex {
+                node: robot,
+                graph: "active",
+            })?
+            .pose;
+        let nearest = moved
+            .vertices()
+            .min_by(|x, y| {
+                let dx = (x.1.pose.translation() - robot_pose.translation()).norm();
+                let dy = (y.1.pose.translation() - robot_pose.translation()).norm();
+                dx.total_cmp(&dy)
+            })
+            .map(|(id, v)| (id, v.pose))
+            .ok_or(AtlasError::EmptyActive(self.epoch))?;
+        let sigma = self.params.merge.forced_edge_sigma;
+        Ok(Edge {
+            from: nearest.0,
+            to: robot,
+            measurement: nearest.1.between(&robot_pose),
+            information: information_from_covariance(&Matrix3::zeros(), sigma),
+            kind: EdgeKind::Merge,
+        })
+    }
+
+    /// Sec. III-A's search for more loops where the maps overlap: each tried active vertex
+    /// (newest first, every `stride`-th) is verified against the nearest merged vertex from
+    /// the guess the merge implies; matches that agree with the guess become loop edges.
+    fn overlap_loops(
+        &self,
+        merged: &PoseGraph2,
+        active_nodes: &[NodeId],
+        moved: &PoseGraph2,
+        already_joined: &BTreeSet<NodeId>,
+        verifier: &dyn GeometricVerifier,
+    ) -> Vec<LoopEdge> {
+        let p = &self.params.merge.overlap;
+        let mut pairs = Vec::new();
+        for a in active_nodes.iter().rev().step_by(p.stride.max(1)) {
+            if pairs.len() >= p.max_verifications {
+                break;
+            }
+            if already_joined.contains(a) {
+                continue;
+            }
+            let Some(pose_a) = merged.vertex(*a).map(|v| v.pose) else {
+                continue;
+            };
+            let nearest = moved
+                .vertices()
+                .filter(|(_, v)| {
+                    wrap_angle_rad(v.pose.theta_rad - pose_a.theta_rad).abs() <= p.max_heading_rad
+                })
+                .map(|(id, v)| (id, (v.pose.translation() - pose_a.translation()).norm()))
+                .filter(|(_, d)| *d <= p.radius_m)
+                .min_by(|x, y| x.1.total_cmp(&y.1));
+            if let Some((b, _)) = nearest {
+                pairs.push((*a, b));
+            }
+        }
+        if pairs.is_empty() {
+            return Vec::new();
+        }
+        let wanted: Vec<NodeId> = pairs.iter().flat_map(|(a, b)| [*a, *b]).collect();
+        let keyframes = local_map_keyframes(merged, &self.scans, &self.params.keyframes, &wanted);
+        let mut loops = Vec::new();
+        for (a, b) in pairs {
+            if loops.len() >= p.max_loops {
+                break;
+            }
+            let (Some(ka), Some(kb)) = (keyframes.get(&a), keyframes.get(&b)) else {
+                continue;
+            };
+            let (Some(va), Some(vb)) = (merged.vertex(a), merged.vertex(b)) else {
+                continue;
+            };
+            let guess_b_from_a = vb.pose.between(&va.pose);
+            let Some(found) = verifier.verify(ka, kb, &guess_b_from_a) else {
+                continue;
+            };
+            let correction = guess_b_from_a.between(&found.candidate_from_query);
+            if found.score >= p.min_score
+                && correction.translation().norm() <= p.gate_m
+                && wrap_angle_rad(correction.theta_rad).abs() <= p.gate_rad
+            {
+                loops.push(LoopEdge {
+                    active: a,
+                    inactive: b,
+                    inactive_from_active: found.candidate_from_query,
+                    information: information_from_covariance(
+                        &found.covariance,
+                        self.params.merge.loop_min_sigma,
+                    ),
+                });
+            }
+        }
+        loops
+    }
+
+    /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):
+    /// every merged inactive graph comes back from its backup exactly (poses, edges and their
+    /// ids, metadata) under its old id; every other-epoch vertex leaves the active graph with
+    /// its edges, while current-epoch vertices and the edges between them stay (also those
+    /// added after the merge); then the active graph is re-optimised with the robot's vertex
+    /// held. `None` when nothing is merged. On error the atlas is unchanged.
+    pub fn unmerge_all(
+        &mut self,
+        reason: UnmergeReason,
+    ) -> Result<Option<UnmergeEvent>, AtlasError> {
+        if self.merges.is_empty() {
+            return Ok(None);
+        }
+        let mut restored = Vec::with_capacity(self.merges.len());
+        for applied in &self.merges {
+            restored.push((*applied, self.backups.load(applied.merge)?));
+        }
+        let keep: BTreeSet<NodeId> = self
+            .active
+            .vertices()
+            .filter(|(_, v)| EpochId::of(&v.meta) == self.epoch)
+            .map(|(id, _)| id)
+            .collect();
+        let mut graph = self.active.subgraph(&keep);
+        let removed_vertices = self.active.num_vertices() - graph.num_vertices();
+        let removed_edges = self.active.num_edges() - graph.num_edges();
+        optimize_holding(&mut graph, self.robot, &self.params.optimizer)?;
+
+        // Commit.
+        self.active = graph;
+        let mut merges = Vec::with_capacity(restored.len());
+        let mut restored_maps = Vec::with_capacity(restored.len());
+        for (applied, backup) in restored {
+            self.inactive.insert(applied.map, backup);
+            // A backup that cannot be deleted is only a stale file (merge ids are not reused).
+            let _ = self.backups.remove(applied.merge);
+            merges.push(applied.merge);
+            restored_maps.push(applied.map);
+        }
+        self.merges.clear();
+        let event = UnmergeEvent {
+            active_epoch: self.epoch,
+            merges,
+            restored_maps,
+            removed_vertices,
+            removed_edges,
+            reason,
+        };
+        self.events.push(AtlasEvent::Unmerged(event.clone()));
+        Ok(Some(event))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+
+    use mapmerge_place::{Keyframe, Verification};
+    use mapmerge_posegraph::Vertex;
+
+    use super::*;
+    use crate::events::EpochEndReason;
+
+    /// A straight path of `n` vertices from `start`, 0.5 m apart, with odometry edges.
+    fn path(atlas: &mut Atlas, start: Se2, n: usize) -> Vec<NodeId> {
+        let step = Se2::new(0.5, 0.0, 0.05);
+        let mut pose = start;
+        let mut nodes: Vec<NodeId> = Vec::new();
+        for _ in 0..n {
+            let id = atlas.add_vertex(Vertex::new(pose), Arc::from(vec![Point2::new(1.0, 0.0)]));
+            if let Some(prev) = nodes.last() {
+                atlas
+                    .add_edge(Edge {
+                        from: *prev,
+                        to: id,
+                        measurement: step,
+                        information: Matrix3::identity() * 100.0,
+                        kind: EdgeKind::Odometry,
+                    })
+                    .unwrap();
+            }
+            nodes.push(id);
+            pose = pose.compose(&step);
+        }
+        nodes
+    }
+
+    use mapmerge_scan::Point2;
+
+    fn close(x: &Se2, y: &Se2, tol: f64) -> bool {
+        let d = x.between(y);
+        d.translation().norm() < tol && d.theta_rad.abs() < tol
+    }
+
+    #[test]
+    fn a_loop_edge_alone_places_the_inactive_graph() {
+        let mut atlas = Atlas::default();
+        let old = path(&mut atlas, Se2::identity(), 10);
+        let old_poses: Vec<Se2> = old
+            .iter()
+            .map(|id| atlas.active().vertex(*id).unwrap().pose)
+            .collect();
+        atlas.end_epoch(EpochEndReason::Kidnap);
+        let new = path(&mut atlas, Se2::identity(), 6);
+        // The truth: the inactive frame sits here in the active frame.
+        let active_from_inactive = Se2::new(-1.0, 2.0, 0.7);
+        let (a, b) = (new[3], old[5]);
+        let pose_a = atlas.active().vertex(a).unwrap().pose;
+        let pose_b_in_active = active_from_inactive.compose(&old_poses[5]);
+        let request = MergeRequest {
+            map: MapId(0),
+            active_from_inactive: None,
+            loops: vec![LoopEdge {
+                active: a,
+                inactive: b,
+                inactive_from_active: pose_b_in_active.between(&pose_a),
+                information: Matrix3::identity() * 100.0,
+            }],
+            reason: MergeReason::Forced { note: "t".into() },
+        };
+        let event = atlas.merge(request, None).unwrap();
+        let applied = Se2::new(
+            event.active_from_inactive[0],
+            event.active_from_inactive[1],
+            event.active_from_inactive[2],
+        );
+        assert!(close(&applied, &active_from_inactive, 1e-9), "{applied:?}");
+        assert!(event.chi2[1] < 1e-12, "consistent data: {:?}", event.chi2);
+        for (id, pose) in old.iter().zip(&old_poses) {
+            let merged = atlas.active().vertex(*id).unwrap().pose;
+            assert!(close(&merged, &active_from_inactive.compose(pose), 1e-6));
+        }
+        assert_eq!(event.merged_epochs, vec![EpochId(0)]);
+    }
+
+    /// Confirms every guess, moved by `offset`.
+    struct Fake {
+        offset: Se2,
+    }
+
+    impl GeometricVerifier for Fake {
+        fn verify(&self, _: &Keyframe, _: &Keyframe, guess: &Se2) -> Option<Verification> {
+            Some(Verification {
+                candidate_from_query: guess.compose(&self.offset),
+                score: 0.9,
+                covariance: Matrix3::identity() * 1e-4,
+            })
+        }
+    }
+
+    fn overlapping() -> Atlas {
+        let mut atlas = Atlas::default();
+        path(&mut atlas, Se2::identity(), 12);
+        atlas.end_epoch(EpochEndReason::Kidnap);
+        path(&mut atlas, Se2::identity(), 12);
+        atlas
+    }
+
+    #[test]
+    fn the_overlap_search_adds_loops_that_agree_with_the_merge() {
+        let mut atlas = overlapping();
+        let fake = Fake {
+            offset: Se2::new(0.05, 0.0, 0.01),
+        };
+        let request = MergeRequest::forced(MapId(0), Se2::new(0.2, 0.1, 0.0), "t");
+        let event = atlas.merge(request, Some(&fake)).unwrap();
+        let p = OverlapParams::default();
+        assert!(event.overlap_edges > 0 && event.overlap_edges <= p.max_loops);
+        assert_eq!(
+            atlas
+                .active()
+                .edges()
+                .filter(|(_, e)| e.kind == EdgeKind::Merge)
+                .count(),
+            1 + event.overlap_edges
+        );
+    }
+
+    #[test]
+    fn the_overlap_search_refuses_matches_far_from_the_merge() {
+        let mut atlas = overlapping();
+        let fake = Fake {
+            offset: Se2::new(1.5, 0.0, 0.0),
+        };
+        let request = MergeRequest::forced(MapId(0), Se2::new(0.2, 0.1, 0.0), "t");
+        let event = atlas.merge(request, Some(&fake)).unwrap();
+        assert_eq!(event.overlap_edges, 0);
+    }
+
+    #[test]
+    fn information_is_floored_and_finite() {
+        let info = information_from_covariance(&Matrix3::zeros(), (0.1, 0.02));
+        assert!((info[(0, 0)] - 100.0).abs() < 1e-9);
+        let nan = information_from_covariance(&Matrix3::from_element(f64::NAN), (0.1, 0.02));
+        assert!(nan.iter().all(|v| v.is_finite()));
+    }
+}

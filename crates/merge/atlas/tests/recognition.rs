@@ -1,0 +1,180 @@
+//! Merging by place recognition in a small ray-cast world: the active epoch recognises the
+//! inactive one, the merge lands on the true transform, and an unmerge restores the inactive
+//! graph.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::sync::Arc;
+
+use mapmerge_atlas::{default_verifier, Atlas, AtlasParams, EpochEndReason, MapId, UnmergeReason};
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_posegraph::{Edge, EdgeKind, NodeId, Vertex};
+use mapmerge_scan::Point2;
+use nalgebra::Matrix3;
+
+type Segment = (Point2, Point2);
+
+/// An irregular room with a few obstacles (no symmetry to confuse recognition).
+fn world() -> Vec<Segment> {
+    let p = Point2::new;
+    let polygon = |pts: &[Point2]| -> Vec<Segment> {
+        (0..pts.len())
+            .map(|i| (pts[i], pts[(i + 1) % pts.len()]))
+            .collect()
+    };
+    let mut walls = polygon(&[
+        p(-2.0, -2.0),
+        p(14.0, -2.0),
+        p(14.0, 3.0),
+        p(18.0, 3.0),
+        p(18.0, 9.0),
+        p(9.0, 9.0),
+        p(7.0, 6.5),
+        p(3.0, 6.5),
+        p(3.0, 10.0),
+        p(-2.0, 10.0),
+    ]);
+    walls.extend(polygon(&[
+        p(4.0, 1.0),
+        p(5.5, 1.0),
+        p(5.5, 2.0),
+        p(4.0, 2.0),
+    ]));
+    walls.extend(polygon(&[p(10.0, 3.0), p(11.0, 4.5), p(9.5, 5.0)]));
+    walls.extend(polygon(&[p(0.0, 7.0), p(0.8, 7.0), p(0.8, 8.5)]));
+    walls.push((p(15.0, 5.0), p(16.5, 7.5)));
+    walls
+}
+
+/// A 360° scan from `world_from_robot`, in the robot frame.
+fn scan(world: &[Segment], world_from_robot: &Se2) -> Vec<Point2> {
+    (0..360)
+        .filter_map(|i| {
+            let angle = (i as f64).to_radians();
+            let d_robot = Point2::new(angle.cos(), angle.sin());
+            let d = world_from_robot.rotation_matrix() * d_robot;
+            let o = world_from_robot.translation();
+            let range = world
+                .iter()
+                .filter_map(|(a, b)| {
+                    let e = b - a;
+                    let denom = d.x * e.y - d.y * e.x;
+                    if denom.abs() < 1e-12 {
+                        return None;
+                    }
+                    let w = a - o;
+                    let t = (w.x * e.y - w.y * e.x) / denom;
+                    let u = (w.x * d.y - w.y * d.x) / denom;
+                    (t > 0.0 && (0.0..=1.0).contains(&u)).then_some(t)
+                })
+                .fold(f64::INFINITY, f64::min);
+            (range < 15.0).then(|| d_robot * range)
+        })
+        .collect()
+}
+
+/// Adds a trajectory given in world poses to the current epoch, expressed in the epoch's
+/// frame `world_from_epoch`.
+fn add_epoch(
+    atlas: &mut Atlas,
+    world: &[Segment],
+    path: &[Se2],
+    world_from_epoch: &Se2,
+) -> Vec<NodeId> {
+    let mut nodes: Vec<NodeId> = Vec::new();
+    for world_from_robot in path {
+        let pose = world_from_epoch.between(world_from_robot);
+        let points: Arc<[Point2]> = Arc::from(scan(world, world_from_robot));
+        let id = atlas.add_vertex(Vertex::new(pose), points);
+        if let Some(prev) = nodes.last() {
+            let from = atlas.active().vertex(*prev).unwrap().pose;
+            atlas
+                .add_edge(Edge {
+                    from: *prev,
+                    to: id,
+                    measurement: from.between(&pose),
+                    information: Matrix3::identity() * 100.0,
+                    kind: EdgeKind::Odometry,
+                })
+                .unwrap();
+        }
+        nodes.push(id);
+    }
+    nodes
+}
+
+/// World poses along a polyline, every 0.5 m, heading along it.
+fn along(corners: &[(f64, f64)]) -> Vec<Se2> {
+    let mut poses = Vec::new();
+    for w in corners.windows(2) {
+        let (a, b) = (Point2::new(w[0].0, w[0].1), Point2::new(w[1].0, w[1].1));
+        let heading = (b - a).y.atan2((b - a).x);
+        let n = ((b - a).norm() / 0.5).ceil() as usize;
+        for i in 0..n {
+            let p = a + (b - a) * (i as f64 / n as f64);
+            poses.push(Se2::new(p.x, p.y, heading));
+        }
+    }
+    poses
+}
+
+#[test]
+fn recognition_merges_onto_the_true_transform_and_unmerge_restores() {
+    let world = world();
+    let mut params = AtlasParams::default();
+    params.recognition.recent_queries = 8;
+    let mut atlas = Atlas::new(params);
+    // Epoch 0 tours the room in the world frame.
+    add_epoch(
+        &mut atlas,
+        &world,
+        &along(&[
+            (0.0, 0.0),
+            (12.0, 0.0),
+            (12.0, 4.0),
+            (16.0, 5.0),
+            (16.0, 8.0),
+            (8.0, 8.0),
+        ]),
+        &Se2::identity(),
+    );
+    atlas.end_epoch(EpochEndReason::Kidnap);
+    let before = atlas.inactive(MapId(0)).unwrap().clone();
+    // Epoch 1 starts somewhere else, its frame unknown, and drives back through the room.
+    let start = Se2::new(1.0, 8.0, -1.2);
+    add_epoch(
+        &mut atlas,
+        &world,
+        &along(&[(1.0, 8.0), (1.5, 4.0), (2.0, 0.5), (9.0, 0.5)]),
+        &start,
+    );
+    let verifier = default_verifier().unwrap();
+    let proposals = atlas.find_merges(&verifier);
+    assert_eq!(proposals.len(), 1, "{proposals:?}");
+    let truth = start.inverse(); // active (epoch 1) from inactive (world)
+    let error = truth.between(&proposals[0].active_from_inactive);
+    assert!(
+        error.translation().norm() < 0.2 && error.theta_rad.abs() < 2f64.to_radians(),
+        "{:?} vs {truth:?}",
+        proposals[0].active_from_inactive
+    );
+    let robot = atlas.robot_node().unwrap();
+    let robot_pose = atlas.active().vertex(robot).unwrap().pose;
+    let event = atlas.merge_by_recognition(&verifier).unwrap().unwrap();
+    assert_eq!(event.map, MapId(0));
+    assert!(event.overlap_edges > 0, "{event:?}");
+    assert_eq!(atlas.active().vertex(robot).unwrap().pose, robot_pose);
+    // The merged map agrees with the truth after re-optimisation.
+    for (id, v) in before.vertices() {
+        let merged = atlas.active().vertex(id).unwrap().pose;
+        let d = truth.compose(&v.pose).between(&merged);
+        assert!(d.translation().norm() < 0.3, "{id}: {d:?}");
+    }
+    atlas
+        .unmerge_all(UnmergeReason::Requested {
+            note: "test".into(),
+        })
+        .unwrap()
+        .unwrap();
+    assert_eq!(atlas.inactive(MapId(0)), Some(&before));
+}
