@@ -63,6 +63,8 @@ enum EvalCommand {
     Relations(RelationsArgs),
     /// Absolute trajectory error (after rigid alignment) and relative pose error.
     Ate(AteArgs),
+    /// Andersone's grid-merge experiment (Tables 1–4) and ROC/AUC of SM and DM on a log.
+    GridMerge(crate::grid_merge_eval::GridMergeEvalArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -157,6 +159,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::MakeRelations(a) => make(a),
         EvalCommand::Relations(a) => score_relations(a),
         EvalCommand::Ate(a) => ate(a),
+        EvalCommand::GridMerge(a) => crate::grid_merge_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

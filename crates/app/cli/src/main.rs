@@ -11,6 +11,8 @@ mod compare;
 mod corrupt;
 mod eval;
 mod grid;
+mod grid_merge;
+mod grid_merge_eval;
 mod optimize;
 mod render;
 mod sim;
@@ -40,6 +42,9 @@ enum Command {
     Sim(sim::SimArgs),
     /// Build an occupancy grid (ROS map_server YAML + PGM) from a laser log and poses.
     Grid(grid::GridArgs),
+    /// Merge two ROS map_server maps of any resolution without an initial guess (exit code 3:
+    /// no acceptable hypothesis).
+    GridMerge(grid_merge::GridMergeArgs),
     /// Draw a grid, pose graphs and trajectories to a PNG.
     Render(render::RenderArgs),
     /// SLAM evaluation on corrected logs: odometry noise, relations, ATE/RPE.
@@ -125,6 +130,7 @@ fn main() -> ExitCode {
         Command::Simulate(args) => simulate::run(args),
         Command::Sim(args) => sim::run(args),
         Command::Grid(args) => grid::run(args),
+        Command::GridMerge(args) => grid_merge::run(args),
         Command::Render(args) => render::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Slam(args) => slam::run(args),

@@ -2,7 +2,8 @@
 //! vertices and edges coloured by session, merge edges highlighted, and class-coloured points
 //! (for the invalid-merge detectors).
 //!
-//! Entry points: [`Picture::of_grid`] (draw a grid), the `draw_*` overlay methods, and
+//! Entry points: [`Picture::of_grid`] (draw a grid), [`Picture::of_grid_pair`] (two grids
+//! placed by a merge transform, in two colours), the `draw_*` overlay methods, and
 //! [`Picture::save_png`].
 //!
 //! ```
@@ -18,9 +19,11 @@
 
 mod draw;
 mod overlay;
+mod pair;
 mod picture;
 
 pub use overlay::{session_color, GraphStyle};
+pub use pair::PairStyle;
 pub use picture::{Picture, PictureStyle, RenderError, Rgb};
 
 /// A point in the plane (metres).

@@ -17,6 +17,8 @@
 //! - [`make_relations`] / [`relations_error`]: the relations metric of Kümmerle et al. 2009
 //!   ("On measuring the accuracy of SLAM algorithms"), with [`absolute_trajectory_error`] and
 //!   [`relative_pose_error`] on scan-indexed planar trajectories ([`trajectory_report`]).
+//! - [`roc_curve`] / [`roc_auc`]: ROC curves and their area (Mann–Whitney) for detectors that
+//!   score cases, e.g. wrong merges against correct ones.
 //! - [`simulate_manhattan_2d`]: a grid-world random walk with noisy odometry and loop closures
 //!   ([`ManhattanParams`]).
 //!
@@ -69,6 +71,7 @@ mod outliers;
 mod pose;
 mod relations;
 mod rng;
+mod roc;
 mod score;
 mod simulate;
 mod trajectory;
@@ -89,6 +92,7 @@ pub use relations::{
     RelationsError, RelationsInfo, RelationsParams, RelativePoseError, RpeDelta, TrajectoryReport,
     DEFAULT_RPE_DELTAS,
 };
+pub use roc::{roc_auc, roc_curve, RocPoint};
 pub use score::{precision_recall, RejectionScore};
 pub use simulate::{simulate_manhattan_2d, ManhattanParams};
 pub use trajectory::{align_rigid, trajectory_error, RigidTransform, TrajectoryError};
