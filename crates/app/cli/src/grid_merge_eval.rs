@@ -34,7 +34,9 @@ use mapmerge_eval::roc_auc;
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_gridmatch::{map_metrics, match_grids, GridMatchParams, MapMetrics};
-use mapmerge_gridmerge::{KeepMerge, ReversibleMapper, ReversibleMode, ReversibleParams};
+use mapmerge_gridmerge::{
+    KeepMerge, MetricsCheck, ReversibleMapper, ReversibleMode, ReversibleParams,
+};
 use mapmerge_scan::LaserScan;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -66,6 +68,9 @@ pub struct GridMergeEvalArgs {
     /// … and their first poses within this distance (m).
     #[arg(long, default_value_t = 2.0)]
     pub pair_radius: f64,
+    /// … and their true overlap at least this fraction of the smaller map's known cells.
+    #[arg(long, default_value_t = 0.3)]
+    pub min_overlap: f64,
     /// Pairs tried per combination before giving up on reaching `--merges`.
     #[arg(long, default_value_t = 400)]
     pub max_pairs: usize,
@@ -96,6 +101,9 @@ struct CaseMetrics {
     end: MapMetrics,
     /// Mean map update time per further scan (ms).
     update_ms: f64,
+    /// Whether the periodic check (`MetricsCheck`, default thresholds) undid the merge after
+    /// the further scans.
+    undone: bool,
 }
 
 /// One merge, followed in both modes.
@@ -126,6 +134,8 @@ struct Column {
     update_ms: f64,
     end_sm_range: [f64; 2],
     end_dm_range: [f64; 2],
+    /// Merges the check undid.
+    undone: usize,
 }
 
 /// AUC of telling wrong merges from correct ones by one end metric (wrong = positive; low SM
@@ -142,6 +152,8 @@ struct Combination {
     own_resolution_m: f64,
     other_resolution_m: f64,
     pairs_tried: usize,
+    /// Pairs with enough true overlap (the ones matched).
+    pairs_used: usize,
     /// Pairs whose matcher result was accepted, and of those within the truth's tolerance.
     matcher_accepted: usize,
     matcher_correct: usize,
@@ -274,6 +286,7 @@ fn run_combination(
         own_resolution_m: own_m,
         other_resolution_m: other_m,
         pairs_tried: 0,
+        pairs_used: 0,
         matcher_accepted: 0,
         matcher_correct: 0,
         matcher_wrong: Vec::new(),
@@ -314,6 +327,17 @@ fn run_combination(
         let truth = b_from_log.inverse();
         let own = partial_map(posed, own_start, args.scans, own_m, &Se2::identity())?;
         let other = partial_map(posed, other_start, args.scans, other_m, &b_from_log)?;
+        // Only pairs that show one place: the true overlap is at least `--min-overlap` of the
+        // smaller map's known cells.
+        let known = |g: &OccupancyGrid| g.log_odds().iter().filter(|l| **l != 0.0).count();
+        let smaller = known(&own).min(known(&other)).max(1);
+        let Ok(true_metrics) = map_metrics(&own, &other, &truth, &thresholds) else {
+            continue;
+        };
+        if (true_metrics.overlap_cells as f64) < args.min_overlap * smaller as f64 {
+            continue;
+        }
+        combination.pairs_used += 1;
         let Ok(matched) = match_grids(&own, &other, &params) else {
             continue;
         };
@@ -323,8 +347,6 @@ fn run_combination(
         }
         if let Some(best) = accepted.filter(|h| !near(&h.a_from_b, &truth, CORRECT_WITHIN)) {
             let error = truth.between(&best.a_from_b);
-            let known = |g: &OccupancyGrid| g.log_odds().iter().filter(|l| **l != 0.0).count();
-            let smaller = known(&own).min(known(&other)).max(1);
             combination.matcher_wrong.push([
                 error.translation().norm(),
                 wrap_angle_rad(error.theta_rad).to_degrees(),
@@ -463,22 +485,22 @@ fn follow_merge(
     };
     let mut mapper = ReversibleMapper::new(own.clone(), params)?;
     mapper.merge(other, a_from_b, "experiment")?;
+    let check = MetricsCheck::default();
+    let identity = Se2::identity();
+    // Ours (2M: own vs B; 1M: the restricted merged map vs B) is the check's own measure; the
+    // paper's 1M compares the whole merged map with B. B as fused, in A's frame.
     let measure = |mapper: &ReversibleMapper| -> anyhow::Result<(MapMetrics, MapMetrics)> {
-        let compared = match mode {
-            ReversibleMode::MultiMap => mapper.own(),
-            ReversibleMode::SingleMap => mapper.merged(),
-        }
-        .context("the mapper lost its maps")?;
-        let paper = map_metrics(compared, other, a_from_b, thresholds)?;
-        let local = match mode {
+        let input = mapper.check_input().context("the merge is gone")?;
+        let ours = check
+            .measure(&input)
+            .context("the check could not compare the maps")?;
+        let paper = match mode {
+            ReversibleMode::MultiMap => ours,
             ReversibleMode::SingleMap => {
-                let mut undone = mapper.clone();
-                undone.undo("measuring the local-update map")?;
-                map_metrics(undone.current(), other, a_from_b, thresholds)?
+                map_metrics(input.merged, input.b_in_a, &identity, thresholds)?
             }
-            ReversibleMode::MultiMap => paper,
         };
-        Ok((paper, local))
+        Ok((paper, ours))
     };
     let (initial, initial_local) = measure(&mapper)?;
     let mut update_seconds = 0.0;
@@ -496,17 +518,20 @@ fn follow_merge(
         count += 1;
     }
     let (end, end_local) = measure(&mapper)?;
+    let undone = !mapper.verify_now(&check)?.is_consistent();
     let update_ms = 1e3 * update_seconds / count.max(1) as f64;
     Ok((
         CaseMetrics {
             initial,
             end,
             update_ms,
+            undone,
         },
         CaseMetrics {
             initial: initial_local,
             end: end_local,
             update_ms,
+            undone,
         },
     ))
 }
@@ -535,6 +560,7 @@ fn column<'a>(cases: impl Iterator<Item = &'a CaseMetrics>) -> Column {
         update_ms: mean(&|c| c.update_ms),
         end_sm_range: range(&|c| c.end.sm),
         end_dm_range: range(&|c| c.end.dm_cells),
+        undone: cases.iter().filter(|c| c.undone).count(),
     }
 }
 
@@ -611,16 +637,67 @@ const PAPER_AVERAGES: [[[f64; 4]; 5]; 3] = [
 
 fn tables(report: &Report) -> String {
     let mut md = String::new();
+    // One line per log and combination: how often matching was right, and how well each
+    // end metric tells wrong merges from correct ones.
+    let measures: Vec<&str> = report
+        .logs
+        .first()
+        .and_then(|l| l.combinations.first())
+        .map(|c| c.separation.iter().map(|s| s.measure).collect())
+        .unwrap_or_default();
+    let _ = write!(
+        md,
+        "| log | own–other (m) | pairs | matcher right / accepted | correct / wrong merges |"
+    );
+    for m in &measures {
+        let _ = write!(md, " AUC {m} |");
+    }
+    let _ = writeln!(md, " undone: wrong 2M / 1M local, correct 2M / 1M local |");
+    let _ = writeln!(md, "|{}", "---|".repeat(6 + measures.len()));
+    for log in &report.logs {
+        let name = log.log.file_name().unwrap_or_default().to_string_lossy();
+        let name = name.trim_end_matches(".xz").trim_end_matches(".log");
+        for c in &log.combinations {
+            let _ = write!(
+                md,
+                "| {name} | {:.2}–{:.2} | {} | {} / {} | {} / {} |",
+                c.own_resolution_m,
+                c.other_resolution_m,
+                c.pairs_used,
+                c.matcher_correct,
+                c.matcher_accepted,
+                c.correct_2m.cases,
+                c.wrong_2m.cases
+            );
+            for sep in &c.separation {
+                let _ = write!(md, " {} |", sep.auc.map_or("–".to_owned(), |a| format!("{a:.3}")));
+            }
+            let _ = writeln!(
+                md,
+                " {}/{} · {}/{} · {}/{} · {}/{} |",
+                c.wrong_2m.undone,
+                c.wrong_2m.cases,
+                c.wrong_1m_local.undone,
+                c.wrong_1m_local.cases,
+                c.correct_2m.undone,
+                c.correct_2m.cases,
+                c.correct_1m_local.undone,
+                c.correct_1m_local.cases
+            );
+        }
+    }
+    let _ = writeln!(md);
     for log in &report.logs {
         let name = log.log.file_name().unwrap_or_default().to_string_lossy();
         let _ = writeln!(md, "### {name} ({} scans)\n", log.scans);
         for (k, c) in log.combinations.iter().enumerate() {
             let _ = writeln!(
                 md,
-                "**{:.2}–{:.2}** ({} pairs tried; matcher accepted {}, {} of them right; {} correct and {} wrong merges followed). Ours (paper)\n",
+                "**{:.2}–{:.2}** ({} pairs tried, {} overlapping enough; matcher accepted {}, {} of them right; {} correct and {} wrong merges followed). Ours (paper)\n",
                 c.own_resolution_m,
                 c.other_resolution_m,
                 c.pairs_tried,
+                c.pairs_used,
                 c.matcher_accepted,
                 c.matcher_correct,
                 c.correct_1m.cases,
@@ -655,6 +732,11 @@ fn tables(report: &Report) -> String {
                 }
                 let _ = writeln!(md);
             }
+            let _ = write!(md, "| Undone by the check |");
+            for col in columns.iter().chain([&&c.correct_1m_local, &&c.wrong_1m_local]) {
+                let _ = write!(md, " {}/{} |", col.undone, col.cases);
+            }
+            let _ = writeln!(md);
             let _ = writeln!(md, "\nEnd ranges (Table 4):\n");
             let _ = writeln!(md, "| | Correct (1M) | Wrong (1M) | Correct (2M) | Wrong (2M) | Correct (1M local) | Wrong (1M local) |\n|---|---|---|---|---|---|---|");
             let ranged = [

@@ -6,8 +6,8 @@
 //!
 //! Entry points: [`DecisionTable::decide`] (which procedures, or why not), [`fuse`] (map B into
 //! map A's frame and resolution), and [`ReversibleMapper`] (merge, keep inserting scans, check,
-//! undo). Matching and the SM/DM metrics live in `mapmerge-gridmatch`; they plug in through
-//! [`MergeCheck`].
+//! undo), checked by [`MetricsCheck`] (SM/DM from `mapmerge-gridmatch`, where matching
+//! lives) or any other [`MergeCheck`].
 //!
 //! ```
 //! use mapmerge_geometry::Se2;
@@ -24,6 +24,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+mod check;
 mod decision;
 mod error;
 mod fusion;
@@ -31,6 +32,7 @@ mod quality;
 mod reversible;
 mod warp;
 
+pub use check::MetricsCheck;
 pub use decision::{
     Choice, Decision, DecisionRecord, DecisionTable, FusionProcedure, MapKind, MapMetadata,
     MatchingProcedure, MergeRequest, PoseCondition, PoseKnowledge, RejectReason, Rejection,

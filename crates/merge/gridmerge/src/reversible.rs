@@ -319,6 +319,19 @@ impl LocalUpdateMap {
         self.flags().filter(|&f| f).count()
     }
 
+    /// Resets every cell of `merged` (same geometry) not updated locally to unknown: the map
+    /// the 1M undo leaves (Sec. 3.2). Returns how many known cells were reset.
+    pub fn reset_others(&self, merged: &mut OccupancyGrid) -> usize {
+        let mut reset = 0;
+        for (cell, mark) in merged.log_odds_mut().iter_mut().zip(self.marks.log_odds()) {
+            if *mark == 0.0 && *cell != 0.0 {
+                *cell = 0.0;
+                reset += 1;
+            }
+        }
+        reset
+    }
+
     /// As a [`CellMask`].
     pub fn to_mask(&self) -> CellMask {
         // Marks are 1.0 (p ≈ 0.73), occupied under the default thresholds.
@@ -581,14 +594,7 @@ impl ReversibleMapper {
                     local,
                     active,
                 } => {
-                    let mut reset = 0;
-                    for (cell, mark) in merged.log_odds_mut().iter_mut().zip(local.marks.log_odds())
-                    {
-                        if *mark == 0.0 && *cell != 0.0 {
-                            *cell = 0.0;
-                            reset += 1;
-                        }
-                    }
+                    let reset = local.reset_others(&mut merged);
                     (merged, active, ReversibleMode::SingleMap, reset)
                 }
             };
@@ -727,41 +733,50 @@ impl ReversibleMapper {
         }
     }
 
-    fn run_check(&self, check: &dyn MergeCheck, (id, scans): (MergeId, usize)) -> Verdict {
-        let input = match &self.state {
+    /// What a check sees now; `None` while no merge is active.
+    pub fn check_input(&self) -> Option<CheckInput<'_>> {
+        match &self.state {
             State::MultiMap {
                 own,
                 merged,
                 active,
-            } => CheckInput {
-                merge: id,
+            } => Some(CheckInput {
+                merge: active.id,
                 mode: ReversibleMode::MultiMap,
                 own: Some(own),
                 merged,
                 b_in_a: &active.b_in_a,
                 local_updates: None,
-                scans_since_merge: scans,
-            },
+                scans_since_merge: active.scans_since_merge,
+            }),
             State::SingleMap {
                 merged,
                 local,
                 active,
-            } => CheckInput {
-                merge: id,
+            } => Some(CheckInput {
+                merge: active.id,
                 mode: ReversibleMode::SingleMap,
                 own: None,
                 merged,
                 b_in_a: &active.b_in_a,
                 local_updates: Some(local),
+                scans_since_merge: active.scans_since_merge,
+            }),
+            State::Own(_) => None,
+        }
+    }
+
+    fn run_check(&self, check: &dyn MergeCheck, (id, scans): (MergeId, usize)) -> Verdict {
+        match self.check_input() {
+            Some(input) => check.check(&CheckInput {
+                merge: id,
                 scans_since_merge: scans,
+                ..input
+            }),
+            None => Verdict::Consistent {
+                metrics: Vec::new(),
             },
-            State::Own(_) => {
-                return Verdict::Consistent {
-                    metrics: Vec::new(),
-                }
-            }
-        };
-        check.check(&input)
+        }
     }
 
     fn push_event(&mut self, merge: MergeId, kind: MergeEventKind) -> MergeEvent {
