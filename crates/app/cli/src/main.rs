@@ -13,6 +13,7 @@ mod eval;
 mod grid;
 mod grid_merge;
 mod grid_merge_eval;
+mod invalid_merge_eval;
 mod optimize;
 mod render;
 mod sim;

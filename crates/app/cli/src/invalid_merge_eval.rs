@@ -1,0 +1,1 @@
+//! `mapmerge eval make-merge-cases` and `mapmerge eval invalid-merge` (issue 6, part 5).

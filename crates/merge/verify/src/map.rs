@@ -1,0 +1,46 @@
+//! What a detector sees, and the trait every detector implements.
+
+use std::sync::Arc;
+
+use mapmerge_geometry::Se2;
+use mapmerge_posegraph::NodeId;
+use mapmerge_scan::Point2;
+
+/// One keyframe scan of the merged map.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DetectorScan {
+    /// Its vertex.
+    pub node: NodeId,
+    /// Its epoch (the vertex's session id).
+    pub epoch: u32,
+    /// Its pose in the active map frame (the current estimate; it may change between calls,
+    /// e.g. after loop closures).
+    pub map_from_robot: Se2,
+    /// The scan's endpoints in the robot frame, in beam order; the sensor is at the robot
+    /// frame's origin (ranges and bearings are measured from there).
+    pub points_in_robot: Arc<[Point2]>,
+}
+
+/// The merged map as the detectors see it after a new vertex.
+#[derive(Clone, Copy, Debug)]
+pub struct MergedMap<'a> {
+    /// Scans of the current epoch, oldest first: the newest vertex is the last.
+    pub current: &'a [DetectorScan],
+    /// Scans of every other epoch merged into the active graph.
+    pub other: &'a [DetectorScan],
+}
+
+/// An invalid-merge detector (Holoch et al., Sec. IV).
+pub trait InvalidMergeDetector: Send {
+    /// Short name, e.g. `change_detection`; used in result files.
+    fn name(&self) -> &'static str;
+
+    /// A merge happened (or was undone and another one made): precompute what depends only on
+    /// the other epochs' data (e.g. the visibility grid of change detection, Sec. IV-A) and
+    /// forget cached state.
+    fn on_merge(&mut self, map: &MergedMap<'_>);
+
+    /// A new current-epoch vertex was added (the last of `map.current`): the invalidity ratio
+    /// in [0, 1] now. Poses in `map` may have moved since the last call.
+    fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64;
+}
