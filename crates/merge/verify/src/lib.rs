@@ -6,8 +6,42 @@
 //!
 //! Entry points: [`MergedMap`] (what a detector sees: the current epoch's scans and the other
 //! epochs' scans, each with its pose in the active map frame), the [`InvalidMergeDetector`]
-//! trait, and the detectors.
+//! trait, and the detectors by name ([`detector`], [`DETECTOR_NAMES`], [`all_detectors`]).
+//!
+//! ```
+//! use mapmerge_verify::{detector, MergedMap, DETECTOR_NAMES};
+//! // After a merge: prepare once, then ask after every new current-epoch vertex.
+//! let map = MergedMap { current: &[], other: &[] };
+//! for name in DETECTOR_NAMES {
+//!     let mut d = detector(name).unwrap();
+//!     d.on_merge(&map);
+//!     assert_eq!(d.on_vertex(&map), 0.0); // no other-epoch data: no evidence
+//! }
+//! ```
 
+mod better_hypothesis;
+mod change_detection;
+mod combined;
+mod common;
+mod entropy;
+mod gridmap;
+mod histogram;
 mod map;
+mod registry;
+mod similarity;
+#[cfg(test)]
+mod testworld;
 
+pub use better_hypothesis::{
+    BetterHypothesisDetector, BetterHypothesisInfo, BetterHypothesisParams,
+};
+pub use change_detection::{
+    ChangeDetectionDetector, ChangeDetectionInfo, ChangeDetectionParams, PointClass,
+};
+pub use combined::{CombinedDetector, CombinedInfo, CombinedParams};
+pub use entropy::{EntropyDetector, EntropyParams};
+pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
+pub use histogram::{HistogramDetector, HistogramParams};
 pub use map::{DetectorScan, InvalidMergeDetector, MergedMap};
+pub use registry::{all_detectors, detector, DETECTOR_NAMES};
+pub use similarity::{DmDetector, SimilarityParams, SmDetector};

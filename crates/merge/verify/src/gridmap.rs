@@ -1,0 +1,679 @@
+//! Gridmap comparison (Holoch et al., Sec. IV-B): a three-state grid of the `n` most recent
+//! current-epoch keyframes against one of the other epochs, occupied cells of both dilated
+//! by a 7 × 7 square, and `r = |C_contradictions| / |C_overlap|` once the overlap reaches `τ`.
+//!
+//! The paper builds both grids in the window's bounding box per vertex (42 ms). Here:
+//! - the other epochs' grid does not depend on the current epoch, so it is built once per
+//!   merge (exact ray casting, `mapmerge-grid`), classified and dilated (`CellMask::dilate`);
+//! - the window's grid is kept as per-cell counters (returns, beams through, returns within
+//!   the dilation square) on the other grid's lattice, so a new vertex adds one scan and
+//!   removes the one that left the window, and the overlap and contradiction counts are
+//!   updated for the cells whose class changed. Comparing on all cells known in the window's
+//!   grid is the paper's comparison in the bounding box, which contains every such cell;
+//!   cells the other epochs never saw cannot overlap and are not stored.
+//!
+//! The window's grid classes (counter form of "hits win", as `mapmerge-grid` within a scan):
+//! occupied when any window scan returned from a cell (after dilation: from any cell of the
+//! square), free when beams passed through and none returned, unknown otherwise.
+
+use std::sync::Arc;
+
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_grid::{CellClass, ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};
+use mapmerge_posegraph::NodeId;
+use mapmerge_scan::Point2;
+use serde::{Deserialize, Serialize};
+
+use crate::common::{moved, recent, unit, OtherSnapshot};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+
+/// Parameters of [`GridmapDetector`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct GridmapParams {
+    /// `n`: the most recent current-epoch keyframes in the window (default: 10).
+    pub recent_scans: usize,
+    /// Cell side (m) (default: 0.025, the paper's). The other epochs' extent at this
+    /// resolution is held in memory (11 bytes a cell); see `max_cells`.
+    pub cell_m: f64,
+    /// Dilation radius (cells) of occupied cells in both grids (default: 3, the paper's 7 × 7
+    /// square; at most 20). Larger forgives more misalignment of correct merges, and hides
+    /// more of a wrong merge's crossing walls.
+    pub dilation_radius_cells: usize,
+    /// `τ`: below this overlap (m², cells known in both grids) the ratio is 0 (default: 2).
+    /// A few cells of overlap (the first scan after a merge seeing through a door) are no
+    /// evidence either way.
+    pub min_overlap_m2: f64,
+    /// Beams longer than this (m) are not used (default: 40).
+    pub max_range_m: f64,
+    /// Classes of the other epochs' log-odds grid (default: occupied from p = 0.65, free up
+    /// to p = 0.45, so that a cell one beam passed through is free, as in the window's grid).
+    pub other_thresholds: ClassThresholds,
+    /// A window scan is re-inserted when its pose moved more than this (m) (default: 0.05);
+    /// the other epochs' grid is rebuilt when one of their poses did.
+    pub cache_translation_m: f64,
+    /// … or turned more than this (rad) (default: 0.5°).
+    pub cache_rotation_rad: f64,
+    /// Largest grid (cells); a larger extent gets coarser cells (default: 2²⁴, 100 × 160 m
+    /// at 2.5 cm).
+    pub max_cells: usize,
+}
+
+impl Default for GridmapParams {
+    fn default() -> Self {
+        Self {
+            recent_scans: 10,
+            cell_m: 0.025,
+            dilation_radius_cells: 3,
+            min_overlap_m2: 2.0,
+            max_range_m: 40.0,
+            other_thresholds: ClassThresholds {
+                occupied_min: 0.65,
+                free_max: 0.45,
+            },
+            cache_translation_m: 0.05,
+            cache_rotation_rad: 0.5f64.to_radians(),
+            max_cells: 1 << 24,
+        }
+    }
+}
+
+const UNKNOWN: u8 = 0;
+const FREE: u8 = 1;
+const OCCUPIED: u8 = 2;
+
+/// What the last call compared.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct GridmapInfo {
+    /// `|C_overlap|`: cells known in both grids.
+    pub overlap_cells: u64,
+    /// `|C_contradictions|`: free in one, occupied in the other.
+    pub contradiction_cells: u64,
+    /// Scans inserted into (or removed from) the window's grid in the last call.
+    pub updated_scans: usize,
+}
+
+/// A window scan as inserted (kept so that it can be removed exactly).
+#[derive(Clone, Debug)]
+struct Inserted {
+    node: NodeId,
+    pose: Se2,
+    points: Arc<[Point2]>,
+}
+
+/// The two grids on one lattice.
+#[derive(Debug, Default)]
+struct Canvas {
+    geometry: Option<GridGeometry>,
+    /// Per cell: the other epochs' dilated class and the window's counters (one 8-byte
+    /// record, so a beam step touches one cache line).
+    cells: Vec<CellState>,
+    /// Window: returns per cell.
+    hits: Vec<u32>,
+    radius: i64,
+    overlap: u64,
+    contradictions: u64,
+}
+
+/// One cell of the canvas.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct CellState {
+    /// Window: beams through the cell.
+    misses: u32,
+    /// Window: cells with returns within the dilation square.
+    near: u16,
+    /// The other epochs' dilated class.
+    other: u8,
+}
+
+#[inline]
+fn contribution(a: u8, b: u8) -> (u64, u64) {
+    let overlap = u64::from(a != UNKNOWN && b != UNKNOWN);
+    let contradiction = u64::from((a == FREE && b == OCCUPIED) || (a == OCCUPIED && b == FREE));
+    (overlap, contradiction)
+}
+
+impl Canvas {
+    #[inline]
+    fn window_class(&self, i: usize) -> u8 {
+        match self.cells.get(i) {
+            Some(c) if c.near > 0 => OCCUPIED,
+            Some(c) if c.misses > 0 => FREE,
+            _ => UNKNOWN,
+        }
+    }
+
+    /// Applies `change` to cell `i`'s counters, keeping the totals right.
+    #[inline]
+    fn update(&mut self, i: usize, change: impl FnOnce(&mut Self)) {
+        let b = self.cells.get(i).map_or(UNKNOWN, |c| c.other);
+        if b == UNKNOWN {
+            change(self);
+            return;
+        }
+        let before = self.window_class(i);
+        change(self);
+        let after = self.window_class(i);
+        if before != after {
+            let (o0, c0) = contribution(before, b);
+            let (o1, c1) = contribution(after, b);
+            self.overlap = self.overlap.wrapping_sub(o0).wrapping_add(o1);
+            self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
+        }
+    }
+
+    /// One beam more (or less) through cell `i`. The class changes only when the count
+    /// leaves or reaches 0 and no return is near (the hot path: two loads and a store).
+    #[inline]
+    fn miss(&mut self, i: usize, add: bool) {
+        let Some(cell) = self.cells.get_mut(i) else {
+            return;
+        };
+        let before = cell.misses;
+        cell.misses = if add {
+            before.wrapping_add(1)
+        } else {
+            before.wrapping_sub(1)
+        };
+        let toggled = if add { before == 0 } else { before == 1 };
+        let b = cell.other;
+        if !toggled || cell.near > 0 || b == UNKNOWN {
+            return;
+        }
+        let (with, without) = (contribution(FREE, b), contribution(UNKNOWN, b));
+        let ((o0, c0), (o1, c1)) = if add {
+            (without, with)
+        } else {
+            (with, without)
+        };
+        self.overlap = self.overlap.wrapping_sub(o0).wrapping_add(o1);
+        self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
+    }
+
+    fn hit(&mut self, i: usize, add: bool) {
+        let Some(geometry) = self.geometry else {
+            return;
+        };
+        let Some(h) = self.hits.get_mut(i) else {
+            return;
+        };
+        let was = *h > 0;
+        *h = if add {
+            h.wrapping_add(1)
+        } else {
+            h.wrapping_sub(1)
+        };
+        if was == (*h > 0) {
+            return;
+        }
+        // The cell started or stopped returning: its dilation square changes.
+        let (w, h) = (geometry.width as i64, geometry.height as i64);
+        let (cx, cy) = ((i % geometry.width) as i64, (i / geometry.width) as i64);
+        let r = self.radius;
+        for y in (cy - r).max(0)..=(cy + r).min(h - 1) {
+            for x in (cx - r).max(0)..=(cx + r).min(w - 1) {
+                let j = (y * w + x) as usize;
+                self.update(j, |c| {
+                    if let Some(cell) = c.cells.get_mut(j) {
+                        cell.near = if add {
+                            cell.near.wrapping_add(1)
+                        } else {
+                            cell.near.wrapping_sub(1)
+                        };
+                    }
+                });
+            }
+        }
+    }
+
+    /// Adds (or removes) the beams of `points_in_robot` taken at `map_from_robot`.
+    fn apply_scan(
+        &mut self,
+        map_from_robot: &Se2,
+        points_in_robot: &[Point2],
+        max_range_m: f64,
+        add: bool,
+    ) {
+        let Some(geometry) = self.geometry else {
+            return;
+        };
+        if !map_from_robot.is_finite() {
+            return;
+        }
+        let rotation = map_from_robot.rotation_matrix();
+        let origin = map_from_robot.translation();
+        let to_cells = |p: &Point2| (p - geometry.origin_m) / geometry.resolution_m;
+        let start = to_cells(&origin);
+        let size = Point2::new(geometry.width as f64, geometry.height as f64);
+        for p in points_in_robot {
+            let range = p.norm();
+            if !(range.is_finite() && range > 0.0 && range <= max_range_m) {
+                continue;
+            }
+            let end = to_cells(&(rotation * p + origin));
+            let Some((from, to, end_inside)) = clip(start, end, size) else {
+                continue;
+            };
+            // Misses along the beam (the end cell excluded when it is the return), then the
+            // return.
+            traverse(from, to, geometry.width, end_inside, |i| self.miss(i, add));
+            if end_inside {
+                let (x, y) = (end.x.floor() as usize, end.y.floor() as usize);
+                self.hit(y * geometry.width + x, add);
+            }
+        }
+    }
+}
+
+/// Clips the segment `a → b` (cell units) to `[0, size)`; returns the clipped ends and
+/// whether `b` itself is inside.
+fn clip(a: Point2, b: Point2, size: Point2) -> Option<(Point2, Point2, bool)> {
+    // Stay a hair inside the upper borders so that floor() gives a valid cell.
+    let hi = size - Point2::repeat(1e-9);
+    let inside = |p: &Point2| p.x >= 0.0 && p.y >= 0.0 && p.x <= hi.x && p.y <= hi.y;
+    let b_inside = inside(&b);
+    if inside(&a) && b_inside {
+        return Some((a, b, true));
+    }
+    // Liang–Barsky.
+    let d = b - a;
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    for (p, q) in [
+        (-d.x, a.x),
+        (d.x, hi.x - a.x),
+        (-d.y, a.y),
+        (d.y, hi.y - a.y),
+    ] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    if t0.is_nan() || t1.is_nan() || t0 > t1 {
+        return None;
+    }
+    let from = a + d * t0;
+    let to = a + d * t1;
+    Some((
+        from.sup(&Point2::zeros()).inf(&hi),
+        to.sup(&Point2::zeros()).inf(&hi),
+        b_inside,
+    ))
+}
+
+/// Visits the row-major indices of the cells the segment `start → end` (cell units, both
+/// inside a grid `width` wide) crosses, the end cell unless `skip_end` (Amanatides & Woo
+/// 1987, as `mapmerge-grid`'s ray casting).
+fn traverse(
+    start: Point2,
+    end: Point2,
+    width: usize,
+    skip_end: bool,
+    mut visit: impl FnMut(usize),
+) {
+    let (cx, cy) = (start.x.floor() as i64, start.y.floor() as i64);
+    let (ex, ey) = (end.x.floor() as i64, end.y.floor() as i64);
+    let delta = end - start;
+    let step_x = (ex - cx).signum();
+    let step_y = (ey - cy).signum();
+    let boundary = |c: i64, step: i64| if step > 0 { (c + 1) as f64 } else { c as f64 };
+    let mut t_max_x = if step_x != 0 {
+        (boundary(cx, step_x) - start.x) / delta.x
+    } else {
+        f64::INFINITY
+    };
+    let mut t_max_y = if step_y != 0 {
+        (boundary(cy, step_y) - start.y) / delta.y
+    } else {
+        f64::INFINITY
+    };
+    let t_delta_x = if step_x != 0 {
+        (1.0 / delta.x).abs()
+    } else {
+        f64::INFINITY
+    };
+    let t_delta_y = if step_y != 0 {
+        (1.0 / delta.y).abs()
+    } else {
+        f64::INFINITY
+    };
+    let mut remaining_x = (ex - cx).unsigned_abs();
+    let mut remaining_y = (ey - cy).unsigned_abs();
+    let width = width as i64;
+    let mut index = cy * width + cx;
+    for _ in 0..remaining_x + remaining_y {
+        visit(index as usize);
+        if remaining_y == 0 || (remaining_x > 0 && t_max_x < t_max_y) {
+            index += step_x;
+            t_max_x += t_delta_x;
+            remaining_x -= 1;
+        } else {
+            index += step_y * width;
+            t_max_y += t_delta_y;
+            remaining_y -= 1;
+        }
+    }
+    if !skip_end {
+        visit(index as usize);
+    }
+}
+
+/// Gridmap comparison (Holoch et al., Sec. IV-B); see the module documentation.
+#[derive(Debug, Default)]
+pub struct GridmapDetector {
+    params: GridmapParams,
+    snapshot: Option<OtherSnapshot>,
+    canvas: Canvas,
+    inserted: Vec<Inserted>,
+    info: GridmapInfo,
+}
+
+impl GridmapDetector {
+    /// A detector with `params`.
+    pub fn new(params: GridmapParams) -> Self {
+        Self {
+            params,
+            ..Self::default()
+        }
+    }
+
+    /// Its parameters.
+    pub fn params(&self) -> &GridmapParams {
+        &self.params
+    }
+
+    /// What the last [`InvalidMergeDetector::on_vertex`] compared.
+    pub fn info(&self) -> GridmapInfo {
+        self.info
+    }
+
+    fn max_range_m(&self) -> f64 {
+        if self.params.max_range_m.is_finite() {
+            self.params.max_range_m.max(0.0)
+        } else {
+            40.0
+        }
+    }
+
+    /// The other epochs' grid, classified and dilated, and an empty window grid on its lattice.
+    fn prepare(&mut self, other: &[DetectorScan]) {
+        self.snapshot = Some(OtherSnapshot::new(other));
+        self.inserted.clear();
+        self.canvas = Canvas::default();
+        let max_range_m = self.max_range_m();
+        let mut cell_m = if self.params.cell_m.is_finite() && self.params.cell_m > 0.0 {
+            self.params.cell_m
+        } else {
+            0.025
+        };
+        // 1. Extent, and a coarser cell if it would be too large.
+        let (mut lo, mut hi) = (
+            Point2::repeat(f64::INFINITY),
+            Point2::repeat(f64::NEG_INFINITY),
+        );
+        let mut beams: Vec<(Point2, Vec<Point2>)> = Vec::with_capacity(other.len());
+        for scan in other {
+            let pose = &scan.map_from_robot;
+            if !pose.is_finite() {
+                continue;
+            }
+            let origin = pose.translation();
+            let ends: Vec<Point2> = scan
+                .points_in_robot
+                .iter()
+                .filter(|p| p.norm() <= max_range_m && p.norm() > 0.0)
+                .map(|p| pose.transform_point(p))
+                .collect();
+            lo = ends.iter().fold(lo.inf(&origin), |l, e| l.inf(e));
+            hi = ends.iter().fold(hi.sup(&origin), |h, e| h.sup(e));
+            beams.push((origin, ends));
+        }
+        if !(lo.x <= hi.x && lo.y <= hi.y) {
+            return;
+        }
+        let extent = hi - lo;
+        let max_cells = self.params.max_cells.max(1) as f64;
+        if (extent.x / cell_m + 2.0) * (extent.y / cell_m + 2.0) > max_cells {
+            cell_m = ((extent.x + 1.0) * (extent.y + 1.0) / max_cells).sqrt() * 1.01;
+        }
+        // 2. The other epochs' log-odds grid by exact ray casting (`mapmerge-grid`).
+        let Ok(mut grid) = OccupancyGrid::new(cell_m) else {
+            return;
+        };
+        let model = InsertParams::default().model;
+        for (origin, ends) in &beams {
+            // A scan that cannot be inserted (it would exceed the grid's limits) is skipped.
+            let _ = grid.insert_rays(origin, ends, &[], &model);
+        }
+        // 3. Classes, occupied dilated (Sec. IV-B: 7 × 7).
+        let radius = self.params.dilation_radius_cells.min(20);
+        let thresholds = &self.params.other_thresholds;
+        let occupied = grid.mask(CellClass::Occupied, thresholds).dilate(radius);
+        let free = grid.mask(CellClass::Free, thresholds);
+        let geometry = *grid.geometry();
+        let cells: Vec<CellState> = occupied
+            .flags()
+            .iter()
+            .zip(free.flags())
+            .map(|(&o, &f)| CellState {
+                other: if o {
+                    OCCUPIED
+                } else if f {
+                    FREE
+                } else {
+                    UNKNOWN
+                },
+                ..CellState::default()
+            })
+            .collect();
+        self.canvas = Canvas {
+            geometry: Some(geometry),
+            hits: vec![0; cells.len()],
+            cells,
+            radius: radius as i64,
+            overlap: 0,
+            contradictions: 0,
+        };
+    }
+}
+
+impl InvalidMergeDetector for GridmapDetector {
+    fn name(&self) -> &'static str {
+        "gridmap"
+    }
+
+    fn on_merge(&mut self, map: &MergedMap<'_>) {
+        self.prepare(map.other);
+        self.info = GridmapInfo::default();
+    }
+
+    fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
+        let (t, r) = (
+            self.params.cache_translation_m,
+            self.params.cache_rotation_rad,
+        );
+        // 1. The other epochs' grid: rebuilt when they changed or moved.
+        if self
+            .snapshot
+            .as_ref()
+            .is_none_or(|s| !s.still_valid(map.other, t, r))
+        {
+            self.prepare(map.other);
+        }
+        // 2. The window: remove scans that left it or moved, insert new and moved ones.
+        let window = recent(map.current, self.params.recent_scans);
+        let max_range_m = self.max_range_m();
+        let mut updated = 0;
+        let mut inserted = std::mem::take(&mut self.inserted);
+        inserted.retain(|e| {
+            let keep = window
+                .iter()
+                .any(|s| s.node == e.node && !moved(&e.pose, &s.map_from_robot, t, r));
+            if !keep {
+                self.canvas
+                    .apply_scan(&e.pose, &e.points, max_range_m, false);
+                updated += 1;
+            }
+            keep
+        });
+        for scan in window {
+            if !scan.map_from_robot.is_finite() || inserted.iter().any(|e| e.node == scan.node) {
+                continue;
+            }
+            self.canvas.apply_scan(
+                &scan.map_from_robot,
+                &scan.points_in_robot,
+                max_range_m,
+                true,
+            );
+            inserted.push(Inserted {
+                node: scan.node,
+                pose: scan.map_from_robot,
+                points: Arc::clone(&scan.points_in_robot),
+            });
+            updated += 1;
+        }
+        self.inserted = inserted;
+        // 3. r = |C_contradictions| / |C_overlap| from τ on (Sec. IV-B).
+        let (overlap, contradictions) = (self.canvas.overlap, self.canvas.contradictions);
+        self.info = GridmapInfo {
+            overlap_cells: overlap,
+            contradiction_cells: contradictions,
+            updated_scans: updated,
+        };
+        let cell_m = self.canvas.geometry.map_or(1.0, |g| g.resolution_m);
+        if overlap == 0 || (overlap as f64) * cell_m * cell_m < self.params.min_overlap_m2 {
+            return 0.0;
+        }
+        unit(contradictions as f64 / overlap as f64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testworld::{wrong_shifted, wrong_turned, Case, World};
+
+    /// The counters, recomputed from scratch: the incremental totals must equal them.
+    fn totals_from_scratch(c: &Canvas) -> (u64, u64) {
+        let (mut o, mut k) = (0, 0);
+        for i in 0..c.cells.len() {
+            let (a, b) = contribution(c.window_class(i), c.cells[i].other);
+            o += a;
+            k += b;
+        }
+        (o, k)
+    }
+
+    #[test]
+    fn office_merges_correct_low_wrong_high_closed_door_low() {
+        let (open, closed) = (World::office(false), World::office(true));
+        let identity = Se2::identity();
+        let run = |case: Case| case.max_ratio(&mut GridmapDetector::default());
+        let correct = run(Case::office(&open, &open, &identity));
+        let door = run(Case::office(&open, &closed, &identity));
+        let turned = run(Case::office(&open, &open, &wrong_turned()));
+        let shifted = run(Case::office(&open, &open, &wrong_shifted()));
+        assert!(correct < 0.03, "correct {correct}");
+        assert!(door < 0.05, "closed door {door}");
+        assert!(turned > 0.1, "turned {turned}");
+        assert!(shifted > door.max(correct) + 0.02, "shifted {shifted}");
+    }
+
+    #[test]
+    fn incremental_counts_equal_a_recount_and_removal_is_exact() {
+        let open = World::office(false);
+        let case = Case::office(&open, &open, &wrong_turned());
+        let mut d = GridmapDetector::default();
+        d.on_merge(&MergedMap {
+            current: &case.current[..1],
+            other: &case.other,
+        });
+        for k in 1..=case.current.len() {
+            d.on_vertex(&MergedMap {
+                current: &case.current[..k],
+                other: &case.other,
+            });
+            assert_eq!(
+                (d.canvas.overlap, d.canvas.contradictions),
+                totals_from_scratch(&d.canvas)
+            );
+        }
+        // Moving a window scan re-inserts it; an empty window leaves no trace.
+        let mut moved_current = case.current.clone();
+        let last = moved_current.len() - 1;
+        moved_current[last].map_from_robot =
+            Se2::new(0.3, 0.0, 0.0).compose(&moved_current[last].map_from_robot);
+        d.on_vertex(&MergedMap {
+            current: &moved_current,
+            other: &case.other,
+        });
+        assert_eq!(d.info().updated_scans, 2);
+        assert_eq!(
+            (d.canvas.overlap, d.canvas.contradictions),
+            totals_from_scratch(&d.canvas)
+        );
+        d.on_vertex(&MergedMap {
+            current: &[],
+            other: &case.other,
+        });
+        assert_eq!((d.canvas.overlap, d.canvas.contradictions), (0, 0));
+        assert!(d.canvas.hits.iter().all(|&h| h == 0));
+        assert!(d.canvas.cells.iter().all(|c| c.misses == 0 && c.near == 0));
+    }
+
+    #[test]
+    fn degenerate_input_gives_zero() {
+        use std::sync::Arc;
+        let mut d = GridmapDetector::default();
+        let empty = MergedMap {
+            current: &[],
+            other: &[],
+        };
+        assert_eq!(d.on_vertex(&empty), 0.0);
+        let weird = [
+            DetectorScan {
+                node: NodeId(1),
+                epoch: 1,
+                map_from_robot: Se2::identity(),
+                points_in_robot: Arc::from(vec![]),
+            },
+            DetectorScan {
+                node: NodeId(2),
+                epoch: 1,
+                map_from_robot: Se2::identity(),
+                points_in_robot: Arc::from(vec![
+                    Point2::new(f64::NAN, 0.0),
+                    Point2::new(1e300, 1.0),
+                    Point2::zeros(),
+                ]),
+            },
+            DetectorScan {
+                node: NodeId(3),
+                epoch: 1,
+                map_from_robot: Se2::new(f64::INFINITY, 0.0, 0.0),
+                points_in_robot: Arc::from(vec![Point2::new(1.0, 0.0)]),
+            },
+        ];
+        let map = MergedMap {
+            current: &weird,
+            other: &weird,
+        };
+        d.on_merge(&map);
+        assert_eq!(d.on_vertex(&map), 0.0);
+        let map = MergedMap {
+            current: &weird,
+            other: &[],
+        };
+        d.on_merge(&map);
+        assert_eq!(d.on_vertex(&map), 0.0);
+    }
+}
