@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod atlas;
 mod compare;
 mod corrupt;
 mod eval;
@@ -30,6 +31,9 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
+    /// Lifelong mapping over sessions (logs or a simulation): epochs, merges by place
+    /// recognition, invalid-merge detection and undo; events, graphs and pictures.
+    Atlas(atlas::AtlasArgs),
     /// Optimise a pose graph (g2o or TORO, 2D or 3D; `.xz` accepted).
     Optimize(optimize::OptimizeArgs),
     /// Add random false loop closures to a graph (vertigo's pattern) for robustness tests.
@@ -125,6 +129,7 @@ fn main() -> ExitCode {
     }
     let cli = Cli::parse();
     let result = match &cli.command {
+        Command::Atlas(args) => atlas::run(args),
         Command::Optimize(args) => optimize::run(args),
         Command::Corrupt(args) => corrupt::run(args),
         Command::Compare(args) => compare::run(args),

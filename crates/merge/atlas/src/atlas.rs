@@ -2,7 +2,7 @@
 //! (Holoch et al., Sec. III).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use mapmerge_geometry::Se2;
 use mapmerge_posegraph::{Edge, EdgeId, NodeId, PoseGraph2, Vertex};
@@ -15,7 +15,7 @@ use crate::error::AtlasError;
 use crate::events::{AtlasEvent, EpochEndReason};
 use crate::ids::{EpochId, MapId, MergeId};
 use crate::merge::MergeParams;
-use crate::recognition::{KeyframeParams, RecognitionParams};
+use crate::recognition::{CachedDatabase, KeyframeParams, RecognitionParams};
 use crate::scans::ScanStore;
 
 /// Parameters of the atlas, one default for every log.
@@ -84,6 +84,9 @@ pub struct Atlas<B: BackupStore = MemoryBackups> {
     next_map: u32,
     pub(crate) next_merge: u64,
     pub(crate) events: Vec<AtlasEvent>,
+    /// Place databases of the inactive graphs (`Atlas::find_merges`), rebuilt when a graph
+    /// changes.
+    pub(crate) place_cache: Mutex<BTreeMap<MapId, CachedDatabase>>,
 }
 
 impl Atlas<MemoryBackups> {
@@ -116,6 +119,7 @@ impl<B: BackupStore> Atlas<B> {
             next_map: 0,
             next_merge: 0,
             events: vec![AtlasEvent::EpochStarted { epoch: EpochId(0) }],
+            place_cache: Mutex::new(BTreeMap::new()),
         }
     }
 

@@ -2,11 +2,11 @@
 //! inactive graphs; Holoch et al., Sec. III-A), on keyframes made from the stored scans.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{
-    find_loop_candidates_with_poses, EvidenceParams, GeometricVerifier, Keyframe, PlaceParams,
-    ScanMatchVerifier,
+    EvidenceParams, GeometricVerifier, Keyframe, PlaceDatabase, PlaceParams, ScanMatchVerifier,
 };
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{transform_points, voxel_downsample, Point2};
@@ -169,7 +169,51 @@ pub(crate) fn local_map_keyframes(
     keyframes
 }
 
+/// An inactive graph's keyframes, described and indexed once (`Atlas::place_database`).
+pub(crate) struct CachedDatabase {
+    /// Vertex count, edge count and next edge id of the graph it was built from: any edit
+    /// (pruning, a new epoch's graph under a reused id) changes it.
+    fingerprint: (usize, usize, u64),
+    database: Arc<PlaceDatabase>,
+}
+
 impl<B: BackupStore> Atlas<B> {
+    /// The place database of inactive graph `map`: its vertices' local-map keyframes with
+    /// their poses, built on first use and kept while the graph is unchanged (a live robot
+    /// queries the same inactive maps after every few keyframes).
+    fn place_database(&self, map: MapId, graph: &PoseGraph2) -> Arc<PlaceDatabase> {
+        let fingerprint = (graph.num_vertices(), graph.num_edges(), graph.next_edge_id().0);
+        let mut cache = self
+            .place_cache
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        if let Some(cached) = cache.get(&map).filter(|c| c.fingerprint == fingerprint) {
+            return Arc::clone(&cached.database);
+        }
+        let ids: Vec<NodeId> = graph.vertices().map(|(id, _)| id).collect();
+        let by_node = local_map_keyframes(graph, &self.scans, &self.params.keyframes, &ids);
+        let map_from_b: Vec<Se2> = by_node
+            .keys()
+            .filter_map(|id| graph.vertex(*id).map(|v| v.pose))
+            .collect();
+        let keyframes_b: Vec<Keyframe> = by_node.into_values().collect();
+        let place = &self.params.recognition.place;
+        let database = Arc::new(PlaceDatabase::new(
+            &place.descriptor,
+            keyframes_b,
+            Some(map_from_b),
+            place,
+        ));
+        cache.insert(
+            map,
+            CachedDatabase {
+                fingerprint,
+                database: Arc::clone(&database),
+            },
+        );
+        database
+    }
+
     /// Place recognition between the active graph and every inactive graph (Sec. III-A):
     /// keyframes of the active graph query each inactive graph (`find_loop_candidates_with_
     /// poses`, B's poses telling repeated visits apart), loops below the confidence are
@@ -192,20 +236,8 @@ impl<B: BackupStore> Atlas<B> {
                 .collect();
         let mut proposals = Vec::new();
         for (map, graph) in &self.inactive {
-            let ids: Vec<NodeId> = graph.vertices().map(|(id, _)| id).collect();
-            let by_node = local_map_keyframes(graph, &self.scans, &self.params.keyframes, &ids);
-            let map_from_b: Vec<Se2> = by_node
-                .keys()
-                .filter_map(|id| graph.vertex(*id).map(|v| v.pose))
-                .collect();
-            let keyframes_b: Vec<Keyframe> = by_node.into_values().collect();
-            let found = find_loop_candidates_with_poses(
-                &keyframes_a,
-                &keyframes_b,
-                &map_from_b,
-                verifier,
-                &p.place,
-            );
+            let database = self.place_database(*map, graph);
+            let found = database.search(&p.place.descriptor, &keyframes_a, verifier, &p.place);
             // Each loop with the transform it implies.
             let mut implied: Vec<(LoopEdge, Se2, f64, f64)> = found
                 .into_iter()

@@ -13,6 +13,8 @@
 //!   [`VerifiedLoop`]s with a confidence that is low for look-alike places;
 //!   [`find_loop_candidates_with_poses`] does the same when B's poses are known, which lets
 //!   places B visited several times count as one place.
+//! - [`PlaceDatabase`]: one keyframe set described and indexed once, searched by many query
+//!   sets (what the two functions above build on each call).
 //! - [`verify_candidates`] (and [`verify_candidates_by`] with the caller's same-place rule):
 //!   the per-query step for a caller that keeps its own index, e.g. a SLAM front-end.
 //! - [`ScanMatchVerifier`]: the production verifier; [`ScanMatchVerifier::with_evidence`]
@@ -59,7 +61,8 @@ pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
 pub use loops::{
     find_loop_candidates, find_loop_candidates_with, find_loop_candidates_with_poses,
-    verify_candidates, verify_candidates_by, PlaceCandidate, PlaceParams, VerifiedLoop,
+    verify_candidates, verify_candidates_by, PlaceCandidate, PlaceDatabase, PlaceParams,
+    VerifiedLoop,
 };
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::ScanMatchVerifier;

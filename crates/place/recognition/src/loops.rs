@@ -246,40 +246,93 @@ fn search<E: DescriptorExtractor>(
     verifier: &impl GeometricVerifier,
     params: &PlaceParams,
 ) -> Vec<VerifiedLoop> {
-    // 1. Describe B and index it.
-    let descriptors_b: Vec<E::Descriptor> = keyframes_b
-        .par_iter()
-        .map(|k| extractor.describe(&k.points_in_keyframe))
-        .collect();
-    let mut index: PlaceIndex<E::Descriptor> = PlaceIndex::new(params.index.clone());
-    for (keyframe, descriptor) in keyframes_b.iter().zip(descriptors_b) {
-        index.insert(keyframe.id, descriptor);
+    PlaceDatabase::new(
+        extractor,
+        keyframes_b.to_vec(),
+        map_from_b.map(<[Se2]>::to_vec),
+        params,
+    )
+    .search(extractor, keyframes_a, verifier, params)
+}
+
+/// Keyframe set B described and indexed once, to be searched by many query sets (e.g. an
+/// inactive map that every new keyframe of a live robot is looked up in): what
+/// [`find_loop_candidates_with_poses`] builds on each call.
+pub struct PlaceDatabase<D: crate::descriptor::PlaceDescriptor = crate::ScanContext> {
+    keyframes: Vec<Keyframe>,
+    map_from_keyframe: Option<Vec<Se2>>,
+    index: PlaceIndex<D>,
+    ordinal_of: HashMap<KeyframeId, usize>,
+}
+
+impl<D: crate::descriptor::PlaceDescriptor> PlaceDatabase<D> {
+    /// Describes and indexes `keyframes` (with their poses in B's map when known, see
+    /// [`find_loop_candidates_with_poses`]).
+    pub fn new<E: DescriptorExtractor<Descriptor = D>>(
+        extractor: &E,
+        keyframes: Vec<Keyframe>,
+        map_from_keyframe: Option<Vec<Se2>>,
+        params: &PlaceParams,
+    ) -> Self {
+        let descriptors: Vec<D> = keyframes
+            .par_iter()
+            .map(|k| extractor.describe(&k.points_in_keyframe))
+            .collect();
+        let mut index: PlaceIndex<D> = PlaceIndex::new(params.index.clone());
+        for (keyframe, descriptor) in keyframes.iter().zip(descriptors) {
+            index.insert(keyframe.id, descriptor);
+        }
+        let mut ordinal_of: HashMap<KeyframeId, usize> = HashMap::with_capacity(keyframes.len());
+        for (ordinal, keyframe) in keyframes.iter().enumerate() {
+            ordinal_of.entry(keyframe.id).or_insert(ordinal);
+        }
+        Self {
+            keyframes,
+            map_from_keyframe,
+            index,
+            ordinal_of,
+        }
     }
-    let mut ordinal_of: HashMap<KeyframeId, usize> = HashMap::with_capacity(keyframes_b.len());
-    for (ordinal, keyframe) in keyframes_b.iter().enumerate() {
-        ordinal_of.entry(keyframe.id).or_insert(ordinal);
+
+    /// The indexed keyframes.
+    pub fn keyframes(&self) -> &[Keyframe] {
+        &self.keyframes
     }
-    // 2. Query every keyframe of A, 3. verify its best candidates, 4. accept the best by
-    // score and rate it against distinct rivals.
-    keyframes_a
-        .par_iter()
-        .filter_map(|query| {
-            let descriptor = extractor.describe(&query.points_in_keyframe);
-            let candidates: Vec<PlaceCandidate> = index
-                .query(&descriptor, params.candidates_per_query)
-                .iter()
-                .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
-                .filter_map(|c| {
-                    let ordinal = *ordinal_of.get(&c.keyframe)?;
-                    Some(PlaceCandidate {
-                        ordinal,
-                        keyframe: keyframes_b.get(ordinal)?,
-                        yaw_rad: c.yaw_rad,
-                        map_from_keyframe: map_from_b.and_then(|m| m.get(ordinal).copied()),
+
+    /// Queries every keyframe of `keyframes_a`, verifies its best candidates and accepts the
+    /// best by score, rated against distinct rivals: at most one [`VerifiedLoop`] per query,
+    /// in query order. Queries run in parallel; the output does not depend on the threads.
+    pub fn search<E: DescriptorExtractor<Descriptor = D>>(
+        &self,
+        extractor: &E,
+        keyframes_a: &[Keyframe],
+        verifier: &impl GeometricVerifier,
+        params: &PlaceParams,
+    ) -> Vec<VerifiedLoop> {
+        keyframes_a
+            .par_iter()
+            .filter_map(|query| {
+                let descriptor = extractor.describe(&query.points_in_keyframe);
+                let candidates: Vec<PlaceCandidate> = self
+                    .index
+                    .query(&descriptor, params.candidates_per_query)
+                    .iter()
+                    .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
+                    .filter_map(|c| {
+                        let ordinal = *self.ordinal_of.get(&c.keyframe)?;
+                        Some(PlaceCandidate {
+                            ordinal,
+                            keyframe: self.keyframes.get(ordinal)?,
+                            yaw_rad: c.yaw_rad,
+                            map_from_keyframe: self
+                                .map_from_keyframe
+                                .as_ref()
+                                .and_then(|m| m.get(ordinal).copied()),
+                        })
                     })
-                })
-                .collect();
-            verify_candidates(query, &candidates, verifier, params)
-        })
-        .collect()
+                    .collect();
+                verify_candidates(query, &candidates, verifier, params)
+            })
+            .collect()
+    }
 }
