@@ -62,7 +62,8 @@ pub struct GridMergeEvalArgs {
     /// The two resolutions (m): combinations r1–r1, r1–r2, r2–r1.
     #[arg(long, num_args = 2, default_values_t = [0.07, 0.10])]
     pub resolutions: Vec<f64>,
-    /// The two partial maps start at least this many scans apart (different passes).
+    /// The two partial maps start at least this many scans apart (different passes; a
+    /// quarter of the log at most).
     #[arg(long, default_value_t = 200)]
     pub min_gap_scans: usize,
     /// … and their first poses within this distance (m).
@@ -299,10 +300,12 @@ fn run_combination(
         separation: Vec::new(),
         cases: Vec::new(),
     };
-    if n < span + args.min_gap_scans + args.scans {
+    // Short logs (a few hundred scans) get a proportionally shorter gap between the passes.
+    let min_gap = args.min_gap_scans.min(n / 4);
+    if n < span + min_gap + args.scans {
         return Err(bad_input(format!(
-            "the log has {n} scans, too few for partial maps of {} + {} scans {} apart",
-            args.scans, args.further_scans, args.min_gap_scans
+            "the log has {n} scans, too few for partial maps of {} + {} scans {min_gap} apart",
+            args.scans, args.further_scans
         )));
     }
     let (mut correct, mut wrong) = (0usize, 0usize);
@@ -312,7 +315,7 @@ fn run_combination(
         let own_start = rng.random_range(0..n - span);
         let anchor = posed.poses[own_start].translation();
         let partners: Vec<usize> = (0..n - args.scans)
-            .filter(|&k| k.abs_diff(own_start) >= args.min_gap_scans)
+            .filter(|&k| k.abs_diff(own_start) >= min_gap)
             .filter(|&k| (posed.poses[k].translation() - anchor).norm() <= args.pair_radius)
             .collect();
         if partners.is_empty() {
@@ -670,7 +673,11 @@ fn tables(report: &Report) -> String {
                 c.wrong_2m.cases
             );
             for sep in &c.separation {
-                let _ = write!(md, " {} |", sep.auc.map_or("–".to_owned(), |a| format!("{a:.3}")));
+                let _ = write!(
+                    md,
+                    " {} |",
+                    sep.auc.map_or("–".to_owned(), |a| format!("{a:.3}"))
+                );
             }
             let _ = writeln!(
                 md,
@@ -733,7 +740,10 @@ fn tables(report: &Report) -> String {
                 let _ = writeln!(md);
             }
             let _ = write!(md, "| Undone by the check |");
-            for col in columns.iter().chain([&&c.correct_1m_local, &&c.wrong_1m_local]) {
+            for col in columns
+                .iter()
+                .chain([&&c.correct_1m_local, &&c.wrong_1m_local])
+            {
                 let _ = write!(md, " {}/{} |", col.undone, col.cases);
             }
             let _ = writeln!(md);

@@ -100,7 +100,10 @@ fn maps_of_two_different_floors_are_not_merged_and_say_why() {
     assert_eq!(out.status.code(), Some(3), "{out:?}");
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(report["accepted"], false);
-    assert!(report["reason"].as_str().unwrap().contains("not accepted"), "{report}");
+    assert!(
+        report["reason"].as_str().unwrap().contains("not accepted"),
+        "{report}"
+    );
     assert!(!merged.exists());
 }
 
@@ -181,5 +184,8 @@ fn the_experiment_reports_tables_and_separation_per_resolution_combination() {
         assert!(mean_dm(&wrong) > 2.0 * mean_dm(&correct), "{c}");
     }
     let tables = std::fs::read_to_string(&md).unwrap();
-    assert!(tables.contains("Initial SM") && tables.contains("AUC"), "{tables}");
+    assert!(
+        tables.contains("Initial SM") && tables.contains("AUC"),
+        "{tables}"
+    );
 }
