@@ -45,6 +45,7 @@ mod error;
 mod hough;
 mod matcher;
 mod metrics;
+mod orientation;
 mod params;
 mod raster;
 

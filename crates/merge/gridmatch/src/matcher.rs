@@ -16,8 +16,19 @@ use crate::correlate::{CoarseCandidate, CoarseMap, TranslationSearch};
 use crate::error::{GridMatchError, Which};
 use crate::hough::{hough_spectrum, rotation_peaks, spectrum_correlation};
 use crate::metrics::{evaluate, MapMetrics, PreparedMap};
+use crate::orientation::{orientation_histogram, smooth_circular};
 use crate::params::GridMatchParams;
 use crate::raster::{common_resolution, ClassRaster, OCCUPIED, UNKNOWN};
+
+/// Occupied cells voting in each local-orientation histogram (evenly strided): enough for a
+/// histogram of 360 bins, and a bound on its cost.
+const ORIENTATION_MAX_SAMPLES: usize = 8_000;
+
+/// B's occupied cells (evenly strided) in the ICP polish.
+const ICP_MAX_POINTS: usize = 2_000;
+
+/// Occupied (pooled) cells entering each Hough spectrum (evenly strided), a bound on its cost.
+const HOUGH_MAX_POINTS: usize = 8_000;
 
 /// One candidate placement of B in A.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -64,6 +75,15 @@ pub enum Rejection {
         /// The threshold.
         max: f64,
     },
+    /// A distinct runner-up agrees better (higher ω) and lies closer (lower DM) than the
+    /// best, which outscores it only by a larger overlap (e.g. a 180° look-alike of a
+    /// corridor): one of the two is wrong, and the score cannot tell which.
+    Dominated {
+        /// ω of the runner-up.
+        acceptance: f64,
+        /// DM of the runner-up (cells).
+        dm_cells: f64,
+    },
     /// A distinct runner-up scores almost as well.
     Ambiguous {
         /// `(best − runner_up) / best`.
@@ -86,6 +106,13 @@ impl std::fmt::Display for Rejection {
             Rejection::HighDistance { dm_cells, max } => {
                 write!(f, "DM {dm_cells:.2} cells above {max:.2}")
             }
+            Rejection::Dominated {
+                acceptance,
+                dm_cells,
+            } => write!(
+                f,
+                "a runner-up agrees better (ω {acceptance:.3}) and lies closer (DM {dm_cells:.2} cells)"
+            ),
             Rejection::Ambiguous { margin, min } => {
                 write!(f, "margin {margin:.3} over the runner-up below {min:.3}")
             }
@@ -106,7 +133,8 @@ pub struct GridMatch {
     pub margin: f64,
     /// The common resolution the maps were matched at (m): the coarser one.
     pub resolution_m: f64,
-    /// The rotation hypotheses from the Hough spectra (rad, in (−π, π]), best peak first.
+    /// The rotation hypotheses (rad, in (−π, π]): the Hough spectra's, best peak first, then
+    /// the local-orientation histograms' that are new.
     pub rotations_rad: Vec<f64>,
     /// Pooling factor of the coarse correlation raster.
     pub coarse_factor: usize,
@@ -123,12 +151,15 @@ impl GridMatch {
 ///
 /// 1. Both maps go to the coarser resolution (the finer is resampled; walls survive).
 /// 2. Rotation hypotheses: peaks of the circular cross-correlation of the maps' Hough
-///    spectra, each as θ and θ + π.
+///    spectra, and of their local wall-orientation histograms (every wall segment votes
+///    for its direction, so partial crops still agree), each as θ and θ + π.
 /// 3. Per rotation, translations: peaks of the FFT cross-correlation of coarse class rasters
 ///    over the whole overlap (occupied `w`, free −1, unknown 0).
 /// 4. Refinement of the best candidates at full resolution: correlative branch-and-bound
-///    over a small window (coarse cell ± `refine_margin_cells`, ± `refine_angle_rad`).
-/// 5. SM, DM and ω of each; distinct hypotheses ranked by score; the acceptance rule.
+///    over a small window (coarse cell ± `refine_margin_cells`, ± `refine_angle_rad`);
+///    point-to-line ICP on the best.
+/// 5. SM, DM and ω of each; distinct hypotheses ranked by score; the acceptance rule
+///    (ω, overlap, DM, margin over the runner-up, no runner-up better in both ω and DM).
 ///
 /// Deterministic: the same inputs give the same output on any number of threads.
 pub fn match_grids(
@@ -150,30 +181,30 @@ pub fn match_grids(
         }
     }
     let thresholds = &params.thresholds;
-    let (a, b) = rayon::join(
-        || PreparedMap::new(ClassRaster::new(&a, thresholds)),
-        || PreparedMap::new(ClassRaster::new(&b, thresholds)),
+    let (raster_a, raster_b) = rayon::join(
+        || ClassRaster::new(&a, thresholds),
+        || ClassRaster::new(&b, thresholds),
     );
-    a.raster.check(Which::A)?;
-    b.raster.check(Which::B)?;
+    raster_a.check(Which::A)?;
+    raster_b.check(Which::B)?;
 
     // 2. Rotation hypotheses (Carpin 2008, Sec. 3).
-    let rotations = rotation_hypotheses(&a.raster, &b.raster, params);
+    let rotations = rotation_hypotheses(&raster_a, &raster_b, params);
 
     // 3. Translations by correlation of coarse rasters (Carpin 2008, Sec. 4).
     let longest = [
-        a.raster.width(),
-        a.raster.height(),
-        b.raster.width(),
-        b.raster.height(),
+        raster_a.width(),
+        raster_a.height(),
+        raster_b.width(),
+        raster_b.height(),
     ]
     .into_iter()
     .max()
     .unwrap_or(1);
     let factor = longest.div_ceil(params.coarse_max_cells).max(1);
     let (coarse_a, coarse_b) = rayon::join(
-        || CoarseMap::pool(&a.raster, factor),
-        || CoarseMap::pool(&b.raster, factor),
+        || CoarseMap::pool(&raster_a, factor),
+        || CoarseMap::pool(&raster_b, factor),
     );
     let b_extent = ((coarse_b.width.pow(2) + coarse_b.height.pow(2)) as f64)
         .sqrt()
@@ -183,11 +214,11 @@ pub fn match_grids(
     let candidates = search.search(&coarse_b, &rotations, params.translation_peaks, 2);
     let chosen = choose_candidates(candidates, params.refine_candidates);
 
-    // 4. Refinement at full resolution: branch-and-bound, then ICP on the best few.
-    let b_points = b.raster.occupied_points();
+    // 4. Refinement at full resolution: branch-and-bound, then ICP on the best one.
+    let b_points = raster_b.occupied_points();
     let b_centroid = b_points.iter().sum::<Point2>() / b_points.len().max(1) as f64;
     let query = Query::new(&b_points, &b_centroid, params.refine_max_points);
-    let a_points = a.raster.occupied_points();
+    let a_points = raster_a.occupied_points();
     let linear_m = (factor as f64 + params.refine_margin_cells) * resolution_m;
     let linear_cells = (linear_m / resolution_m).ceil() as usize;
     let correlative = CorrelativeParams {
@@ -207,13 +238,18 @@ pub fn match_grids(
         target_voxel_m: resolution_m,
         ..IcpParams::default()
     };
-    let (target, icp_target) = rayon::join(
-        || MatchTarget::new(&a_points, &correlative),
-        || IcpTarget::new(&a_points, &icp_params),
+    // The maps' distance transforms (for the metrics) are computed beside the refinement,
+    // whose first search runs alone.
+    let (refined, (a, b)) = rayon::join(
+        || {
+            let target = MatchTarget::new(&a_points, &correlative)?;
+            refine(&target, &a_points, &query, &chosen, linear_m, params)
+        },
+        || rayon::join(|| PreparedMap::new(raster_a), || PreparedMap::new(raster_b)),
     );
-    let refined = refine(&target?, &a_points, &query, &chosen, linear_m, params)?;
+    let refined = refined?;
 
-    // 5. Metrics, ranking; ICP on the best few, kept when it raises the score.
+    // 5. Metrics, ranking; ICP on the best, kept when it raises the score.
     let hypothesis = |a_from_b: Se2, refinement_score: f64| {
         let metrics = evaluate(&a, &b, &a_from_b);
         let free_agree = metrics.agree_cells - metrics.agree_occupied_cells;
@@ -234,10 +270,47 @@ pub fn match_grids(
         .collect();
     hypotheses.sort_by(by_score);
     let polish_count = params.polish_candidates.min(hypotheses.len());
+    // ICP's target: A's occupied cells near B's (the query's) under the hypotheses polished,
+    // found on a lattice of `reach_m` cells; the rest cannot be matched.
+    let reach_m = icp_params.max_correspondence_m + icp_params.normal_radius_m;
+    let (lo, hi) = a.raster.geometry.bounds_m();
+    let columns = ((hi.x - lo.x) / reach_m).ceil() as i64 + 1;
+    let rows = ((hi.y - lo.y) / reach_m).ceil() as i64 + 1;
+    let lattice = |p: &Point2| {
+        (
+            ((p.x - lo.x) / reach_m).floor() as i64,
+            ((p.y - lo.y) / reach_m).floor() as i64,
+        )
+    };
+    let mut near_b = vec![false; (columns * rows) as usize];
+    for h in &hypotheses[..polish_count] {
+        let a_from_query = h.a_from_b.compose(&query.b_from_query);
+        for q in &query.points {
+            let (i, j) = lattice(&a_from_query.transform_point(q));
+            for (u, v) in (j - 1..=j + 1).flat_map(|v| (i - 1..=i + 1).map(move |u| (u, v))) {
+                if (0..columns).contains(&u) && (0..rows).contains(&v) {
+                    near_b[(v * columns + u) as usize] = true;
+                }
+            }
+        }
+    }
+    let near: Vec<Point2> = a_points
+        .iter()
+        .filter(|p| {
+            let (i, j) = lattice(p);
+            (0..columns).contains(&i)
+                && (0..rows).contains(&j)
+                && near_b[(j * columns + i) as usize]
+        })
+        .copied()
+        .collect();
+    let icp_target = IcpTarget::new(&near, &icp_params);
+    // ICP needs fewer of B's cells than the search: a line fit per correspondence.
+    let icp_query = Query::new(&b_points, &b_centroid, ICP_MAX_POINTS);
     let polished: Vec<MatchHypothesis> = hypotheses[..polish_count]
         .par_iter()
         .map(|h| {
-            polish(&icp_target, &query, &h.a_from_b, &icp_params)
+            polish(&icp_target, &icp_query, &h.a_from_b, &icp_params)
                 .map(|pose| hypothesis(pose, h.refinement_score))
                 .filter(|p| p.score > h.score)
                 .unwrap_or(*h)
@@ -292,7 +365,19 @@ pub fn match_grids(
             margin,
             min: params.acceptance.min_margin,
         }),
-        Some(_) => None,
+        Some(best) => kept
+            .iter()
+            .skip(1)
+            .find(|r| {
+                r.acceptance > best.acceptance
+                    && r.metrics.dm_cells < best.metrics.dm_cells
+                    && r.metrics.overlap_cells >= min_overlap
+                    && 2 * r.metrics.overlap_cells >= best.metrics.overlap_cells
+            })
+            .map(|r| Rejection::Dominated {
+                acceptance: r.acceptance,
+                dm_cells: r.metrics.dm_cells,
+            }),
     };
     Ok(GridMatch {
         hypotheses: kept,
@@ -305,11 +390,13 @@ pub fn match_grids(
     })
 }
 
-/// Carpin 2008, Sec. 3: peaks of the cross-correlated Hough spectra, each as θ and θ + π.
+/// Rotation hypotheses, each as θ and θ + π: first the peaks of the cross-correlated Hough
+/// spectra (Carpin 2008, Sec. 3), then those of the cross-correlated local-orientation
+/// histograms (`orientation.rs`) not within `rotation_merge_rad` of one already kept.
 fn rotation_hypotheses(a: &ClassRaster, b: &ClassRaster, params: &GridMatchParams) -> Vec<f64> {
     let occupied = |r: &ClassRaster| {
         let pooled = CoarseMap::pool(r, params.hough_rho_cells);
-        pooled
+        let points = pooled
             .codes
             .iter()
             .enumerate()
@@ -318,18 +405,60 @@ fn rotation_hypotheses(a: &ClassRaster, b: &ClassRaster, params: &GridMatchParam
                 let (x, y) = (i % pooled.width, i / pooled.width);
                 pooled.origin_m + Point2::new(x as f64 + 0.5, y as f64 + 0.5) * pooled.cell_m
             })
-            .collect::<Vec<_>>()
+            .collect::<Vec<_>>();
+        // An even subsample keeps the spectrum's shape (every H(θ, ρ) scales alike).
+        let stride = points.len().div_ceil(HOUGH_MAX_POINTS).max(1);
+        points.into_iter().step_by(stride).collect::<Vec<_>>()
     };
     let rho_bin_m = a.geometry.resolution_m * params.hough_rho_cells as f64;
     let bins = params.hough_angle_bins;
-    let (spectrum_a, spectrum_b) = rayon::join(
-        || hough_spectrum(&occupied(a), rho_bin_m, bins),
-        || hough_spectrum(&occupied(b), rho_bin_m, bins),
+    let orientation = |r: &ClassRaster| {
+        smooth_circular(
+            &orientation_histogram(
+                r,
+                params.orientation_radius_cells,
+                bins,
+                ORIENTATION_MAX_SAMPLES,
+            ),
+            1.0,
+        )
+    };
+    let ((spectrum_a, spectrum_b), (histogram_a, histogram_b)) = rayon::join(
+        || {
+            rayon::join(
+                || hough_spectrum(&occupied(a), rho_bin_m, bins),
+                || hough_spectrum(&occupied(b), rho_bin_m, bins),
+            )
+        },
+        || {
+            if params.orientation_peaks == 0 {
+                (Vec::new(), Vec::new())
+            } else {
+                rayon::join(|| orientation(a), || orientation(b))
+            }
+        },
     );
-    let correlation = spectrum_correlation(&spectrum_a, &spectrum_b);
     // Peaks at least 3° apart.
     let separation = ((3f64.to_radians() / (PI / bins as f64)).round() as usize).max(1);
-    rotation_peaks(&correlation, params.rotation_peaks, separation)
+    let mut peaks = rotation_peaks(
+        &spectrum_correlation(&spectrum_a, &spectrum_b),
+        params.rotation_peaks,
+        separation,
+    );
+    let orientation_peaks = rotation_peaks(
+        &spectrum_correlation(&histogram_a, &histogram_b),
+        params.orientation_peaks,
+        separation,
+    );
+    for (theta, value) in orientation_peaks {
+        let near = |&(kept, _): &(f64, f64)| {
+            wrap_angle_rad(2.0 * (theta - kept)).abs() / 2.0 <= params.rotation_merge_rad
+        };
+        if !peaks.iter().any(near) {
+            peaks.push((theta, value));
+        }
+    }
+    peaks
         .into_iter()
         .flat_map(|(theta, _)| [wrap_angle_rad(theta), wrap_angle_rad(theta + PI)])
         .collect()

@@ -238,12 +238,14 @@ fn row_sums(
             continue;
         }
         let index_a = row + x;
-        let index_b = here.y as usize * gb.width + here.x as usize;
-        let (Some(&ca), Some(&cb)) = (a.raster.cells.get(index_a), b.raster.cells.get(index_b))
-        else {
+        // A's class first: a sequential read that skips B's (scattered) one when unknown.
+        let ca = a.raster.cells.get(index_a).copied().unwrap_or(UNKNOWN);
+        if ca == UNKNOWN {
             continue;
-        };
-        if ca == UNKNOWN || cb == UNKNOWN {
+        }
+        let index_b = here.y as usize * gb.width + here.x as usize;
+        let cb = b.raster.cells.get(index_b).copied().unwrap_or(UNKNOWN);
+        if cb == UNKNOWN {
             continue;
         }
         sums.overlap += 1;

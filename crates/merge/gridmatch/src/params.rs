@@ -54,6 +54,18 @@ pub struct GridMatchParams {
     /// Peaks of the spectra's cross-correlation kept (default: 4); each gives θ and θ + π, so
     /// 4 peaks keep the 90° and 180° ambiguities of rectilinear buildings.
     pub rotation_peaks: usize,
+    /// Peaks of the cross-correlated local-orientation histograms kept (default: 2), each as
+    /// θ and θ + π, besides the Hough spectrum's; 0 turns this source off. A wall's
+    /// direction is the principal axis of the occupied cells around it; unlike the Hough
+    /// spectrum, which long walls dominate, every wall segment votes, so two partial crops of
+    /// one building still agree (2 peaks: the 90° turns of rectilinear buildings).
+    pub orientation_peaks: usize,
+    /// Radius (cells of the common resolution) of the neighbourhood whose principal axis
+    /// gives a wall's direction (default: 6). Larger is smoother and blurs corners.
+    pub orientation_radius_cells: usize,
+    /// A local-orientation peak within this angle (rad) of a Hough peak, modulo π, is the
+    /// same hypothesis (default: 1° = 0.0175); keep it below `refine_angle_rad`.
+    pub rotation_merge_rad: f64,
     /// Translations kept per rotation hypothesis (default: 2).
     pub translation_peaks: usize,
     /// The coarse correlation raster has at most this many cells along its longest side
@@ -83,14 +95,14 @@ pub struct GridMatchParams {
     /// each side (default: 2).
     pub refine_margin_cells: f64,
     /// At most this many of B's occupied cells (evenly strided) enter the refinement search
-    /// (default: 6000). Fewer is faster and less precise.
+    /// (default: 4000). Fewer is faster and less precise.
     pub refine_max_points: usize,
     /// Candidates after the first are searched only for poses scoring at least this fraction
     /// of the first one's refinement score (default: 0.5); the others keep their coarse pose.
     /// Higher prunes hopeless rotations sooner.
     pub refine_min_score_ratio: f64,
-    /// The best this many hypotheses get a point-to-line ICP step (default: 2), kept when it
-    /// raises their score.
+    /// The best this many hypotheses get a point-to-line ICP step (default: 1), kept when it
+    /// raises their score. Each costs an ICP run and a metric evaluation.
     pub polish_candidates: usize,
     /// Standard deviation of the refinement's likelihood kernel, in cells (default: 1.0).
     pub refine_kernel_sigma_cells: f64,
@@ -111,6 +123,9 @@ impl Default for GridMatchParams {
             hough_angle_bins: 360,
             hough_rho_cells: 2,
             rotation_peaks: 4,
+            orientation_peaks: 2,
+            orientation_radius_cells: 6,
+            rotation_merge_rad: 1f64.to_radians(),
             translation_peaks: 2,
             coarse_max_cells: 200,
             occupied_weight: 3.0,
@@ -119,9 +134,9 @@ impl Default for GridMatchParams {
             refine_candidates: 10,
             refine_angle_rad: 1.2f64.to_radians(),
             refine_margin_cells: 2.0,
-            refine_max_points: 6000,
+            refine_max_points: 4000,
             refine_min_score_ratio: 0.5,
-            polish_candidates: 2,
+            polish_candidates: 1,
             refine_kernel_sigma_cells: 1.0,
             distinct_cells: 3.0,
             distinct_rad: 1.5f64.to_radians(),
@@ -147,6 +162,12 @@ impl GridMatchParams {
                 "rotation_peaks",
                 "peak and candidate counts must be at least 1",
             );
+        }
+        if !(1..=64).contains(&self.orientation_radius_cells) {
+            return invalid("orientation_radius_cells", "must be in 1..=64");
+        }
+        if !(self.rotation_merge_rad.is_finite() && self.rotation_merge_rad >= 0.0) {
+            return invalid("rotation_merge_rad", "must be finite, ≥ 0");
         }
         if self.coarse_max_cells < 8 {
             return invalid("coarse_max_cells", "must be at least 8");
