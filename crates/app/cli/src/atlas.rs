@@ -9,7 +9,8 @@
 //! Writes `DIR/events.jsonl` (every epoch, merge and unmerge with its reason, the scan count
 //! and travel when it happened), `DIR/atlas/` (each graph as g2o and a picture of its map) and
 //! `DIR/pictures/NNN-{merge,unmerge}-{before,after}.png` (points coloured by epoch; the
-//! detector's window — the newest current-epoch scans — drawn thicker).
+//! detector's window — the newest current-epoch scans — drawn thicker in change detection's
+//! classes: red change, green agree, grey no information; merge edges magenta).
 
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -28,6 +29,9 @@ use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_render::{session_color, Picture, Rgb};
 use mapmerge_scan::LaserLog;
 use mapmerge_sim::{simulate, SimParams};
+use mapmerge_verify::{
+    ChangeDetectionDetector, DetectorScan, InvalidMergeDetector, MergedMap, PointClass,
+};
 use serde::Serialize;
 
 use crate::{bad_file, bad_input, print_json};
@@ -465,13 +469,24 @@ fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Resul
         .map(|(id, _)| id)
         .collect();
     let window: Vec<NodeId> = recent.iter().rev().take(10).copied().collect();
+    let classes = window_classes(graph, engine);
     for (id, vertex) in graph.vertices() {
         let Some(scan) = scans.get(id) else {
             continue;
         };
-        let colour = session_color(u64::from(vertex.meta.session.0));
+        let colour = epoch_colour(vertex.meta.session.0);
         let highlight = window.contains(&id);
-        for p in scan.iter().step_by(2) {
+        let classes_of_scan = classes.get(&id);
+        for (k, p) in scan.iter().enumerate() {
+            // Window scans in change-detection colours (Holoch et al., Fig. 1/3): red change,
+            // green agree, grey no info.
+            let colour = match classes_of_scan.and_then(|c| c.get(k)) {
+                Some(PointClass::Change) => Rgb([220, 30, 30]),
+                Some(PointClass::Agree) => Rgb([30, 170, 60]),
+                Some(PointClass::NoInfo) => Rgb([150, 150, 150]),
+                None if k % 2 == 0 => colour,
+                None => continue,
+            };
             points.push((vertex.pose.transform_point(p), colour, highlight));
         }
     }
@@ -501,7 +516,7 @@ fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Resul
         picture.draw_disc(p, if *highlight { 1.5 } else { 0.6 }, *colour);
     }
     for (id, vertex) in graph.vertices() {
-        let colour = session_color(u64::from(vertex.meta.session.0));
+        let colour = epoch_colour(vertex.meta.session.0);
         let radius = if window.contains(&id) { 3.0 } else { 1.5 };
         picture.draw_disc(&vertex.pose.translation(), radius, colour);
     }
@@ -517,6 +532,47 @@ fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Resul
     }
     picture.save_png(path)?;
     Ok(())
+}
+
+/// An epoch's colour: the session palette without its red and green, which mark change
+/// detection's classes.
+fn epoch_colour(epoch: u32) -> Rgb {
+    const PALETTE: [u64; 8] = [0, 1, 4, 5, 6, 7, 8, 9];
+    session_color(PALETTE[epoch as usize % PALETTE.len()])
+}
+
+/// Change detection's classes of the newest current-epoch scans against the other epochs in
+/// `graph` (empty when it holds one epoch only).
+fn window_classes(graph: &PoseGraph2, engine: &Engine) -> BTreeMap<NodeId, Vec<PointClass>> {
+    let current = engine.atlas().current_epoch().0;
+    let (mut now, mut other) = (Vec::new(), Vec::new());
+    for (node, vertex) in graph.vertices() {
+        let Some(points) = engine.atlas().scans().get(node) else {
+            continue;
+        };
+        let scan = DetectorScan {
+            node,
+            epoch: vertex.meta.session.0,
+            map_from_robot: vertex.pose,
+            points_in_robot: std::sync::Arc::clone(points),
+        };
+        if vertex.meta.session.0 == current {
+            now.push(scan);
+        } else {
+            other.push(scan);
+        }
+    }
+    if now.is_empty() || other.is_empty() {
+        return BTreeMap::new();
+    }
+    let map = MergedMap {
+        current: &now,
+        other: &other,
+    };
+    let mut detector = ChangeDetectionDetector::default();
+    detector.on_merge(&map);
+    detector.on_vertex(&map);
+    detector.current_classes().into_iter().collect()
 }
 
 /// Writes every graph of the atlas as g2o with a picture.

@@ -249,8 +249,15 @@ impl Engine {
         self.add_keyframe(keyframe, stamp_secs)?;
         self.keyframes_in_epoch += 1;
         self.keyframes_since_query += 1;
-        // Verification of the merges so far (Sec. IV), then new merges (Sec. III-A).
+        // Loops into the merged data (drift), verification of the merges so far (Sec. IV),
+        // then new merges (Sec. III-A).
         if self.atlas.is_undoable() {
+            if self.keyframes_in_epoch % self.params.merge_every_keyframes.max(1) == 0 {
+                self.atlas.close_loops_into_merged(
+                    self.params.merge_every_keyframes.max(1),
+                    &self.verifier,
+                )?;
+            }
             self.verify()?;
         }
         if self.atlas.inactive_maps().len() > 0

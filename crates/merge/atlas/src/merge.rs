@@ -387,6 +387,46 @@ impl<B: BackupStore> Atlas<B> {
         loops
     }
 
+    /// After a merge the robot keeps closing loops into the merged epochs' data, as its
+    /// front-end does within its own epoch: the newest `newest` current-epoch vertices (every
+    /// `overlap.stride`-th) are verified against the nearest other-epoch vertex of the active
+    /// graph from the current estimate, and matches within the overlap gate become loop edges
+    /// (kind `Merge`, so an unmerge removes them); then the active graph is re-optimised with
+    /// the robot held. Without this the front-end's drift away from the merge point reads as
+    /// contradictions to the invalid-merge detectors. Returns the edges added.
+    pub fn close_loops_into_merged(
+        &mut self,
+        newest: usize,
+        verifier: &dyn GeometricVerifier,
+    ) -> Result<usize, AtlasError> {
+        if self.merges.is_empty() {
+            return Ok(0);
+        }
+        let current: Vec<NodeId> = self
+            .active
+            .vertices()
+            .filter(|(id, _)| self.is_current_epoch(*id))
+            .map(|(id, _)| id)
+            .collect();
+        let tried = current.get(current.len().saturating_sub(newest)..).unwrap_or(&[]);
+        let other: BTreeSet<NodeId> = self
+            .active
+            .vertices()
+            .filter(|(id, _)| !self.is_current_epoch(*id))
+            .map(|(id, _)| id)
+            .collect();
+        let others = self.active.subgraph(&other);
+        let loops = self.overlap_loops(&self.active, tried, &others, &BTreeSet::new(), verifier);
+        if loops.is_empty() {
+            return Ok(0);
+        }
+        for l in &loops {
+            self.active.add_edge(l.edge())?;
+        }
+        self.optimize_active()?;
+        Ok(loops.len())
+    }
+
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):
     /// every merged inactive graph comes back from its backup exactly (poses, edges and their
     /// ids, metadata) under its old id; every other-epoch vertex leaves the active graph with

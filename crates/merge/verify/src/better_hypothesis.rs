@@ -72,7 +72,7 @@ impl Default for BetterHypothesisParams {
             min_confidence: 0.2,
             disagreement_m: 1.0,
             disagreement_rad: 10f64.to_radians(),
-            prior_agreeing: 1.0,
+            prior_agreeing: 2.0,
         }
     }
 }
