@@ -65,6 +65,10 @@ enum EvalCommand {
     Ate(AteArgs),
     /// Andersone's grid-merge experiment (Tables 1–4) and ROC/AUC of SM and DM on a log.
     GridMerge(crate::grid_merge_eval::GridMergeEvalArgs),
+    /// Holoch et al.'s invalid-merge cases from a corrected log: segment pairs, valid and wrong merges.
+    MakeMergeCases(crate::invalid_merge_eval::MakeMergeCasesArgs),
+    /// Run the invalid-merge detectors on forced merges (Holoch et al. Table III: AUC, ms/vertex).
+    InvalidMerge(crate::invalid_merge_eval::InvalidMergeArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -160,6 +164,8 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::Relations(a) => score_relations(a),
         EvalCommand::Ate(a) => ate(a),
         EvalCommand::GridMerge(a) => crate::grid_merge_eval::run(a),
+        EvalCommand::MakeMergeCases(a) => crate::invalid_merge_eval::make_merge_cases(a),
+        EvalCommand::InvalidMerge(a) => crate::invalid_merge_eval::invalid_merge(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

@@ -1,1 +1,1554 @@
-//! `mapmerge eval make-merge-cases` and `mapmerge eval invalid-merge` (issue 6, part 5).
+//! `mapmerge eval make-merge-cases` and `mapmerge eval invalid-merge` (issue 6, part 5): Holoch
+//! et al.'s evaluation scheme (Sec. V-A, Table III) on the public corrected laser logs.
+//!
+//! # Cases
+//! One JSON object per line:
+//! `{"id", "log", "first": [i_start, i_end], "second": [i_start, i_end], "merge_at": i,
+//! "merge_transform": [x, y, yaw], "odometry_noise": PROFILE|null, "seed": S,
+//! "label": "valid"|"invalid"|null}`. Indices count the log's laser scans from 0 (file order,
+//! end inclusive). A relative `log` is read from the working directory, else next to the
+//! cases file. Unknown fields are ignored.
+//!
+//! # Frames
+//! Each segment's frame is the robot pose at its first scan. `merge_transform` is
+//! `first_from_second`: the second segment's frame in the first segment's frame. With the
+//! corrected poses `world_from_robot[k]` the truth is
+//! `first_from_second = world_from_robot[first.0]⁻¹ ∘ world_from_robot[second.0]`.
+//! The merged map lives in the *second* (current, active) segment's frame, so the robot's pose
+//! does not jump at the merge: a first-segment keyframe at `first_from_robot` is handed to
+//! the detectors at `second_from_robot = merge_transform⁻¹ ∘ first_from_robot`.
+//!
+//! # make-merge-cases (needs the corrected poses; only it reads them)
+//! 1. Segments: consecutive pieces of about `--segment-secs` (100 s) of robot time, cut by the
+//!    scans' stamps. Stamps are *broken* when a stamp is not finite, more than 1 % of the
+//!    steps between consecutive scans do not go forward, or a step exceeds 300 s (csail,
+//!    belgioioso: a handful of distinct values; freiburg-campus, orebro: all 0;
+//!    infinite-corridor: bogus values); then segments have `--segment-scans` scans (default
+//!    35, about the median number of scans per 100 s of the logs with sound stamps). A
+//!    remainder shorter than half a segment joins the last segment.
+//! 2. Each segment's map: an occupancy grid at 0.1 m from the corrected poses in the world
+//!    frame, returns trusted up to 10 m (beyond, the beam only clears free space up to 10 m).
+//!    Two segments overlap by the area of the cells known (free or occupied) in both.
+//! 3. Ordered pairs (first, second) of distinct segments whose maps overlap by at least
+//!    `--min-overlap` m² (1.5, as the paper) and where the second segment's robot comes
+//!    within `--overlap-radius` m (2) of the first segment's path, at least 2 scans after its
+//!    start and 8 before its end. `merge_at` is the first such scan.
+//! 4. Per pair, in a seeded random order, at most `--max-pairs`: one *valid* case (the truth)
+//!    and up to `--invalid-per-pair` *invalid* ones, each putting the robot at the merge scan
+//!    at least 1 m or 10° away from where the truth puts it:
+//!    - `place`: careless place recognition (Scan Context over the first segment's scans,
+//!      5 candidates per query, verified by the scan matcher with no confidence test, score
+//!      ≥ 0.3) queried with second-segment scans in the overlap; the best-scoring wrong
+//!      alignment, merged at its query scan.
+//!    - `lookalike`: a turn by a multiple of 90° (± 3°) about the robot at `merge_at` and a
+//!      shift of up to 3 m per axis (corridor aliasing) that still looks right to a map
+//!      matcher: Andersone's SM ≥ 0.9 between the first segment's grid and the second
+//!      segment's grid so far (counted on the second grid's cells), overlapping at least half
+//!      as much as the truth; the one with the most agreeing occupied cells of 200 seeded
+//!      tries.
+//!
+//!    Every case's merged maps overlap by at least `--min-overlap` m² (whole segments).
+//!
+//! # invalid-merge
+//! Per case: both segments' graphs from the project's front-end (`mapmerge_slam::FrontEnd`,
+//! default parameters) on their scans and the log's odometry, with the case's noise profile
+//! and seed (`mapmerge_eval::add_odometry_noise` on the whole log, so segments of one log and
+//! seed share one noisy odometry); `null` runs on the log's own odometry. The first segment
+//! runs to its end (its optimised graph); the second runs to `merge_at`, the merge is forced
+//! with `merge_transform`, each detector gets `on_merge`, then for every keyframe vertex the
+//! second segment adds after `merge_at` each detector gets the merged map (current: the second
+//! segment's keyframes so far at their front-end poses *at that moment*; other: the first
+//! segment's keyframes moved by `merge_transform⁻¹`) and its invalidity ratio is recorded.
+//! Nothing is undone. Vertex ids: first segment `NodeId(k)` (epoch 1), second segment
+//! `NodeId(2³² + k)` (epoch 2), so the two epochs never share an id. Keyframe points are the
+//! front-end's (`FrontEnd::keyframe_points`, range-limited as it matches them).
+//! `ms_per_vertex` is the mean wall time of `on_vertex` (not of `on_merge`).
+//! A log is read once and each segment run (log, segment, noise, seed) is shared by the cases
+//! that name it.
+
+use std::collections::{BTreeMap, HashMap, HashSet};
+use std::fmt::Write as _;
+use std::io::{BufRead, IsTerminal, Write as _};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::Args;
+use mapmerge_eval::{add_odometry_noise, roc_auc, scan_poses, OdometryNoiseProfile};
+use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_grid::{CellClass, ClassThresholds, InsertParams, OccupancyGrid};
+use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanMatchVerifier};
+use mapmerge_posegraph::NodeId;
+use mapmerge_scan::{BeamFilter, LaserLog, Point2};
+use mapmerge_slam::{FrontEnd, FrontEndParams};
+use mapmerge_verify::{DetectorScan, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::{bad_file, bad_input, print_json};
+
+/// Scans per segment when the stamps are broken (about the median scans per 100 s of the logs
+/// with sound stamps: intel 34, aces 33, fr101 32, edmonton 48, fhw 24, seattle 21).
+const BROKEN_STAMPS_SEGMENT_SCANS: usize = 35;
+/// Cell side of the segment maps used for overlap and look-alike scoring (m).
+const PAIR_GRID_M: f64 = 0.1;
+/// Returns beyond this (m) only clear free space in those maps.
+const PAIR_GRID_RANGE_M: f32 = 10.0;
+/// `merge_at` leaves at least this many scans of the second segment before it …
+const MIN_SCANS_BEFORE_MERGE: usize = 2;
+/// … and this many after it.
+const MIN_SCANS_AFTER_MERGE: usize = 8;
+/// An invalid merge is at least this far from the truth (m, rad).
+const WRONG_BEYOND: (f64, f64) = (1.0, 0.175);
+/// Look-alikes must pass Andersone's acceptance (SM ≥ 0.9).
+const LOOKALIKE_MIN_SM: f64 = 0.9;
+/// Random look-alike transforms tried per pair, shifted by up to this (m) per axis.
+const LOOKALIKE_TRIALS: usize = 200;
+const LOOKALIKE_SHIFT_M: f64 = 3.0;
+/// Place-recognition queries per pair, candidates per query, minimal verification score.
+const PLACE_QUERIES: usize = 4;
+const PLACE_CANDIDATES: usize = 5;
+const PLACE_MIN_SCORE: f64 = 0.3;
+/// Vertex ids of the second (current) segment start here.
+const CURRENT_NODE_OFFSET: u64 = 1 << 32;
+
+// ------------------------------------------------------------------ arguments
+
+/// Arguments of `mapmerge eval make-merge-cases`.
+#[derive(Args, Debug)]
+pub struct MakeMergeCasesArgs {
+    /// The log the evaluator runs on (written to the cases as given; a corrected log is fine
+    /// with `--odometry-noise`).
+    #[arg(long)]
+    pub log: PathBuf,
+    /// Corrected CARMEN log of the same scans: its poses give the overlaps and the labels.
+    #[arg(long)]
+    pub corrected: PathBuf,
+    /// Output cases (JSON lines).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Seed of the pair order, the look-alikes and the odometry noise (ChaCha8).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Noise profile written to every case (`default`, `harsh`, `none`), or `null` for the
+    /// log's own odometry.
+    #[arg(long, default_value = "default")]
+    pub odometry_noise: String,
+    /// Segment length in robot time (s), from the scans' stamps.
+    #[arg(long, default_value_t = 100.0)]
+    pub segment_secs: f64,
+    /// Segment length in scans (overrides `--segment-secs`; used when stamps are broken,
+    /// default 35 then).
+    #[arg(long)]
+    pub segment_scans: Option<usize>,
+    /// Minimal map overlap of a pair (m²).
+    #[arg(long, default_value_t = 1.5)]
+    pub min_overlap: f64,
+    /// At `merge_at` the second segment's robot is within this distance (m) of the first
+    /// segment's path.
+    #[arg(long, default_value_t = 2.0)]
+    pub overlap_radius: f64,
+    /// At most this many pairs (seeded random choice); default all.
+    #[arg(long)]
+    pub max_pairs: Option<usize>,
+    /// Invalid cases per pair (0–2: place recognition first, then a look-alike).
+    #[arg(long, default_value_t = 2)]
+    pub invalid_per_pair: usize,
+    /// Print one JSON summary instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// Arguments of `mapmerge eval invalid-merge`.
+#[derive(Args, Debug)]
+pub struct InvalidMergeArgs {
+    /// Cases (JSON lines, see `make-merge-cases`).
+    #[arg(long)]
+    pub cases: PathBuf,
+    /// Output results (JSON lines: one per case and method).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Detectors to run (comma-separated; default all).
+    #[arg(long, value_delimiter = ',')]
+    pub methods: Vec<String>,
+    /// Only the first N cases.
+    #[arg(long)]
+    pub max_cases: Option<usize>,
+    /// Print the per-log summary (ROC AUC, ms per new vertex; Holoch Table III).
+    #[arg(long)]
+    pub summary: bool,
+    /// Write the summary as Markdown to this file.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Print one JSON summary instead of text (no progress bar).
+    #[arg(long)]
+    pub json: bool,
+}
+
+// ------------------------------------------------------------------ formats
+
+/// The label of a case.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Label {
+    /// The transform is the truth.
+    Valid,
+    /// The transform is wrong.
+    Invalid,
+}
+
+/// One forced merge (a line of a cases file).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MergeCase {
+    /// Unique name.
+    pub id: String,
+    /// The CARMEN log.
+    pub log: String,
+    /// First segment's scans (inclusive).
+    pub first: [usize; 2],
+    /// Second segment's scans (inclusive).
+    pub second: [usize; 2],
+    /// The merge happens right after this scan of the second segment.
+    pub merge_at: usize,
+    /// `first_from_second` (m, m, rad).
+    pub merge_transform: [f64; 3],
+    /// Noise profile of the odometry, `None` for the log's own.
+    pub odometry_noise: Option<String>,
+    /// Seed of the noise.
+    pub seed: u64,
+    /// Ground truth, when known.
+    pub label: Option<Label>,
+}
+
+/// One line of a results file.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MergeResult {
+    /// The case.
+    pub id: String,
+    /// The detector.
+    pub method: String,
+    /// Its highest invalidity ratio after the merge (0 without new vertices).
+    pub max_invalidity: f64,
+    /// Mean wall time per new vertex (ms); `null` without new vertices.
+    pub ms_per_vertex: Option<f64>,
+    /// New vertices after the merge.
+    pub vertices: usize,
+    /// The case's label.
+    pub label: Option<Label>,
+    /// The case's log.
+    pub log: String,
+}
+
+/// Parses a cases file's text; errors are `source:line: reason`. Checks what needs no log.
+fn parse_cases(text: &str, source: &str) -> Result<Vec<(usize, MergeCase)>, String> {
+    let mut cases = Vec::new();
+    let mut ids = HashSet::new();
+    for (number, raw) in text.lines().enumerate() {
+        let number = number + 1;
+        let line = raw.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let fail = |reason: String| format!("{source}:{number}: {reason}");
+        let case: MergeCase =
+            serde_json::from_str(line).map_err(|e| fail(format!("not a merge case: {e}")))?;
+        check_case(&case).map_err(fail)?;
+        if !ids.insert(case.id.clone()) {
+            return Err(fail(format!("duplicate id `{}`", case.id)));
+        }
+        cases.push((number, case));
+    }
+    Ok(cases)
+}
+
+/// What can be checked about a case without its log.
+fn check_case(case: &MergeCase) -> Result<(), String> {
+    if case.id.is_empty() {
+        return Err("empty id".into());
+    }
+    for (name, [start, end]) in [("first", case.first), ("second", case.second)] {
+        if start > end {
+            return Err(format!("{name} [{start}, {end}] ends before it starts"));
+        }
+    }
+    if case.merge_at < case.second[0] || case.merge_at > case.second[1] {
+        return Err(format!(
+            "merge_at {} is not a scan of second [{}, {}]",
+            case.merge_at, case.second[0], case.second[1]
+        ));
+    }
+    if case.merge_transform.iter().any(|v| !v.is_finite()) {
+        return Err(format!(
+            "merge_transform {:?} is not finite",
+            case.merge_transform
+        ));
+    }
+    if let Some(name) = &case.odometry_noise {
+        OdometryNoiseProfile::from_name(name).map_err(|e| format!("odometry_noise: {e}"))?;
+    }
+    Ok(())
+}
+
+/// Checks a case's indices against its log's scan count.
+fn check_in_log(case: &MergeCase, scans: usize, log: &Path) -> Result<(), String> {
+    for (name, [start, end]) in [("first", case.first), ("second", case.second)] {
+        if end >= scans {
+            return Err(format!(
+                "{name} [{start}, {end}] is beyond the {scans} scans of {}",
+                log.display()
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn se2_of(v: [f64; 3]) -> Se2 {
+    Se2::new(v[0], v[1], v[2])
+}
+
+fn array_of(p: &Se2) -> [f64; 3] {
+    [p.x_m, p.y_m, wrap_angle_rad(p.theta_rad)]
+}
+
+/// True when the merges `a` and `b` (`first_from_second`) put the robot, at
+/// `second_from_robot`, at least `m` metres or `rad` apart: the error where the robot is, not
+/// at the segment's origin (a small turn about a far-away robot is no wrong merge).
+fn far_from(a: &Se2, b: &Se2, second_from_robot: &Se2, (m, rad): (f64, f64)) -> bool {
+    let d = a
+        .compose(second_from_robot)
+        .between(&b.compose(second_from_robot));
+    d.translation().norm() >= m || wrap_angle_rad(d.theta_rad).abs() >= rad
+}
+
+/// A log's short name: `intel` for `…/intel-corrected.log.xz`.
+fn log_name(log: &str) -> String {
+    let name = Path::new(log)
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| log.to_owned());
+    let name = name.strip_suffix(".xz").unwrap_or(&name);
+    let name = name.strip_suffix(".log").unwrap_or(name);
+    name.strip_suffix("-corrected").unwrap_or(name).to_owned()
+}
+
+// ------------------------------------------------------------------ segments
+
+/// True when the stamps can be trusted as robot time (see the module docs).
+fn stamps_usable(stamps: &[f64]) -> bool {
+    if stamps.len() < 2 || stamps.iter().any(|s| !s.is_finite()) {
+        return false;
+    }
+    let steps: Vec<f64> = stamps.windows(2).map(|w| w[1] - w[0]).collect();
+    let backward = steps.iter().filter(|d| **d <= 0.0).count();
+    backward * 100 <= steps.len() && steps.iter().all(|d| d.abs() <= 300.0)
+}
+
+/// Consecutive segments `[start, end]` covering `scans` scans.
+fn cut_segments(
+    stamps: &[f64],
+    segment_secs: f64,
+    segment_scans: Option<usize>,
+) -> Vec<[usize; 2]> {
+    let n = stamps.len();
+    let mut starts = vec![0usize];
+    match segment_scans {
+        Some(count) => {
+            let count = count.max(1);
+            starts.extend((count..n).step_by(count));
+        }
+        None => {
+            // Robot time, kept monotone across the rare step back.
+            let mut time = Vec::with_capacity(n);
+            let mut latest = f64::NEG_INFINITY;
+            for s in stamps {
+                latest = latest.max(*s);
+                time.push(latest);
+            }
+            let mut start_time = time.first().copied().unwrap_or(0.0);
+            for (k, t) in time.iter().enumerate().skip(1) {
+                if t - start_time >= segment_secs {
+                    starts.push(k);
+                    start_time = *t;
+                }
+            }
+        }
+    }
+    let mut segments: Vec<[usize; 2]> = starts
+        .iter()
+        .enumerate()
+        .map(|(i, &s)| [s, starts.get(i + 1).map_or(n, |&e| e) - 1])
+        .filter(|[s, e]| s <= e && *e < n)
+        .collect();
+    // A short remainder joins the last full segment.
+    if segments.len() >= 2 {
+        let typical = segments[0][1] - segments[0][0] + 1;
+        if let Some(last) = segments.last().copied() {
+            if (last[1] - last[0] + 1) * 2 < typical {
+                segments.pop();
+                if let Some(previous) = segments.last_mut() {
+                    previous[1] = last[1];
+                }
+            }
+        }
+    }
+    segments
+}
+
+/// `pose` as a point map with its sine and cosine computed once.
+fn point_map(pose: &Se2) -> impl Fn(&Point2) -> Point2 {
+    let (sin, cos) = pose.theta_rad.sin_cos();
+    let (x, y) = (pose.x_m, pose.y_m);
+    move |p: &Point2| Point2::new(cos * p.x - sin * p.y + x, sin * p.x + cos * p.y + y)
+}
+
+/// Cells known in `a` (world frame) whose centre, mapped by `world_from_b⁻¹`, is known in `b`
+/// (its own world frame), as an area (m²).
+fn overlap_m2(a: &OccupancyGrid, b: &OccupancyGrid, world_from_b: &Se2) -> f64 {
+    let thresholds = ClassThresholds::default();
+    let b_from_world = point_map(&world_from_b.inverse());
+    let geometry = a.geometry();
+    let known = |l: f32| thresholds.classify(l) != CellClass::Unknown;
+    let count = a
+        .log_odds()
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| known(**l))
+        .filter(|(index, _)| {
+            let p = geometry.center_of(geometry.cell_at(*index));
+            known(b.log_odds_at(&b_from_world(&p)))
+        })
+        .count();
+    count as f64 * geometry.resolution_m * geometry.resolution_m
+}
+
+fn bounds_intersect(a: &OccupancyGrid, b: &OccupancyGrid) -> bool {
+    let (a_low, a_high) = a.geometry().bounds_m();
+    let (b_low, b_high) = b.geometry().bounds_m();
+    a_low.x <= b_high.x && b_low.x <= a_high.x && a_low.y <= b_high.y && b_low.y <= a_high.y
+}
+
+fn pair_grid<'a>(
+    posed: impl IntoIterator<Item = (Se2, &'a mapmerge_scan::LaserScan)>,
+) -> anyhow::Result<OccupancyGrid> {
+    let params = InsertParams {
+        max_hit_range_m: PAIR_GRID_RANGE_M,
+        ..InsertParams::default()
+    };
+    Ok(OccupancyGrid::from_scans(PAIR_GRID_M, posed, &params)?.0)
+}
+
+// ------------------------------------------------------------------ make-merge-cases
+
+#[derive(Serialize)]
+struct MakeCasesReport<'a> {
+    log: &'a Path,
+    output: &'a Path,
+    scans: usize,
+    stamps_usable: bool,
+    segments: usize,
+    segment_scans_mean: f64,
+    pairs_overlapping: usize,
+    pairs_used: usize,
+    cases: usize,
+    valid: usize,
+    invalid_place: usize,
+    invalid_lookalike: usize,
+    seconds: f64,
+}
+
+/// Runs `mapmerge eval make-merge-cases`.
+pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let noise = match args.odometry_noise.as_str() {
+        "null" => None,
+        name => {
+            OdometryNoiseProfile::from_name(name).map_err(bad_input)?;
+            Some(name.to_owned())
+        }
+    };
+    if !(args.segment_secs.is_finite() && args.segment_secs > 0.0)
+        || args.segment_scans == Some(0)
+        || !(args.min_overlap.is_finite() && args.min_overlap >= 0.0)
+        || !(args.overlap_radius.is_finite() && args.overlap_radius > 0.0)
+    {
+        return Err(bad_input(
+            "--segment-secs, --segment-scans and --overlap-radius must be positive, \
+             --min-overlap not negative",
+        ));
+    }
+    let raw = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
+    let corrected_log = mapmerge_io::read_carmen(&args.corrected).map_err(bad_file)?;
+    let poses = scan_poses(&corrected_log)
+        .map_err(|e| bad_input(format!("{}: {e}", args.corrected.display())))?;
+    if poses.len() != raw.scans.len() {
+        return Err(bad_input(format!(
+            "{} has {} scans but {} has {} (scans pair by order)",
+            args.corrected.display(),
+            poses.len(),
+            args.log.display(),
+            raw.scans.len()
+        )));
+    }
+    let stamps: Vec<f64> = raw.scans.iter().map(|r| r.stamp_secs).collect();
+    let usable = stamps_usable(&stamps);
+    let segment_scans = args
+        .segment_scans
+        .or((!usable).then_some(BROKEN_STAMPS_SEGMENT_SCANS));
+    let segments = cut_segments(&stamps, args.segment_secs, segment_scans);
+    let progress = !args.json && std::io::stderr().is_terminal();
+    if !args.json {
+        eprintln!(
+            "{}: {} scans, stamps {}, {} segments",
+            args.log.display(),
+            raw.scans.len(),
+            if usable {
+                "usable"
+            } else {
+                "broken (cut by scan count)"
+            },
+            segments.len()
+        );
+    }
+    // Each segment's map in the world frame, from the corrected poses.
+    let scans = &corrected_log.scans;
+    let grids: Vec<OccupancyGrid> = segments
+        .iter()
+        .map(|[s, e]| pair_grid((*s..=*e).map(|k| (poses[k], &scans[k].scan))))
+        .collect::<anyhow::Result<_>>()?;
+    // 1. Candidate pairs: overlapping maps and a merge scan in the overlap.
+    let mut pairs: Vec<(usize, usize, usize)> = Vec::new();
+    for (i, first) in segments.iter().enumerate() {
+        for (j, second) in segments.iter().enumerate() {
+            if i == j || !bounds_intersect(&grids[i], &grids[j]) {
+                continue;
+            }
+            let Some(merge_at) = merge_scan(&poses, *first, *second, args.overlap_radius) else {
+                continue;
+            };
+            if overlap_m2(&grids[i], &grids[j], &Se2::identity()) < args.min_overlap {
+                continue;
+            }
+            pairs.push((i, j, merge_at));
+        }
+    }
+    let pairs_overlapping = pairs.len();
+    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
+    pairs.shuffle(&mut rng);
+    if let Some(max) = args.max_pairs {
+        pairs.truncate(max);
+    }
+    // Keep the file in segment order, whatever was drawn.
+    pairs.sort_unstable();
+    let bar = if progress {
+        indicatif::ProgressBar::new(pairs.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} pairs ({eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message("merge cases");
+    let front_end = FrontEndParams::default();
+    let mut window = front_end.loops.place_window;
+    window.linear_m = window.linear_m.max(2.0);
+    let verifier = ScanMatchVerifier::new(front_end.matcher, window)
+        .map_err(|e| anyhow::anyhow!("scan matcher: {e}"))?;
+    let filter = BeamFilter {
+        max_range_m: front_end.max_match_range_m,
+        ..BeamFilter::default()
+    };
+    let log_text = args.log.to_string_lossy().into_owned();
+    let name = log_name(&log_text);
+    let mut cases = Vec::new();
+    let (mut valid, mut place, mut lookalike) = (0, 0, 0);
+    for &(i, j, merge_at) in &pairs {
+        bar.inc(1);
+        let (first, second) = (segments[i], segments[j]);
+        let world_from_first = poses[first[0]];
+        let world_from_second = poses[second[0]];
+        let truth = world_from_first.between(&world_from_second);
+        let pair_seed = args.seed ^ ((i as u64) << 40) ^ ((j as u64) << 20);
+        let make = |suffix: &str, merge_at: usize, transform: &Se2, label: Label| MergeCase {
+            id: format!("{name}/s{i:03}-s{j:03}/{suffix}"),
+            log: log_text.clone(),
+            first,
+            second,
+            merge_at,
+            merge_transform: array_of(transform),
+            odometry_noise: noise.clone(),
+            seed: args.seed,
+            label: Some(label),
+        };
+        cases.push(make("valid", merge_at, &truth, Label::Valid));
+        valid += 1;
+        // A wrong merge must still overlap the first map, or there is nothing to detect.
+        let overlaps = |first_from_second: &Se2| {
+            let world_from_world2 = world_from_first
+                .compose(first_from_second)
+                .compose(&world_from_second.inverse());
+            overlap_m2(&grids[i], &grids[j], &world_from_world2) >= args.min_overlap
+        };
+        let mut invalid = 0;
+        if invalid < args.invalid_per_pair {
+            let found = careless_place_recognition(
+                &poses,
+                scans,
+                first,
+                second,
+                &truth,
+                args.overlap_radius,
+                &filter,
+                &verifier,
+                &SearchWindowM {
+                    linear_m: window.linear_m,
+                    angular_rad: window.angular_rad,
+                },
+                &front_end,
+            );
+            if let Some((at, transform)) = found.filter(|(_, t)| overlaps(t)) {
+                cases.push(make("place", at, &transform, Label::Invalid));
+                place += 1;
+                invalid += 1;
+            }
+        }
+        if invalid < args.invalid_per_pair {
+            let own = &grids[i];
+            let other = pair_grid((second[0]..=merge_at).map(|k| (poses[k], &scans[k].scan)))?;
+            let mut pair_rng = ChaCha8Rng::seed_from_u64(pair_seed);
+            if let Some(transform) = lookalike_transform(
+                own,
+                &other,
+                &world_from_first,
+                &world_from_second,
+                &poses[merge_at],
+                &mut pair_rng,
+            )
+            .filter(|t| overlaps(t))
+            {
+                cases.push(make("lookalike", merge_at, &transform, Label::Invalid));
+                lookalike += 1;
+            }
+        }
+    }
+    bar.finish_and_clear();
+    let mut text = String::new();
+    for case in &cases {
+        text.push_str(&serde_json::to_string(case)?);
+        text.push('\n');
+    }
+    if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::write(&args.output, text)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let report = MakeCasesReport {
+        log: &args.log,
+        output: &args.output,
+        scans: raw.scans.len(),
+        stamps_usable: usable,
+        segments: segments.len(),
+        segment_scans_mean: raw.scans.len() as f64 / segments.len().max(1) as f64,
+        pairs_overlapping,
+        pairs_used: pairs.len(),
+        cases: cases.len(),
+        valid,
+        invalid_place: place,
+        invalid_lookalike: lookalike,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    if args.json {
+        print_json(&report)
+    } else {
+        println!(
+            "{}: {} segments ({:.0} scans each), {} overlapping pairs, {} used: {} cases \
+             ({} valid, {} invalid by place recognition, {} look-alikes) in {:.1} s -> {}",
+            args.log.display(),
+            report.segments,
+            report.segment_scans_mean,
+            report.pairs_overlapping,
+            report.pairs_used,
+            report.cases,
+            valid,
+            place,
+            lookalike,
+            report.seconds,
+            args.output.display()
+        );
+        Ok(())
+    }
+}
+
+/// Scans of `second` where the robot is within `radius_m` of `first`'s path (and far enough
+/// from the segment's ends).
+fn overlap_scans(
+    poses: &[Se2],
+    first: [usize; 2],
+    second: [usize; 2],
+    radius_m: f64,
+) -> Vec<usize> {
+    let lo = second[0] + MIN_SCANS_BEFORE_MERGE;
+    let Some(hi) = second[1].checked_sub(MIN_SCANS_AFTER_MERGE) else {
+        return Vec::new();
+    };
+    (lo..=hi)
+        .filter(|&k| {
+            let p = poses[k].translation();
+            (first[0]..=first[1]).any(|m| (poses[m].translation() - p).norm() <= radius_m)
+        })
+        .collect()
+}
+
+fn merge_scan(
+    poses: &[Se2],
+    first: [usize; 2],
+    second: [usize; 2],
+    radius_m: f64,
+) -> Option<usize> {
+    overlap_scans(poses, first, second, radius_m)
+        .first()
+        .copied()
+}
+
+/// The verifier's search window (m, rad).
+struct SearchWindowM {
+    linear_m: f64,
+    angular_rad: f64,
+}
+
+/// Careless place recognition: queries second-segment scans in the overlap against every
+/// first-segment scan, verifies the top candidates without any confidence test, and returns
+/// the best-scoring alignment that is wrong (`(query scan, first_from_second)`).
+#[allow(clippy::too_many_arguments)]
+fn careless_place_recognition(
+    poses: &[Se2],
+    scans: &[mapmerge_scan::ScanRecord],
+    first: [usize; 2],
+    second: [usize; 2],
+    truth: &Se2,
+    radius_m: f64,
+    filter: &BeamFilter,
+    verifier: &ScanMatchVerifier,
+    window: &SearchWindowM,
+    front_end: &FrontEndParams,
+) -> Option<(usize, Se2)> {
+    let descriptor = &front_end.loops.place.descriptor;
+    let mut index: PlaceIndex<ScanContext> = PlaceIndex::new(front_end.loops.place.index.clone());
+    let mut keyframes = HashMap::new();
+    for (k, record) in scans.iter().enumerate().take(first[1] + 1).skip(first[0]) {
+        let points = record.scan.points_in_robot(filter);
+        index.insert(
+            mapmerge_place::KeyframeId(k as u64),
+            ScanContext::new(&points, descriptor),
+        );
+        keyframes.insert(k as u64, Keyframe::new(k as u64, points));
+    }
+    let candidates = overlap_scans(poses, first, second, radius_m);
+    let step = candidates.len().div_ceil(PLACE_QUERIES).max(1);
+    let world_from_first = poses[first[0]];
+    let world_from_second = poses[second[0]];
+    // 1. Retrieval: (query, candidate, yaw guess), leaving out candidates whose true relative
+    //    pose lies inside the verifier's window (the verifier would find the right place).
+    let mut jobs: Vec<(usize, Arc<Keyframe>, Se2)> = Vec::new();
+    for &a in candidates.iter().step_by(step) {
+        let points = scans[a].scan.points_in_robot(filter);
+        let query = Arc::new(Keyframe::new(a as u64, points));
+        let descriptor = ScanContext::new(&query.points_in_keyframe, descriptor);
+        for candidate in index.query(&descriptor, PLACE_CANDIDATES) {
+            let b = candidate.keyframe.0 as usize;
+            let guess = Se2::new(0.0, 0.0, candidate.yaw_rad);
+            let true_b_from_a = poses[b].between(&poses[a]);
+            if true_b_from_a.translation().norm() <= window.linear_m
+                && wrap_angle_rad(true_b_from_a.theta_rad - guess.theta_rad).abs()
+                    <= window.angular_rad
+            {
+                continue;
+            }
+            if keyframes.contains_key(&candidate.keyframe.0) {
+                jobs.push((b, query.clone(), guess));
+            }
+        }
+    }
+    // 2. Verification on every core (each job builds a match target: the costly part).
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let chunk = jobs.len().div_ceil(threads).max(1);
+    let verified: Vec<(usize, usize, mapmerge_place::Verification)> = std::thread::scope(|scope| {
+        let handles: Vec<_> = jobs
+            .chunks(chunk)
+            .map(|part| {
+                let keyframes = &keyframes;
+                scope.spawn(move || {
+                    part.iter()
+                        .filter_map(|(b, query, guess)| {
+                            let keyframe = keyframes.get(&(*b as u64))?;
+                            let v = verifier.verify(query, keyframe, guess)?;
+                            Some((query.id.0 as usize, *b, v))
+                        })
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().unwrap_or_default())
+            .collect()
+    });
+    // 3. The best-scoring wrong alignment, whatever its confidence.
+    let mut best: Option<(f64, usize, Se2)> = None;
+    for (a, b, v) in verified {
+        if !(v.score.is_finite() && v.score >= PLACE_MIN_SCORE) {
+            continue;
+        }
+        // first_from_second = first_from_b ∘ b_from_a ∘ (second_from_a)⁻¹.
+        let first_from_b = world_from_first.between(&poses[b]);
+        let second_from_a = world_from_second.between(&poses[a]);
+        let transform = first_from_b
+            .compose(&v.candidate_from_query)
+            .compose(&second_from_a.inverse());
+        if far_from(&transform, truth, &second_from_a, WRONG_BEYOND)
+            && best
+                .as_ref()
+                .is_none_or(|(s, a_best, _)| v.score > *s || (v.score == *s && a < *a_best))
+        {
+            best = Some((v.score, a, transform));
+        }
+    }
+    best.map(|(_, a, t)| (a, t))
+}
+
+/// Andersone's SM (Eq. 1: agreeing / (agreeing + disagreeing) cells) of `other` moved by
+/// `world_from_other` over `own`, with the cells known in both and those occupied in both;
+/// counted on `other`'s lattice (`cells`: its known cells' centres and whether occupied).
+fn agreement(
+    own: &OccupancyGrid,
+    cells: &[(Point2, bool)],
+    world_from_other: &Se2,
+) -> (f64, usize, usize) {
+    let thresholds = ClassThresholds::default();
+    let world_from_other = point_map(world_from_other);
+    let (mut agree, mut disagree, mut overlap, mut occupied) = (0usize, 0usize, 0usize, 0usize);
+    for (p, other_occupied) in cells {
+        let own_class = thresholds.classify(own.log_odds_at(&world_from_other(p)));
+        let own_occupied = match own_class {
+            CellClass::Unknown => continue,
+            CellClass::Occupied => true,
+            CellClass::Free => false,
+        };
+        overlap += 1;
+        if own_occupied == *other_occupied {
+            agree += 1;
+            occupied += usize::from(own_occupied);
+        } else {
+            disagree += 1;
+        }
+    }
+    let sm = if agree == 0 {
+        0.0
+    } else {
+        agree as f64 / (agree + disagree) as f64
+    };
+    (sm, overlap, occupied)
+}
+
+/// A wrong `first_from_second` that a map matcher would accept (see the module docs).
+fn lookalike_transform(
+    own: &OccupancyGrid,
+    other: &OccupancyGrid,
+    world_from_first: &Se2,
+    world_from_second: &Se2,
+    world_from_robot: &Se2,
+    rng: &mut ChaCha8Rng,
+) -> Option<Se2> {
+    let thresholds = ClassThresholds::default();
+    // In world terms: the second segment's map is moved by `world_from_world2` (identity at
+    // the truth) and first_from_second = world_from_first⁻¹ ∘ world_from_world2 ∘ world_from_second.
+    let to_case = |w: &Se2| {
+        world_from_first
+            .inverse()
+            .compose(w)
+            .compose(world_from_second)
+    };
+    let truth = to_case(&Se2::identity());
+    let g = other.geometry();
+    let cells: Vec<(Point2, bool)> = other
+        .log_odds()
+        .iter()
+        .enumerate()
+        .filter_map(|(index, l)| {
+            let occupied = match thresholds.classify(*l) {
+                CellClass::Unknown => return None,
+                CellClass::Occupied => true,
+                CellClass::Free => false,
+            };
+            Some((g.center_of(g.cell_at(index)), occupied))
+        })
+        .collect();
+    let (_, truth_overlap, _) = agreement(own, &cells, &Se2::identity());
+    let about = Se2::new(world_from_robot.x_m, world_from_robot.y_m, 0.0);
+    let second_from_robot = world_from_second.between(world_from_robot);
+    let mut best: Option<(usize, Se2)> = None;
+    for _ in 0..LOOKALIKE_TRIALS {
+        let turn = f64::from(rng.random_range(-1i32..=2)) * std::f64::consts::FRAC_PI_2
+            + rng.random_range(-0.05..0.05);
+        let shift = Se2::new(
+            rng.random_range(-LOOKALIKE_SHIFT_M..LOOKALIKE_SHIFT_M),
+            rng.random_range(-LOOKALIKE_SHIFT_M..LOOKALIKE_SHIFT_M),
+            0.0,
+        );
+        let world_from_world2 = shift
+            .compose(&about)
+            .compose(&Se2::new(0.0, 0.0, turn))
+            .compose(&about.inverse());
+        let candidate = to_case(&world_from_world2);
+        if !far_from(&candidate, &truth, &second_from_robot, WRONG_BEYOND) {
+            continue;
+        }
+        let (sm, overlap, agree_occupied) = agreement(own, &cells, &world_from_world2);
+        if sm >= LOOKALIKE_MIN_SM
+            && overlap * 2 >= truth_overlap
+            && best.is_none_or(|(s, _)| agree_occupied > s)
+        {
+            best = Some((agree_occupied, candidate));
+        }
+    }
+    best.map(|(_, t)| t)
+}
+
+// ------------------------------------------------------------------ invalid-merge
+
+/// One segment run by the front-end: its keyframes and their poses over time.
+struct SegmentRun {
+    /// Log scan index of keyframe `k`.
+    keyframe_scans: Vec<usize>,
+    /// Keyframe points in the robot frame.
+    points: Vec<Arc<[Point2]>>,
+    /// Right after keyframe `k` was added: the poses of keyframes `0..=k` in the segment
+    /// frame (the first keyframe, i.e. the segment's first scan, is the origin).
+    snapshots: Vec<Vec<Se2>>,
+    /// After the last scan (and the final optimisation).
+    final_poses: Vec<Se2>,
+}
+
+/// Poses of `nodes` in the frame of the first one.
+fn poses_in_segment(front_end: &FrontEnd, nodes: &[NodeId]) -> Vec<Se2> {
+    let pose = |id: &NodeId| {
+        front_end
+            .graph()
+            .vertex(*id)
+            .map_or_else(Se2::identity, |v| v.pose)
+    };
+    let segment_from_map = nodes
+        .first()
+        .map_or_else(Se2::identity, |n| pose(n).inverse());
+    nodes
+        .iter()
+        .map(|n| segment_from_map.compose(&pose(n)))
+        .collect()
+}
+
+fn run_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<SegmentRun> {
+    let mut front_end = FrontEnd::new(FrontEndParams::default())?;
+    let mut nodes = Vec::new();
+    let mut run = SegmentRun {
+        keyframe_scans: Vec::new(),
+        points: Vec::new(),
+        snapshots: Vec::new(),
+        final_poses: Vec::new(),
+    };
+    let mut odometry = Se2::identity();
+    for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        let step = front_end
+            .add_scan(&odometry, &record.scan)
+            .with_context(|| format!("front-end at scan {k}"))?;
+        if let Some(node) = step.keyframe {
+            nodes.push(node);
+            run.keyframe_scans.push(k);
+            run.points.push(Arc::from(
+                front_end.keyframe_points(node).unwrap_or_default(),
+            ));
+            run.snapshots.push(poses_in_segment(&front_end, &nodes));
+        }
+    }
+    front_end.finish();
+    run.final_poses = poses_in_segment(&front_end, &nodes);
+    Ok(run)
+}
+
+/// A log with an odometry: its path, noise profile and seed (0 without noise).
+type OdometryKey = (PathBuf, Option<String>, u64);
+
+/// The logs, noisy odometries and segment runs the cases share.
+#[derive(Default)]
+struct Cache {
+    logs: HashMap<PathBuf, Arc<LaserLog>>,
+    odometry: HashMap<OdometryKey, Arc<LaserLog>>,
+    segments: HashMap<(OdometryKey, [usize; 2]), Arc<SegmentRun>>,
+}
+
+impl Cache {
+    fn log(&mut self, path: &Path) -> anyhow::Result<Arc<LaserLog>> {
+        if let Some(log) = self.logs.get(path) {
+            return Ok(log.clone());
+        }
+        let log = Arc::new(mapmerge_io::read_carmen(path).map_err(bad_file)?);
+        self.logs.insert(path.to_owned(), log.clone());
+        Ok(log)
+    }
+
+    fn odometry(
+        &mut self,
+        path: &Path,
+        noise: &Option<String>,
+        seed: u64,
+    ) -> anyhow::Result<Arc<LaserLog>> {
+        let seed = if noise.is_some() { seed } else { 0 };
+        let key = (path.to_owned(), noise.clone(), seed);
+        if let Some(log) = self.odometry.get(&key) {
+            return Ok(log.clone());
+        }
+        let raw = self.log(path)?;
+        let log = match noise {
+            None => raw,
+            Some(name) => {
+                let profile = OdometryNoiseProfile::from_name(name).map_err(bad_input)?;
+                let noisy = add_odometry_noise(&raw, &profile, seed)
+                    .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+                Arc::new(noisy.log)
+            }
+        };
+        self.odometry.insert(key, log.clone());
+        Ok(log)
+    }
+
+    fn segment(
+        &mut self,
+        path: &Path,
+        noise: &Option<String>,
+        seed: u64,
+        range: [usize; 2],
+    ) -> anyhow::Result<Arc<SegmentRun>> {
+        let seed = if noise.is_some() { seed } else { 0 };
+        let key = ((path.to_owned(), noise.clone(), seed), range);
+        if let Some(run) = self.segments.get(&key) {
+            return Ok(run.clone());
+        }
+        let log = self.odometry(path, noise, seed)?;
+        let run = Arc::new(run_segment(&log, range)?);
+        self.segments.insert(key, run.clone());
+        Ok(run)
+    }
+}
+
+/// The per-vertex outcome of one detector on one case.
+#[derive(Clone, Copy, Debug, Default)]
+struct Outcome {
+    max_invalidity: f64,
+    seconds: f64,
+    vertices: usize,
+}
+
+/// Forces the merge of `case` and feeds every new vertex to each detector (never undoing).
+fn evaluate_case(
+    first: &SegmentRun,
+    second: &SegmentRun,
+    case: &MergeCase,
+    detectors: &mut [Box<dyn InvalidMergeDetector>],
+) -> Vec<Outcome> {
+    // Holoch et al., Sec. V-A: the merged map is in the current (second) segment's frame.
+    let second_from_first = se2_of(case.merge_transform).inverse();
+    let other: Vec<DetectorScan> = first
+        .final_poses
+        .iter()
+        .zip(&first.points)
+        .enumerate()
+        .map(|(k, (pose, points))| DetectorScan {
+            node: NodeId(k as u64),
+            epoch: 1,
+            map_from_robot: second_from_first.compose(pose),
+            points_in_robot: points.clone(),
+        })
+        .collect();
+    let current_at = |k: usize| -> Vec<DetectorScan> {
+        second.snapshots[k]
+            .iter()
+            .zip(&second.points)
+            .enumerate()
+            .map(|(n, (pose, points))| DetectorScan {
+                node: NodeId(CURRENT_NODE_OFFSET + n as u64),
+                epoch: 2,
+                map_from_robot: *pose,
+                points_in_robot: points.clone(),
+            })
+            .collect()
+    };
+    let mut outcomes = vec![Outcome::default(); detectors.len()];
+    // Keyframes up to and including `merge_at` exist at the merge (at least the first scan).
+    let at_merge = second
+        .keyframe_scans
+        .partition_point(|&scan| scan <= case.merge_at);
+    let Some(last_before) = at_merge.checked_sub(1) else {
+        return outcomes;
+    };
+    let current = current_at(last_before);
+    let map = MergedMap {
+        current: &current,
+        other: &other,
+    };
+    for detector in detectors.iter_mut() {
+        detector.on_merge(&map);
+    }
+    for k in at_merge..second.snapshots.len() {
+        let current = current_at(k);
+        let map = MergedMap {
+            current: &current,
+            other: &other,
+        };
+        for (detector, outcome) in detectors.iter_mut().zip(outcomes.iter_mut()) {
+            let started = Instant::now();
+            let ratio = detector.on_vertex(&map);
+            outcome.seconds += started.elapsed().as_secs_f64();
+            outcome.vertices += 1;
+            if ratio.is_finite() {
+                outcome.max_invalidity = outcome.max_invalidity.max(ratio);
+            }
+        }
+    }
+    outcomes
+}
+
+/// Where a case's log is: as written, else relative to the cases file's folder.
+fn resolve_log(log: &str, cases_file: &Path) -> PathBuf {
+    let path = PathBuf::from(log);
+    if path.is_absolute() || path.exists() {
+        return path;
+    }
+    match cases_file.parent() {
+        Some(dir) if dir.join(&path).exists() => dir.join(path),
+        _ => path,
+    }
+}
+
+/// Reads and checks a cases file (errors name the file and line: exit code 2).
+fn read_cases(path: &Path) -> anyhow::Result<Vec<(usize, MergeCase)>> {
+    let file = std::fs::File::open(path)
+        .map_err(|e| bad_input(format!("{}: cannot read: {e}", path.display())))?;
+    let mut text = String::new();
+    for (number, line) in std::io::BufReader::new(file).lines().enumerate() {
+        let line = line.map_err(|e| {
+            bad_input(format!(
+                "{}:{}: cannot read: {e}",
+                path.display(),
+                number + 1
+            ))
+        })?;
+        text.push_str(&line);
+        text.push('\n');
+    }
+    let cases = parse_cases(&text, &path.display().to_string()).map_err(bad_input)?;
+    if cases.is_empty() {
+        return Err(bad_input(format!("{}: no cases", path.display())));
+    }
+    Ok(cases)
+}
+
+/// Runs `mapmerge eval invalid-merge`.
+pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let methods: Vec<String> = if args.methods.is_empty() {
+        DETECTOR_NAMES.iter().map(|s| (*s).to_owned()).collect()
+    } else {
+        args.methods.iter().map(|m| m.trim().to_owned()).collect()
+    };
+    for method in &methods {
+        if mapmerge_verify::detector(method).is_none() {
+            return Err(bad_input(format!(
+                "unknown method `{method}`; known: {}",
+                DETECTOR_NAMES.join(", ")
+            )));
+        }
+    }
+    let mut cases = read_cases(&args.cases)?;
+    if let Some(max) = args.max_cases {
+        cases.truncate(max);
+    }
+    // Validate every case against its log before the long run.
+    let mut cache = Cache::default();
+    let mut resolved = Vec::with_capacity(cases.len());
+    for (line, case) in &cases {
+        let path = resolve_log(&case.log, &args.cases);
+        let log = cache.log(&path).map_err(|e| {
+            bad_input(format!(
+                "{}:{line}: log {}: {e:#}",
+                args.cases.display(),
+                case.log
+            ))
+        })?;
+        check_in_log(case, log.scans.len(), &path)
+            .map_err(|reason| bad_input(format!("{}:{line}: {reason}", args.cases.display())))?;
+        if case.odometry_noise.is_some() {
+            if let Err(e) = scan_poses(&log) {
+                return Err(bad_input(format!(
+                    "{}:{line}: odometry noise needs a pose on every scan of {}: {e}",
+                    args.cases.display(),
+                    path.display()
+                )));
+            }
+        }
+        resolved.push(path);
+    }
+    let progress = !args.json && std::io::stderr().is_terminal();
+    let bar = if progress {
+        indicatif::ProgressBar::new(cases.len() as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} cases ({eta})")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let file = std::fs::File::create(&args.output)
+        .with_context(|| format!("writing {}", args.output.display()))?;
+    let mut out = std::io::BufWriter::new(file);
+    let mut results = Vec::with_capacity(cases.len() * methods.len());
+    for ((line, case), path) in cases.iter().zip(&resolved) {
+        bar.set_message(case.id.clone());
+        let context = |e: anyhow::Error| {
+            anyhow::anyhow!("{}:{line}: case {}: {e:#}", args.cases.display(), case.id)
+        };
+        let first = cache
+            .segment(path, &case.odometry_noise, case.seed, case.first)
+            .map_err(context)?;
+        let second = cache
+            .segment(path, &case.odometry_noise, case.seed, case.second)
+            .map_err(context)?;
+        let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = methods
+            .iter()
+            .filter_map(|m| mapmerge_verify::detector(m))
+            .collect();
+        let outcomes = evaluate_case(&first, &second, case, &mut detectors);
+        for (method, outcome) in methods.iter().zip(outcomes) {
+            let result = MergeResult {
+                id: case.id.clone(),
+                method: method.clone(),
+                max_invalidity: outcome.max_invalidity,
+                ms_per_vertex: (outcome.vertices > 0)
+                    .then(|| 1e3 * outcome.seconds / outcome.vertices as f64),
+                vertices: outcome.vertices,
+                label: case.label,
+                log: case.log.clone(),
+            };
+            serde_json::to_writer(&mut out, &result)?;
+            writeln!(out)?;
+            results.push(result);
+        }
+        out.flush()?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let summary = summarise(&results, &methods);
+    let markdown = summary_markdown(&summary, started.elapsed().as_secs_f64());
+    if let Some(report) = &args.report {
+        if let Some(dir) = report.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        }
+        std::fs::write(report, &markdown)
+            .with_context(|| format!("writing {}", report.display()))?;
+    }
+    if args.json {
+        print_json(&InvalidMergeReport {
+            cases: cases.len(),
+            methods: &methods,
+            output: &args.output,
+            seconds: started.elapsed().as_secs_f64(),
+            summary: &summary,
+        })
+    } else {
+        if args.summary {
+            print!("{markdown}");
+        } else {
+            println!(
+                "{} cases × {} methods in {:.1} s -> {}",
+                cases.len(),
+                methods.len(),
+                started.elapsed().as_secs_f64(),
+                args.output.display()
+            );
+        }
+        Ok(())
+    }
+}
+
+// ------------------------------------------------------------------ summary
+
+#[derive(Serialize)]
+struct InvalidMergeReport<'a> {
+    cases: usize,
+    methods: &'a [String],
+    output: &'a Path,
+    seconds: f64,
+    summary: &'a [SummaryRow],
+}
+
+/// One row of Table III: a log (or `all`) and a method.
+#[derive(Clone, Debug, Serialize)]
+struct SummaryRow {
+    log: String,
+    method: String,
+    valid: usize,
+    invalid: usize,
+    unlabelled: usize,
+    /// ROC AUC, invalid merges positive; `None` without both labels.
+    auc: Option<f64>,
+    /// Mean wall time per new vertex (ms) over every vertex of every case.
+    ms_per_vertex: Option<f64>,
+    vertices: usize,
+    /// Mean highest invalidity of the valid and of the invalid cases.
+    mean_valid: Option<f64>,
+    mean_invalid: Option<f64>,
+}
+
+fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow {
+    let of = |label| -> Vec<f64> {
+        results
+            .iter()
+            .filter(|r| r.label == Some(label))
+            .map(|r| r.max_invalidity)
+            .collect()
+    };
+    let (valid, invalid) = (of(Label::Valid), of(Label::Invalid));
+    let mean = |v: &[f64]| (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64);
+    let vertices: usize = results.iter().map(|r| r.vertices).sum();
+    let ms: f64 = results
+        .iter()
+        .map(|r| r.ms_per_vertex.unwrap_or(0.0) * r.vertices as f64)
+        .sum();
+    SummaryRow {
+        log: log.to_owned(),
+        method: method.to_owned(),
+        valid: valid.len(),
+        invalid: invalid.len(),
+        unlabelled: results.iter().filter(|r| r.label.is_none()).count(),
+        auc: roc_auc(&invalid, &valid),
+        ms_per_vertex: (vertices > 0).then(|| ms / vertices as f64),
+        vertices,
+        mean_valid: mean(&valid),
+        mean_invalid: mean(&invalid),
+    }
+}
+
+/// Rows per log and method, then `all` (every case pooled) per method.
+fn summarise(results: &[MergeResult], methods: &[String]) -> Vec<SummaryRow> {
+    let mut by_log: BTreeMap<String, Vec<&MergeResult>> = BTreeMap::new();
+    for r in results {
+        by_log.entry(log_name(&r.log)).or_default().push(r);
+    }
+    let mut rows = Vec::new();
+    for (log, results) in &by_log {
+        for method in methods {
+            let mine: Vec<&MergeResult> = results
+                .iter()
+                .copied()
+                .filter(|r| &r.method == method)
+                .collect();
+            rows.push(summary_row(log, method, &mine));
+        }
+    }
+    if by_log.len() > 1 {
+        for method in methods {
+            let mine: Vec<&MergeResult> = results.iter().filter(|r| &r.method == method).collect();
+            rows.push(summary_row("all", method, &mine));
+        }
+    }
+    rows
+}
+
+/// Holoch et al., Table III: (method, MIT Stata AUC, ms, Flats and Offices AUC, ms).
+const PAPER_TABLE_III: [(&str, f64, f64, f64, f64); 4] = [
+    ("change_detection", 0.987, 11.87, 0.974, 8.10),
+    ("gridmap", 0.994, 42.38, 0.971, 6.75),
+    ("entropy", 0.701, 998.40, 0.725, 2376.48),
+    ("histogram", 0.671, 0.518, 0.808, 0.700),
+];
+
+fn summary_markdown(rows: &[SummaryRow], seconds: f64) -> String {
+    let mut md = String::new();
+    let _ = writeln!(
+        md,
+        "| log | method | valid / invalid | AUC | mean ms per new vertex | vertices | mean max. invalidity valid / invalid | paper AUC (MIT Stata / Flats and Offices) | paper ms (MIT Stata / Flats and Offices) |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
+    let f3 = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.3}"));
+    for row in rows {
+        let paper = PAPER_TABLE_III.iter().find(|p| p.0 == row.method);
+        let (paper_auc, paper_ms) = paper.map_or(("–".to_owned(), "–".to_owned()), |p| {
+            (
+                format!("{:.3} / {:.3}", p.1, p.3),
+                format!("{} / {}", p.2, p.4),
+            )
+        });
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} / {}{} | {} | {} | {} | {} / {} | {paper_auc} | {paper_ms} |",
+            row.log,
+            row.method,
+            row.valid,
+            row.invalid,
+            if row.unlabelled > 0 {
+                format!(" (+{} unlabelled)", row.unlabelled)
+            } else {
+                String::new()
+            },
+            f3(row.auc),
+            row.ms_per_vertex
+                .map_or("–".to_owned(), |v| format!("{v:.3}")),
+            row.vertices,
+            f3(row.mean_valid),
+            f3(row.mean_invalid),
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nAUC: ROC area with invalid merges as positives, scored by each method's highest \
+         invalidity ratio after the merge (Holoch et al., Sec. V-A); time: mean wall time of \
+         one detector call per new vertex, one core. {seconds:.1} s in all."
+    );
+    md
+}
+
+#[cfg(test)]
+#[allow(clippy::unwrap_used, clippy::expect_used)]
+mod tests {
+    use super::*;
+
+    fn case() -> MergeCase {
+        MergeCase {
+            id: "x/s000-s001/valid".into(),
+            log: "intel.log".into(),
+            first: [0, 9],
+            second: [10, 29],
+            merge_at: 12,
+            merge_transform: [1.0, -2.0, 0.5],
+            odometry_noise: Some("default".into()),
+            seed: 3,
+            label: Some(Label::Valid),
+        }
+    }
+
+    #[test]
+    fn a_case_round_trips_with_exactly_the_format_fields() {
+        let c = case();
+        let text = serde_json::to_string(&c).unwrap();
+        assert_eq!(
+            text,
+            r#"{"id":"x/s000-s001/valid","log":"intel.log","first":[0,9],"second":[10,29],"merge_at":12,"merge_transform":[1.0,-2.0,0.5],"odometry_noise":"default","seed":3,"label":"valid"}"#
+        );
+        let parsed = parse_cases(&format!("{text}\n\n"), "c").unwrap();
+        assert_eq!(parsed, vec![(1, c)]);
+        let null = r#"{"id":"a","log":"l","first":[0,1],"second":[2,3],"merge_at":2,"merge_transform":[0,0,0],"odometry_noise":null,"seed":0,"label":null}"#;
+        let parsed = parse_cases(null, "c").unwrap();
+        assert_eq!(parsed[0].1.odometry_noise, None);
+        assert_eq!(parsed[0].1.label, None);
+    }
+
+    #[test]
+    fn bad_cases_name_the_line_and_reason() {
+        let good = serde_json::to_string(&case()).unwrap();
+        let with = |f: &dyn Fn(&mut MergeCase)| {
+            let mut c = case();
+            f(&mut c);
+            serde_json::to_string(&c).unwrap()
+        };
+        let cases = [
+            (format!("{good}\n{{\"id\": 1"), "c:2: not a merge case"),
+            (
+                with(&|c| c.merge_at = 30),
+                "c:1: merge_at 30 is not a scan of second",
+            ),
+            (with(&|c| c.first = [5, 4]), "c:1: first [5, 4] ends before"),
+            (
+                with(&|c| c.odometry_noise = Some("loud".into())),
+                "c:1: odometry_noise",
+            ),
+            (format!("{good}\n{good}"), "c:2: duplicate id"),
+        ];
+        for (text, expected) in cases {
+            let err = parse_cases(&text, "c").unwrap_err();
+            assert!(err.starts_with(expected), "{err} vs {expected}");
+        }
+        let err = check_in_log(&case(), 20, Path::new("l")).unwrap_err();
+        assert!(
+            err.starts_with("second [10, 29] is beyond the 20 scans"),
+            "{err}"
+        );
+    }
+
+    #[test]
+    fn segments_follow_time_or_count() {
+        let stamps: Vec<f64> = (0..100).map(|k| f64::from(k) * 3.0).collect();
+        assert!(stamps_usable(&stamps));
+        let segments = cut_segments(&stamps, 100.0, None);
+        assert_eq!(segments[0], [0, 33]);
+        assert_eq!(segments.last().unwrap()[1], 99);
+        // 100 scans in 34s: 2 full segments and a remainder of 32 (kept, ≥ half).
+        assert_eq!(segments.len(), 3);
+        assert!(!stamps_usable(&[0.0; 10]));
+        assert!(!stamps_usable(&[0.0, 1.0, 4.29e9, 3.0]));
+        let segments = cut_segments(&[0.0; 45], 100.0, Some(20));
+        assert_eq!(segments, vec![[0, 19], [20, 44]]);
+    }
+
+    /// A detector that reports how far the newest current scan is from the nearest other scan.
+    struct Distance;
+
+    impl InvalidMergeDetector for Distance {
+        fn name(&self) -> &'static str {
+            "distance"
+        }
+        fn on_merge(&mut self, _: &MergedMap<'_>) {}
+        fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
+            let Some(newest) = map.current.last() else {
+                return 0.0;
+            };
+            let nearest = map
+                .other
+                .iter()
+                .map(|o| {
+                    (o.map_from_robot.translation() - newest.map_from_robot.translation()).norm()
+                })
+                .fold(f64::INFINITY, f64::min);
+            (nearest / 10.0).min(1.0)
+        }
+    }
+
+    #[test]
+    fn the_first_segment_is_placed_by_the_inverse_transform() {
+        // Both segments drive along x from their own origin; the second started 4 m further
+        // on in the first one's frame: the truth is first_from_second = (4, 0, 0).
+        let run = |n: usize| SegmentRun {
+            keyframe_scans: (0..n).collect(),
+            points: vec![Arc::from(Vec::<Point2>::new()); n],
+            snapshots: (0..n)
+                .map(|k| (0..=k).map(|i| Se2::new(i as f64, 0.0, 0.0)).collect())
+                .collect(),
+            final_poses: (0..n).map(|i| Se2::new(i as f64, 0.0, 0.0)).collect(),
+        };
+        let (first, second) = (run(10), run(5));
+        let mut c = case();
+        c.merge_at = 1;
+        c.merge_transform = [4.0, 0.0, 0.0];
+        let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = vec![Box::new(Distance)];
+        let right = evaluate_case(&first, &second, &c, &mut detectors);
+        assert_eq!(right[0].vertices, 3);
+        assert!(right[0].max_invalidity < 1e-9, "{right:?}");
+        c.merge_transform = [-30.0, 0.0, 0.0];
+        let wrong = evaluate_case(&first, &second, &c, &mut detectors);
+        assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
+    }
+}

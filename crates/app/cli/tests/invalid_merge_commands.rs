@@ -1,0 +1,283 @@
+//! Integration tests of `mapmerge eval make-merge-cases` and `mapmerge eval invalid-merge`
+//! (issue 6, part 5): the case and result formats, bad case files (exit code 2 naming the
+//! line), cases made from intel with both labels, and the detectors telling them apart.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use std::collections::BTreeSet;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use common::{ok_json, p, run, scratch};
+use serde_json::Value;
+
+const CASE_FIELDS: [&str; 9] = [
+    "id",
+    "log",
+    "first",
+    "second",
+    "merge_at",
+    "merge_transform",
+    "odometry_noise",
+    "seed",
+    "label",
+];
+
+fn intel() -> Option<PathBuf> {
+    mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz")
+}
+
+fn json_lines(path: &Path) -> Vec<Value> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+/// A CARMEN log of `scans` FLASER scans driving along x in a 4 m wide corridor.
+fn tiny_log(dir: &Path, scans: usize) -> PathBuf {
+    let mut text = String::new();
+    for k in 0..scans {
+        let x = 0.2 * k as f64;
+        let ranges: Vec<String> = (0..180)
+            .map(|b| {
+                let angle = (f64::from(b) - 90.0).to_radians();
+                let r = if angle.sin().abs() > 1e-3 {
+                    (2.0 / angle.sin().abs()).min(20.0)
+                } else {
+                    20.0
+                };
+                format!("{r:.3}")
+            })
+            .collect();
+        let _ = writeln!(
+            text,
+            "FLASER 180 {} {x} 0 0 {x} 0 0 {} host {}",
+            ranges.join(" "),
+            k,
+            k
+        );
+    }
+    let path = dir.join("tiny.log");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+fn case_line(
+    log: &Path,
+    id: &str,
+    first: [usize; 2],
+    second: [usize; 2],
+    merge_at: usize,
+) -> String {
+    serde_json::json!({
+        "id": id, "log": p(log), "first": first, "second": second, "merge_at": merge_at,
+        "merge_transform": [1.0, 0.0, 0.0], "odometry_noise": null, "seed": 0, "label": "valid"
+    })
+    .to_string()
+}
+
+fn expect_bad(args: &[&str], needle: &str) {
+    let out = run(args);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+    assert!(stderr.contains(needle), "{stderr} lacks {needle}");
+}
+
+#[test]
+fn bad_case_files_exit_2_naming_the_file_and_line() {
+    let dir = scratch("invalid-merge-bad");
+    let log = tiny_log(&dir, 20);
+    let good = case_line(&log, "a", [0, 4], [5, 19], 8);
+    let results = dir.join("r.jsonl");
+    let bad = |name: &str, text: String| {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let json = bad("json.jsonl", format!("{good}\n{{\"id\": \"b\", \"log\"\n"));
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&json),
+            "-o",
+            p(&results),
+        ],
+        "json.jsonl:2: not a merge case",
+    );
+    let range = bad(
+        "range.jsonl",
+        format!("{good}\n\n{}\n", case_line(&log, "b", [0, 4], [5, 25], 8)),
+    );
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&range),
+            "-o",
+            p(&results),
+        ],
+        "range.jsonl:3: second [5, 25] is beyond the 20 scans",
+    );
+    let outside = bad("outside.jsonl", case_line(&log, "c", [0, 4], [5, 19], 3));
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&outside),
+            "-o",
+            p(&results),
+        ],
+        "outside.jsonl:1: merge_at 3 is not a scan of second [5, 19]",
+    );
+    let order = bad("order.jsonl", case_line(&log, "d", [4, 0], [5, 19], 8));
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&order),
+            "-o",
+            p(&results),
+        ],
+        "order.jsonl:1: first [4, 0] ends before it starts",
+    );
+    let ok = bad("ok.jsonl", format!("{good}\n"));
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&ok),
+            "-o",
+            p(&results),
+            "--methods",
+            "psychic",
+        ],
+        "unknown method `psychic`",
+    );
+    // A case it did not generate, on a log of that format, runs.
+    let report = ok_json(&[
+        "eval",
+        "invalid-merge",
+        "--cases",
+        p(&ok),
+        "-o",
+        p(&results),
+        "--methods",
+        "histogram",
+        "--json",
+    ]);
+    assert_eq!(report["cases"], 1);
+    let lines = json_lines(&results);
+    assert_eq!(lines.len(), 1);
+    assert_eq!(lines[0]["id"], "a");
+    assert_eq!(lines[0]["method"], "histogram");
+}
+
+#[test]
+fn intel_cases_have_both_labels_and_the_detectors_tell_them_apart() {
+    let Some(intel) = intel() else {
+        return;
+    };
+    let dir = scratch("invalid-merge-intel");
+    let cases = dir.join("cases.jsonl");
+    let make = |out: &Path| {
+        ok_json(&[
+            "eval",
+            "make-merge-cases",
+            "--log",
+            p(&intel),
+            "--corrected",
+            p(&intel),
+            "-o",
+            p(out),
+            "--seed",
+            "4",
+            "--max-pairs",
+            "8",
+            "--json",
+        ])
+    };
+    let report = make(&cases);
+    assert!(report["segments"].as_u64().unwrap() >= 20, "{report}");
+    // Deterministic for a seed.
+    let again = dir.join("again.jsonl");
+    make(&again);
+    assert_eq!(
+        std::fs::read(&cases).unwrap(),
+        std::fs::read(&again).unwrap()
+    );
+    let lines = json_lines(&cases);
+    let mut labels = BTreeSet::new();
+    for case in &lines {
+        let keys: BTreeSet<&str> = case
+            .as_object()
+            .unwrap()
+            .keys()
+            .map(String::as_str)
+            .collect();
+        assert_eq!(keys, CASE_FIELDS.into_iter().collect(), "{case}");
+        assert_eq!(case["odometry_noise"], "default");
+        assert_eq!(case["seed"], 4);
+        let [s, e] = [&case["second"][0], &case["second"][1]].map(|v| v.as_u64().unwrap());
+        let at = case["merge_at"].as_u64().unwrap();
+        assert!(s <= at && at <= e, "{case}");
+        labels.insert(case["label"].as_str().unwrap().to_owned());
+    }
+    assert_eq!(
+        labels,
+        ["invalid", "valid"]
+            .map(str::to_owned)
+            .into_iter()
+            .collect()
+    );
+    let results = dir.join("results.jsonl");
+    let methods = ["change_detection", "gridmap"];
+    let report = ok_json(&[
+        "eval",
+        "invalid-merge",
+        "--cases",
+        p(&cases),
+        "-o",
+        p(&results),
+        "--methods",
+        &methods.join(","),
+        "--json",
+    ]);
+    assert_eq!(report["cases"].as_u64().unwrap(), lines.len() as u64);
+    let results = json_lines(&results);
+    assert_eq!(results.len(), lines.len() * methods.len());
+    let (mut valid, mut invalid) = (Vec::new(), Vec::new());
+    for r in &results {
+        for field in [
+            "id",
+            "method",
+            "max_invalidity",
+            "ms_per_vertex",
+            "vertices",
+        ] {
+            assert!(r.get(field).is_some(), "{r} lacks {field}");
+        }
+        let ratio = r["max_invalidity"].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&ratio), "{r}");
+        assert!(r["vertices"].as_u64().unwrap() > 0, "{r}");
+        match r["label"].as_str() {
+            Some("valid") => valid.push(ratio),
+            Some("invalid") => invalid.push(ratio),
+            _ => panic!("{r}"),
+        }
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    assert!(
+        mean(&valid) < mean(&invalid),
+        "valid {valid:?} vs invalid {invalid:?}"
+    );
+}

@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# Issue 6, part 5: Holoch et al.'s invalid-merge evaluation (Sec. V, Table III) on the 13 public
+# corrected logs. Per log, `mapmerge eval make-merge-cases` (segments of ~100 s, pairs whose maps
+# overlap by ≥ 1.5 m², a valid merge and up to two invalid ones per pair, at most --max-pairs
+# pairs; odometry noise `default`, seed S), then `mapmerge eval invalid-merge` per log, two logs
+# at a time, each on its own core (taskset + RAYON_NUM_THREADS=1): ROC AUC and mean ms per new
+# vertex per log and method. Usage: scripts/bench_invalid_merge.sh [--seed S] [--max-pairs N] [--methods a,b,…]
+# [--only NAME]... Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+seed=0; max_pairs=15; methods=""; only=()
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --seed) seed="$2"; shift 2 ;;
+    --max-pairs) max_pairs="$2"; shift 2 ;;
+    --methods) methods="$2"; shift 2 ;;
+    --only) only+=("$2"); shift 2 ;;
+    *) echo "usage: $0 [--seed S] [--max-pairs N] [--methods a,b] [--only NAME]..." >&2; exit 2 ;;
+  esac
+done
+data="${MAPMERGE_DATA:-../shared/data}"
+out="$(realpath -m "${OUT_DIR:-bench-out}")"
+work="$out/invalid-merge"
+mkdir -p "$work"
+cargo build --release -q -p mapmerge-cli
+bin="$(realpath target/release/mapmerge)"
+logs=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus infinite-corridor intel orebro seattle)
+[[ ${#only[@]} -gt 0 ]] && logs=("${only[@]}")
+started=$(date +%s)
+cases="$work/cases.jsonl"; : > "$cases"
+made="$work/make-merge-cases.jsonl"; : > "$made"
+for log in "${logs[@]}"; do
+  corrected="$data/carmen/$log-corrected.log.xz"
+  echo "make-merge-cases $log …" >&2
+  "$bin" eval make-merge-cases --log "$corrected" --corrected "$corrected" \
+    -o "$work/$log.cases.jsonl" --seed "$seed" --max-pairs "$max_pairs" --json >> "$made"
+  cat "$work/$log.cases.jsonl" >> "$cases"
+done
+made_secs=$(( $(date +%s) - started ))
+method_args=()
+[[ -n "$methods" ]] && method_args=(--methods "$methods")
+# Two workers, each on its own core, each running whole logs (timings stay one-core timings).
+worker() {
+  local core="$1"; shift
+  local pin=(env RAYON_NUM_THREADS=1)
+  command -v taskset >/dev/null && pin+=(taskset -c "$core")
+  for log in "$@"; do
+    echo "invalid-merge $log ($(wc -l < "$work/$log.cases.jsonl") cases) …" >&2
+    "${pin[@]}" "$bin" eval invalid-merge --cases "$work/$log.cases.jsonl" \
+      -o "$work/$log.results.jsonl" "${method_args[@]}" --report "$work/$log.table.md" > /dev/null
+  done
+}
+even=(); odd=()
+for k in "${!logs[@]}"; do
+  if (( k % 2 == 0 )); then even+=("${logs[$k]}"); else odd+=("${logs[$k]}"); fi
+done
+worker 0 "${even[@]}" & first=$!
+[[ ${#odd[@]} -gt 0 ]] && { worker 1 "${odd[@]}" & second=$!; wait "$second"; }
+wait "$first"
+total_secs=$(( $(date +%s) - started ))
+{
+  echo "# Invalid-merge detection on the public logs (Holoch et al., Table III)"
+  echo
+  echo "Run $(date -u +%Y-%m-%dT%H:%M)Z by \`scripts/bench_invalid_merge.sh --seed $seed --max-pairs $max_pairs${methods:+ --methods $methods}\`"
+  echo "($(nproc) cores; cases made in ${made_secs} s, ${total_secs} s in all). Per log:"
+  echo "\`mapmerge eval make-merge-cases --log L --corrected L -o L.cases.jsonl --seed $seed --max-pairs $max_pairs\`,"
+  echo "then \`mapmerge eval invalid-merge --cases L.cases.jsonl -o L.results.jsonl --report L.table.md\` on one core."
+  echo "Segments of ~100 s (35 scans where stamps are broken), odometry noise \`default\`; per pair one"
+  echo "valid merge (the truth from the corrected poses) and up to two invalid ones (careless place"
+  echo "recognition, a look-alike with SM ≥ 0.9), each ≥ 1 m or 10° off where the robot is."
+  echo
+  echo "| log | segments | overlapping pairs | pairs used | valid | invalid (place / look-alike) |"
+  echo "|---|---|---|---|---|---|"
+  while IFS= read -r line; do
+    echo "$line" | sed -E 's/.*"log":"[^"]*\/([^"/]*)-corrected\.log\.xz".*"segments":([0-9]+).*"pairs_overlapping":([0-9]+),"pairs_used":([0-9]+).*"valid":([0-9]+),"invalid_place":([0-9]+),"invalid_lookalike":([0-9]+).*/| \1 | \2 | \3 | \4 | \5 | \6 \/ \7 |/'
+  done < "$made"
+  echo
+  # One table: the first log's header, every log's rows, the first log's footnote.
+  header_done=0
+  for log in "${logs[@]}"; do
+    table="$work/$log.table.md"
+    if [[ $header_done == 0 ]]; then head -n 2 "$table"; header_done=1; fi
+    grep -E '^\| [a-z0-9-]+ \| ' "$table" | grep -v '^| log |' || true
+  done
+  echo
+  grep -E '^AUC:' "$work/${logs[0]}.table.md" | sed -E 's/ [0-9.]+ s in all\.$//' || true
+} > "$out/invalid-merge.md"
+for log in "${logs[@]}"; do cat "$work/$log.results.jsonl"; done > "$work/results.jsonl"
+echo "wrote $out/invalid-merge.md" >&2
