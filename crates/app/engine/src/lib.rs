@@ -273,17 +273,27 @@ impl Engine {
 
     /// Copies a new front-end keyframe, its edges and (after a front-end optimisation) the
     /// poses into the atlas.
-    fn add_keyframe(&mut self, keyframe: NodeId, stamp_secs: Option<f64>) -> Result<(), EngineError> {
+    fn add_keyframe(
+        &mut self,
+        keyframe: NodeId,
+        stamp_secs: Option<f64>,
+    ) -> Result<(), EngineError> {
         let graph = self.front_end.graph();
         let Some(vertex) = graph.vertex(keyframe) else {
             return Ok(());
         };
         let merged = self.atlas.is_undoable();
         // Place the new keyframe by the front-end's motion from the robot's last keyframe.
-        let previous = self.atlas_from_front_end.last_key_value().map(|(f, a)| (*f, *a));
+        let previous = self
+            .atlas_from_front_end
+            .last_key_value()
+            .map(|(f, a)| (*f, *a));
         let pose = match previous {
             Some((fe_prev, atlas_prev)) if merged => {
-                match (graph.vertex(fe_prev), self.atlas.active().vertex(atlas_prev)) {
+                match (
+                    graph.vertex(fe_prev),
+                    self.atlas.active().vertex(atlas_prev),
+                ) {
                     (Some(f), Some(a)) => a.pose.compose(&f.pose.between(&vertex.pose)),
                     _ => vertex.pose,
                 }
@@ -430,7 +440,11 @@ impl Engine {
     }
 
     fn collect_events(&mut self) {
-        let fresh = self.atlas.events().get(self.atlas_events_seen..).unwrap_or_default();
+        let fresh = self
+            .atlas
+            .events()
+            .get(self.atlas_events_seen..)
+            .unwrap_or_default();
         for event in fresh {
             self.events.push(EngineEvent {
                 scan: self.scans,

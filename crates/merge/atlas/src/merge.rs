@@ -408,7 +408,9 @@ impl<B: BackupStore> Atlas<B> {
             .filter(|(id, _)| self.is_current_epoch(*id))
             .map(|(id, _)| id)
             .collect();
-        let tried = current.get(current.len().saturating_sub(newest)..).unwrap_or(&[]);
+        let tried = current
+            .get(current.len().saturating_sub(newest)..)
+            .unwrap_or(&[]);
         let other: BTreeSet<NodeId> = self
             .active
             .vertices()

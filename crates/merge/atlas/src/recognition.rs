@@ -182,7 +182,11 @@ impl<B: BackupStore> Atlas<B> {
     /// their poses, built on first use and kept while the graph is unchanged (a live robot
     /// queries the same inactive maps after every few keyframes).
     fn place_database(&self, map: MapId, graph: &PoseGraph2) -> Arc<PlaceDatabase> {
-        let fingerprint = (graph.num_vertices(), graph.num_edges(), graph.next_edge_id().0);
+        let fingerprint = (
+            graph.num_vertices(),
+            graph.num_edges(),
+            graph.next_edge_id().0,
+        );
         let mut cache = self
             .place_cache
             .lock()

@@ -1,0 +1,112 @@
+//! Integration tests of `mapmerge atlas`: the simulated look-alike office (runs without
+//! ../shared), a public log cut by a kidnap, and bad input.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use common::{ok_json, p, run, scratch};
+
+/// Every line of `events.jsonl` as JSON.
+fn events(dir: &std::path::Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(dir.join("events.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+#[test]
+fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges() {
+    let dir = scratch("atlas-sim");
+    let report = ok_json(&[
+        "atlas",
+        "--sim",
+        "office-aliased",
+        "--sessions",
+        "2",
+        "--duration",
+        "60",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    assert_eq!(report["sessions"], 2, "{report}");
+    let events = events(&dir);
+    assert_eq!(events[0]["event"], "epoch_started");
+    // Epochs: one per session at least, one more per simulated kidnap.
+    let started = events
+        .iter()
+        .filter(|e| e["event"] == "epoch_started")
+        .count();
+    assert!(started >= 2, "{report}");
+    assert_eq!(report["epochs"].as_u64().unwrap() as usize, started);
+    // An unmerge names merges that happened before it; scans and travel never go back.
+    let mut merged = Vec::new();
+    let mut last = (0, 0.0);
+    for e in &events {
+        let now = (e["scan"].as_u64().unwrap(), e["travel_m"].as_f64().unwrap());
+        assert!(now.0 >= last.0 && now.1 >= last.1, "{e}");
+        last = now;
+        match e["event"].as_str().unwrap() {
+            "merged" => merged.push(e["merge"].as_u64().unwrap()),
+            "unmerged" => {
+                for m in e["merges"].as_array().unwrap() {
+                    assert!(merged.contains(&m.as_u64().unwrap()), "{e}");
+                }
+                assert!(e["reason"]["invalidity"].as_f64().unwrap() > 0.0, "{e}");
+            }
+            _ => {}
+        }
+    }
+    // Every merge is judged against the simulator's truth, and pictured.
+    for m in report["merges"].as_array().unwrap() {
+        assert!(m["correct"].is_boolean(), "{m}");
+    }
+    let pictures = report["pictures"].as_array().unwrap();
+    assert_eq!(
+        pictures.len(),
+        2 * merged.len() + 2 * report["unmerges"].as_array().unwrap().len()
+    );
+    assert!(dir.join("atlas/active.g2o").is_file());
+}
+
+#[test]
+fn a_public_log_cut_by_a_kidnap_gives_two_epochs() {
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("atlas-intel");
+    let report = ok_json(&[
+        "atlas",
+        p(&log),
+        "--kidnap-at",
+        "450",
+        "--no-pictures",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    assert_eq!(report["scans"], 910, "{report}");
+    assert_eq!(report["epochs"], 2, "{report}");
+    // Without ground truth nothing is judged.
+    assert!(report["wrong_merges"].is_null());
+    let kidnap = events(&dir)
+        .into_iter()
+        .find(|e| e["event"] == "epoch_ended")
+        .unwrap();
+    assert_eq!(kidnap["reason"], "kidnap");
+    assert_eq!(kidnap["scan"], 450);
+}
+
+#[test]
+fn bad_input_is_refused_with_exit_code_2() {
+    let dir = scratch("atlas-bad");
+    let missing = dir.join("missing.log");
+    let out = run(&["atlas", p(&missing), "-o", p(&dir)]);
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let out = run(&["atlas", "--sim", "no-such-world", "-o", p(&dir)]);
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+    let out = run(&["atlas", "-o", p(&dir)]);
+    assert_eq!(out.status.code(), Some(2), "{out:?}");
+}
