@@ -199,7 +199,7 @@ impl OccupancyGrid {
 /// Amanatides & Woo's traversal, stepping exactly `|Δx| + |Δy|` times between the end cells so
 /// rounding can never overshoot; where the segment crosses a cell corner exactly, one of the
 /// two side cells is visited.
-pub(crate) fn traverse(
+pub fn traverse(
     start: Point2,
     end: Point2,
     width: usize,

@@ -256,7 +256,7 @@ impl Canvas {
             };
             // Misses along the beam (the end cell excluded when it is the return), then the
             // return.
-            traverse(from, to, geometry.width, end_inside, |i| self.miss(i, add));
+            mapmerge_grid::traverse(from, to, geometry.width, end_inside, |i| self.miss(i, add));
             if end_inside {
                 let (x, y) = (end.x.floor() as usize, end.y.floor() as usize);
                 self.hit(y * geometry.width + x, add);
@@ -307,63 +307,6 @@ fn clip(a: Point2, b: Point2, size: Point2) -> Option<(Point2, Point2, bool)> {
         to.sup(&Point2::zeros()).inf(&hi),
         b_inside,
     ))
-}
-
-/// Visits the row-major indices of the cells the segment `start → end` (cell units, both
-/// inside a grid `width` wide) crosses, the end cell unless `skip_end` (Amanatides & Woo
-/// 1987, as `mapmerge-grid`'s ray casting).
-fn traverse(
-    start: Point2,
-    end: Point2,
-    width: usize,
-    skip_end: bool,
-    mut visit: impl FnMut(usize),
-) {
-    let (cx, cy) = (start.x.floor() as i64, start.y.floor() as i64);
-    let (ex, ey) = (end.x.floor() as i64, end.y.floor() as i64);
-    let delta = end - start;
-    let step_x = (ex - cx).signum();
-    let step_y = (ey - cy).signum();
-    let boundary = |c: i64, step: i64| if step > 0 { (c + 1) as f64 } else { c as f64 };
-    let mut t_max_x = if step_x != 0 {
-        (boundary(cx, step_x) - start.x) / delta.x
-    } else {
-        f64::INFINITY
-    };
-    let mut t_max_y = if step_y != 0 {
-        (boundary(cy, step_y) - start.y) / delta.y
-    } else {
-        f64::INFINITY
-    };
-    let t_delta_x = if step_x != 0 {
-        (1.0 / delta.x).abs()
-    } else {
-        f64::INFINITY
-    };
-    let t_delta_y = if step_y != 0 {
-        (1.0 / delta.y).abs()
-    } else {
-        f64::INFINITY
-    };
-    let mut remaining_x = (ex - cx).unsigned_abs();
-    let mut remaining_y = (ey - cy).unsigned_abs();
-    let width = width as i64;
-    let mut index = cy * width + cx;
-    for _ in 0..remaining_x + remaining_y {
-        visit(index as usize);
-        if remaining_y == 0 || (remaining_x > 0 && t_max_x < t_max_y) {
-            index += step_x;
-            t_max_x += t_delta_x;
-            remaining_x -= 1;
-        } else {
-            index += step_y * width;
-            t_max_y += t_delta_y;
-            remaining_y -= 1;
-        }
-    }
-    if !skip_end {
-        visit(index as usize);
-    }
 }
 
 /// Gridmap comparison (Holoch et al., Sec. IV-B); see the module documentation.
