@@ -174,14 +174,14 @@ pub(crate) struct CachedDatabase {
     /// Vertex count, edge count and next edge id of the graph it was built from: any edit
     /// (pruning, a new epoch's graph under a reused id) changes it.
     fingerprint: (usize, usize, u64),
-    database: Arc<PlaceDatabase>,
+    database: Arc<PlaceDatabase<'static>>,
 }
 
 impl<B: BackupStore> Atlas<B> {
     /// The place database of inactive graph `map`: its vertices' local-map keyframes with
     /// their poses, built on first use and kept while the graph is unchanged (a live robot
     /// queries the same inactive maps after every few keyframes).
-    fn place_database(&self, map: MapId, graph: &PoseGraph2) -> Arc<PlaceDatabase> {
+    fn place_database(&self, map: MapId, graph: &PoseGraph2) -> Arc<PlaceDatabase<'static>> {
         let fingerprint = (
             graph.num_vertices(),
             graph.num_edges(),
@@ -204,8 +204,8 @@ impl<B: BackupStore> Atlas<B> {
         let place = &self.params.recognition.place;
         let database = Arc::new(PlaceDatabase::new(
             &place.descriptor,
-            keyframes_b,
-            Some(map_from_b),
+            keyframes_b.into(),
+            Some(map_from_b.into()),
             place,
         ));
         cache.insert(

@@ -1,6 +1,7 @@
 //! Loop candidates between two keyframe sets: describe, index B, query every keyframe of A,
 //! verify the best candidates geometrically, and say how unambiguous each match is.
 
+use std::borrow::Cow;
 use std::collections::HashMap;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
@@ -248,8 +249,8 @@ fn search<E: DescriptorExtractor>(
 ) -> Vec<VerifiedLoop> {
     PlaceDatabase::new(
         extractor,
-        keyframes_b.to_vec(),
-        map_from_b.map(<[Se2]>::to_vec),
+        Cow::Borrowed(keyframes_b),
+        map_from_b.map(Cow::Borrowed),
         params,
     )
     .search(extractor, keyframes_a, verifier, params)
@@ -258,20 +259,21 @@ fn search<E: DescriptorExtractor>(
 /// Keyframe set B described and indexed once, to be searched by many query sets (e.g. an
 /// inactive map that every new keyframe of a live robot is looked up in): what
 /// [`find_loop_candidates_with_poses`] builds on each call.
-pub struct PlaceDatabase<D: crate::descriptor::PlaceDescriptor = crate::ScanContext> {
-    keyframes: Vec<Keyframe>,
-    map_from_keyframe: Option<Vec<Se2>>,
+/// It borrows the keyframes for a one-off search and owns them when kept (`'static`).
+pub struct PlaceDatabase<'k, D: crate::descriptor::PlaceDescriptor = crate::ScanContext> {
+    keyframes: Cow<'k, [Keyframe]>,
+    map_from_keyframe: Option<Cow<'k, [Se2]>>,
     index: PlaceIndex<D>,
     ordinal_of: HashMap<KeyframeId, usize>,
 }
 
-impl<D: crate::descriptor::PlaceDescriptor> PlaceDatabase<D> {
+impl<'k, D: crate::descriptor::PlaceDescriptor> PlaceDatabase<'k, D> {
     /// Describes and indexes `keyframes` (with their poses in B's map when known, see
     /// [`find_loop_candidates_with_poses`]).
     pub fn new<E: DescriptorExtractor<Descriptor = D>>(
         extractor: &E,
-        keyframes: Vec<Keyframe>,
-        map_from_keyframe: Option<Vec<Se2>>,
+        keyframes: Cow<'k, [Keyframe]>,
+        map_from_keyframe: Option<Cow<'k, [Se2]>>,
         params: &PlaceParams,
     ) -> Self {
         let descriptors: Vec<D> = keyframes
