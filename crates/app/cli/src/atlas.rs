@@ -200,15 +200,8 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&pictures_dir)
         .with_context(|| format!("creating {}", pictures_dir.display()))?;
     let total: usize = sessions.iter().map(|s| s.log.scans.len()).sum();
-    let bar = if args.json || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-        indicatif::ProgressBar::hidden()
-    } else {
-        indicatif::ProgressBar::new(total as u64)
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} scans ({eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let visible = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let bar = crate::progress_bar(total, "scans", "", visible);
     // Ground truth by vertex stamp (simulation: stamps are unique across sessions).
     let mut truth_at_stamp: BTreeMap<u64, Se2> = BTreeMap::new();
     let mut pictures = Vec::new();

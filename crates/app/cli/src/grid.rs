@@ -130,16 +130,7 @@ pub fn build_grid(
     params: &InsertParams,
     progress: bool,
 ) -> anyhow::Result<(OccupancyGrid, mapmerge_grid::InsertInfo)> {
-    let bar = if progress {
-        indicatif::ProgressBar::new(posed.poses.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} scans ({eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message("grid");
+    let bar = crate::progress_bar(posed.poses.len(), "scans", "grid", progress);
     let scans = posed
         .poses
         .iter()

@@ -54,17 +54,18 @@
 //! default parameters) on their scans and the log's odometry, with the case's noise profile
 //! and seed (`mapmerge_eval::add_odometry_noise` on the whole log, so segments of one log and
 //! seed share one noisy odometry); `null` runs on the log's own odometry. The first segment
-//! runs to its end (its optimised graph); the second runs to `merge_at`, the merge is forced
-//! with `merge_transform`, each detector gets `on_merge`, then for every keyframe vertex the
-//! second segment adds after `merge_at` each detector gets the merged map (current: the second
-//! segment's keyframes so far at their front-end poses *at that moment*; other: the first
-//! segment's keyframes moved by `merge_transform⁻¹`) and its invalidity ratio is recorded.
-//! Nothing is undone. Vertex ids: first segment `NodeId(k)` (epoch 1), second segment
-//! `NodeId(2³² + k)` (epoch 2), so the two epochs never share an id. Keyframe points are the
-//! front-end's (`FrontEnd::keyframe_points`, range-limited as it matches them).
+//! runs to its end (its optimised graph) and becomes an inactive graph of the lifelong
+//! engine's atlas (`mapmerge_engine::Engine`, no detector of its own, no merges by
+//! recognition); the second segment's scans run through the engine; after scan `merge_at` the
+//! merge is forced with `merge_transform` (overlap loops, re-optimisation) and each detector
+//! gets `on_merge`; then after every keyframe the engine adds (it keeps closing loops into
+//! the merged data and re-optimising, as it does live) each detector gets the merged map
+//! (current: the second segment's keyframes, other: the first segment's, at their poses in
+//! the merged graph) and its invalidity ratio is recorded. Nothing is undone. Keyframe points
+//! are the front-end's (`FrontEnd::keyframe_points`, range-limited as it matches them).
 //! `ms_per_vertex` is the mean wall time of `on_vertex` (not of `on_merge`).
-//! A log is read once and each segment run (log, segment, noise, seed) is shared by the cases
-//! that name it.
+//! A log is read once and each first-segment run (log, segment, noise, seed) is shared by the
+//! cases that name it.
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fmt::Write as _;
@@ -75,14 +76,15 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
+use mapmerge_engine::{Engine, EngineParams, NO_DETECTOR};
 use mapmerge_eval::{add_odometry_noise, roc_auc, scan_poses, OdometryNoiseProfile};
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanMatchVerifier};
-use mapmerge_posegraph::NodeId;
+use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::{FrontEnd, FrontEndParams};
-use mapmerge_verify::{DetectorScan, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
+use mapmerge_verify::{InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -112,8 +114,6 @@ const LOOKALIKE_SHIFT_M: f64 = 3.0;
 const PLACE_QUERIES: usize = 4;
 const PLACE_CANDIDATES: usize = 5;
 const PLACE_MIN_SCORE: f64 = 0.3;
-/// Vertex ids of the second (current) segment start here.
-const CURRENT_NODE_OFFSET: u64 = 1 << 32;
 
 // ------------------------------------------------------------------ arguments
 
@@ -186,6 +186,11 @@ pub struct InvalidMergeArgs {
     /// Print one JSON summary instead of text (no progress bar).
     #[arg(long)]
     pub json: bool,
+    /// Also write every detector's invalidity after every new vertex to this file (JSON
+    /// lines `{"id", "method", "vertex", "scan", "invalidity"}`; `vertex` counts from 0 after
+    /// the merge, `scan` is the log's scan index).
+    #[arg(long)]
+    pub trace: Option<PathBuf>,
 }
 
 // ------------------------------------------------------------------ formats
@@ -542,16 +547,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     }
     // Keep the file in segment order, whatever was drawn.
     pairs.sort_unstable();
-    let bar = if progress {
-        indicatif::ProgressBar::new(pairs.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} pairs ({eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message("merge cases");
+    let bar = crate::progress_bar(pairs.len(), "pairs", "merge cases", progress);
     let front_end = FrontEndParams::default();
     let mut window = front_end.loops.place_window;
     window.linear_m = window.linear_m.max(2.0);
@@ -919,45 +915,16 @@ fn lookalike_transform(
 
 // ------------------------------------------------------------------ invalid-merge
 
-/// One segment run by the front-end: its keyframes and their poses over time.
-struct SegmentRun {
-    /// Log scan index of keyframe `k`.
-    keyframe_scans: Vec<usize>,
-    /// Keyframe points in the robot frame.
-    points: Vec<Arc<[Point2]>>,
-    /// Right after keyframe `k` was added: the poses of keyframes `0..=k` in the segment
-    /// frame (the first keyframe, i.e. the segment's first scan, is the origin).
-    snapshots: Vec<Vec<Se2>>,
-    /// After the last scan (and the final optimisation).
-    final_poses: Vec<Se2>,
+/// The first segment of a case, run to its end by the front-end: its optimised graph (the
+/// first keyframe, i.e. the segment's first scan, at the origin) and every keyframe's points.
+struct FirstSegment {
+    graph: PoseGraph2,
+    points: BTreeMap<NodeId, Arc<[Point2]>>,
 }
 
-/// Poses of `nodes` in the frame of the first one.
-fn poses_in_segment(front_end: &FrontEnd, nodes: &[NodeId]) -> Vec<Se2> {
-    let pose = |id: &NodeId| {
-        front_end
-            .graph()
-            .vertex(*id)
-            .map_or_else(Se2::identity, |v| v.pose)
-    };
-    let segment_from_map = nodes
-        .first()
-        .map_or_else(Se2::identity, |n| pose(n).inverse());
-    nodes
-        .iter()
-        .map(|n| segment_from_map.compose(&pose(n)))
-        .collect()
-}
-
-fn run_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<SegmentRun> {
+fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<FirstSegment> {
     let mut front_end = FrontEnd::new(FrontEndParams::default())?;
-    let mut nodes = Vec::new();
-    let mut run = SegmentRun {
-        keyframe_scans: Vec::new(),
-        points: Vec::new(),
-        snapshots: Vec::new(),
-        final_poses: Vec::new(),
-    };
+    let mut points = BTreeMap::new();
     let mut odometry = Se2::identity();
     for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
         odometry = record.odom_from_robot.unwrap_or(odometry);
@@ -965,28 +932,28 @@ fn run_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<Segme
             .add_scan(&odometry, &record.scan)
             .with_context(|| format!("front-end at scan {k}"))?;
         if let Some(node) = step.keyframe {
-            nodes.push(node);
-            run.keyframe_scans.push(k);
-            run.points.push(Arc::from(
-                front_end.keyframe_points(node).unwrap_or_default(),
-            ));
-            run.snapshots.push(poses_in_segment(&front_end, &nodes));
+            points.insert(
+                node,
+                Arc::from(front_end.keyframe_points(node).unwrap_or_default()),
+            );
         }
     }
     front_end.finish();
-    run.final_poses = poses_in_segment(&front_end, &nodes);
-    Ok(run)
+    Ok(FirstSegment {
+        graph: front_end.graph().clone(),
+        points,
+    })
 }
 
 /// A log with an odometry: its path, noise profile and seed (0 without noise).
 type OdometryKey = (PathBuf, Option<String>, u64);
 
-/// The logs, noisy odometries and segment runs the cases share.
+/// The logs, noisy odometries and first-segment runs the cases share.
 #[derive(Default)]
 struct Cache {
     logs: HashMap<PathBuf, Arc<LaserLog>>,
     odometry: HashMap<OdometryKey, Arc<LaserLog>>,
-    segments: HashMap<(OdometryKey, [usize; 2]), Arc<SegmentRun>>,
+    segments: HashMap<(OdometryKey, [usize; 2]), Arc<FirstSegment>>,
 }
 
 impl Cache {
@@ -1024,85 +991,104 @@ impl Cache {
         Ok(log)
     }
 
-    fn segment(
+    fn first_segment(
         &mut self,
         path: &Path,
         noise: &Option<String>,
         seed: u64,
         range: [usize; 2],
-    ) -> anyhow::Result<Arc<SegmentRun>> {
+    ) -> anyhow::Result<Arc<FirstSegment>> {
         let seed = if noise.is_some() { seed } else { 0 };
         let key = ((path.to_owned(), noise.clone(), seed), range);
         if let Some(run) = self.segments.get(&key) {
             return Ok(run.clone());
         }
         let log = self.odometry(path, noise, seed)?;
-        let run = Arc::new(run_segment(&log, range)?);
+        let run = Arc::new(run_first_segment(&log, range)?);
         self.segments.insert(key, run.clone());
         Ok(run)
     }
 }
 
 /// The per-vertex outcome of one detector on one case.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Debug, Default)]
 struct Outcome {
     max_invalidity: f64,
     seconds: f64,
     vertices: usize,
+    /// `(scan, invalidity)` after every new vertex.
+    trace: Vec<(usize, f64)>,
+}
+
+/// A line of `--trace`.
+#[derive(Serialize)]
+struct TraceLine<'a> {
+    id: &'a str,
+    method: &'a str,
+    vertex: usize,
+    scan: usize,
+    invalidity: f64,
+}
+
+/// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
+/// under test look at its merged map), no merges by recognition (the case forces one).
+fn evaluation_engine() -> anyhow::Result<Engine> {
+    let params = EngineParams {
+        detector: NO_DETECTOR.into(),
+        min_keyframes_before_merge: usize::MAX,
+        ..EngineParams::default()
+    };
+    Ok(Engine::new(params)?)
 }
 
 /// Forces the merge of `case` and feeds every new vertex to each detector (never undoing).
+///
+/// The first segment is an inactive graph of the engine's atlas; the second segment's scans
+/// (`log` holds the case's odometry) run through the engine; after scan `merge_at` the merge
+/// is forced with `merge_transform`, and from then on the engine keeps closing loops into the
+/// merged data and re-optimising, as it does live (Holoch et al. evaluate on the merged
+/// graph of their SLAM system). After every new keyframe each detector sees the merged map.
 fn evaluate_case(
-    first: &SegmentRun,
-    second: &SegmentRun,
+    first: &FirstSegment,
+    log: &LaserLog,
     case: &MergeCase,
     detectors: &mut [Box<dyn InvalidMergeDetector>],
-) -> Vec<Outcome> {
+) -> anyhow::Result<Vec<Outcome>> {
+    let mut engine = evaluation_engine()?;
+    let map = engine.import_inactive(&first.graph, |node| first.points.get(&node).cloned())?;
     // Holoch et al., Sec. V-A: the merged map is in the current (second) segment's frame.
     let second_from_first = se2_of(case.merge_transform).inverse();
-    let other: Vec<DetectorScan> = first
-        .final_poses
-        .iter()
-        .zip(&first.points)
-        .enumerate()
-        .map(|(k, (pose, points))| DetectorScan {
-            node: NodeId(k as u64),
-            epoch: 1,
-            map_from_robot: second_from_first.compose(pose),
-            points_in_robot: points.clone(),
-        })
-        .collect();
-    let current_at = |k: usize| -> Vec<DetectorScan> {
-        second.snapshots[k]
-            .iter()
-            .zip(&second.points)
-            .enumerate()
-            .map(|(n, (pose, points))| DetectorScan {
-                node: NodeId(CURRENT_NODE_OFFSET + n as u64),
-                epoch: 2,
-                map_from_robot: *pose,
-                points_in_robot: points.clone(),
-            })
-            .collect()
-    };
     let mut outcomes = vec![Outcome::default(); detectors.len()];
-    // Keyframes up to and including `merge_at` exist at the merge (at least the first scan).
-    let at_merge = second
-        .keyframe_scans
-        .partition_point(|&scan| scan <= case.merge_at);
-    let Some(last_before) = at_merge.checked_sub(1) else {
-        return outcomes;
-    };
-    let current = current_at(last_before);
-    let map = MergedMap {
-        current: &current,
-        other: &other,
-    };
-    for detector in detectors.iter_mut() {
-        detector.on_merge(&map);
-    }
-    for k in at_merge..second.snapshots.len() {
-        let current = current_at(k);
+    let mut odometry = Se2::identity();
+    let mut merged = false;
+    let mut robot = None;
+    let [start, end] = case.second;
+    for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        engine
+            .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
+            .with_context(|| format!("engine at scan {k}"))?;
+        let keyframe = engine.robot_node() != robot;
+        robot = engine.robot_node();
+        if !merged {
+            if k >= case.merge_at && robot.is_some() {
+                engine.force_merge(map, second_from_first, format!("case {}", case.id))?;
+                merged = true;
+                let (current, other) = engine.merged_map_scans();
+                let map = MergedMap {
+                    current: &current,
+                    other: &other,
+                };
+                for detector in detectors.iter_mut() {
+                    detector.on_merge(&map);
+                }
+            }
+            continue;
+        }
+        if !keyframe {
+            continue;
+        }
+        let (current, other) = engine.merged_map_scans();
         let map = MergedMap {
             current: &current,
             other: &other,
@@ -1112,12 +1098,13 @@ fn evaluate_case(
             let ratio = detector.on_vertex(&map);
             outcome.seconds += started.elapsed().as_secs_f64();
             outcome.vertices += 1;
+            outcome.trace.push((k, ratio));
             if ratio.is_finite() {
                 outcome.max_invalidity = outcome.max_invalidity.max(ratio);
             }
         }
     }
-    outcomes
+    Ok(outcomes)
 }
 
 /// Where a case's log is: as written, else relative to the cases file's folder.
@@ -1201,21 +1188,19 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
         resolved.push(path);
     }
     let progress = !args.json && std::io::stderr().is_terminal();
-    let bar = if progress {
-        indicatif::ProgressBar::new(cases.len() as u64)
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} cases ({eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
+    let bar = crate::progress_bar(cases.len(), "cases", "", progress);
     if let Some(dir) = args.output.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
     let file = std::fs::File::create(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     let mut out = std::io::BufWriter::new(file);
+    let mut trace = match &args.trace {
+        Some(path) => Some(std::io::BufWriter::new(
+            std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?,
+        )),
+        None => None,
+    };
     let mut results = Vec::with_capacity(cases.len() * methods.len());
     for ((line, case), path) in cases.iter().zip(&resolved) {
         bar.set_message(case.id.clone());
@@ -1223,17 +1208,31 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             anyhow::anyhow!("{}:{line}: case {}: {e:#}", args.cases.display(), case.id)
         };
         let first = cache
-            .segment(path, &case.odometry_noise, case.seed, case.first)
+            .first_segment(path, &case.odometry_noise, case.seed, case.first)
             .map_err(context)?;
-        let second = cache
-            .segment(path, &case.odometry_noise, case.seed, case.second)
+        let log = cache
+            .odometry(path, &case.odometry_noise, case.seed)
             .map_err(context)?;
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = methods
             .iter()
             .filter_map(|m| mapmerge_verify::detector(m))
             .collect();
-        let outcomes = evaluate_case(&first, &second, case, &mut detectors);
+        let outcomes = evaluate_case(&first, &log, case, &mut detectors).map_err(context)?;
         for (method, outcome) in methods.iter().zip(outcomes) {
+            if let Some(trace) = trace.as_mut() {
+                for (vertex, &(scan, invalidity)) in outcome.trace.iter().enumerate() {
+                    let line = TraceLine {
+                        id: &case.id,
+                        method,
+                        vertex,
+                        scan,
+                        invalidity,
+                    };
+                    serde_json::to_writer(&mut *trace, &line)?;
+                    writeln!(trace)?;
+                }
+                trace.flush()?;
+            }
             let result = MergeResult {
                 id: case.id.clone(),
                 method: method.clone(),
@@ -1504,16 +1503,25 @@ mod tests {
         assert_eq!(segments, vec![[0, 19], [20, 44]]);
     }
 
-    /// A detector that reports how far the newest current scan is from the nearest other scan.
-    struct Distance;
+    /// A detector that reports, at the first vertex after the merge only, how far the newest
+    /// current scan is from the nearest other-epoch scan (÷ 10 m, at most 1).
+    #[derive(Default)]
+    struct FirstDistance {
+        seen: bool,
+    }
 
-    impl InvalidMergeDetector for Distance {
+    impl InvalidMergeDetector for FirstDistance {
         fn name(&self) -> &'static str {
-            "distance"
+            "first-distance"
         }
-        fn on_merge(&mut self, _: &MergedMap<'_>) {}
+        fn on_merge(&mut self, _: &MergedMap<'_>) {
+            self.seen = false;
+        }
         fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
-            let Some(newest) = map.current.last() else {
+            if std::mem::replace(&mut self.seen, true) {
+                return 0.0;
+            }
+            let Some(newest) = map.current.iter().max_by_key(|s| s.node) else {
                 return 0.0;
             };
             let nearest = map
@@ -1529,26 +1537,35 @@ mod tests {
 
     #[test]
     fn the_first_segment_is_placed_by_the_inverse_transform() {
-        // Both segments drive along x from their own origin; the second started 4 m further
-        // on in the first one's frame: the truth is first_from_second = (4, 0, 0).
-        let run = |n: usize| SegmentRun {
-            keyframe_scans: (0..n).collect(),
-            points: vec![Arc::from(Vec::<Point2>::new()); n],
-            snapshots: (0..n)
-                .map(|k| (0..=k).map(|i| Se2::new(i as f64, 0.0, 0.0)).collect())
-                .collect(),
-            final_poses: (0..n).map(|i| Se2::new(i as f64, 0.0, 0.0)).collect(),
+        // One simulated session without kidnaps; the segments overlap in the middle.
+        let params = mapmerge_sim::SimParams {
+            sessions: 1,
+            duration_secs: 60.0,
+            kidnap: mapmerge_sim::KidnapParams {
+                max_per_session: 0,
+                ..Default::default()
+            },
+            ..Default::default()
         };
-        let (first, second) = (run(10), run(5));
+        let dataset = mapmerge_sim::simulate(&params, 5).unwrap();
+        let session = &dataset.sessions[0];
+        let n = session.log.scans.len();
+        let (first, second) = ([0, 3 * n / 4], [n / 4, n - 1]);
+        let truth = |k: usize| session.truth[k].1;
+        let first_from_second = truth(first[0]).between(&truth(second[0]));
+        let first_run = run_first_segment(&session.log, first).unwrap();
         let mut c = case();
-        c.merge_at = 1;
-        c.merge_transform = [4.0, 0.0, 0.0];
-        let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = vec![Box::new(Distance)];
-        let right = evaluate_case(&first, &second, &c, &mut detectors);
-        assert_eq!(right[0].vertices, 3);
-        assert!(right[0].max_invalidity < 1e-9, "{right:?}");
-        c.merge_transform = [-30.0, 0.0, 0.0];
-        let wrong = evaluate_case(&first, &second, &c, &mut detectors);
+        c.first = first;
+        c.second = second;
+        c.merge_at = n / 4 + 30;
+        c.merge_transform = array_of(&first_from_second);
+        let mut detectors: Vec<Box<dyn InvalidMergeDetector>> =
+            vec![Box::new(FirstDistance::default())];
+        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        assert!(right[0].vertices > 10, "{right:?}");
+        assert!(right[0].max_invalidity < 0.05, "{right:?}");
+        c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
+        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }
 }

@@ -7,6 +7,8 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod assemble;
+mod assemble_eval;
 mod atlas;
 mod compare;
 mod corrupt;
@@ -20,6 +22,7 @@ mod render;
 mod sim;
 mod simulate;
 mod slam;
+mod split;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
 #[derive(Parser, Debug)]
@@ -34,6 +37,9 @@ enum Command {
     /// Lifelong mapping over sessions (logs or a simulation): epochs, merges by place
     /// recognition, invalid-merge detection and undo; events, graphs and pictures.
     Atlas(atlas::AtlasArgs),
+    /// Assemble trajectory segments (CARMEN logs) without initial guesses, in any order
+    /// (AutoMerge): groups, inter-segment loop edges, poses per group, pictures.
+    Assemble(assemble::AssembleArgs),
     /// Optimise a pose graph (g2o or TORO, 2D or 3D; `.xz` accepted).
     Optimize(optimize::OptimizeArgs),
     /// Add random false loop closures to a graph (vertigo's pattern) for robustness tests.
@@ -56,6 +62,9 @@ enum Command {
     Eval(eval::EvalArgs),
     /// 2D graph SLAM on a laser log: pose graph, map, picture, one pose per scan.
     Slam(slam::SlamArgs),
+    /// Cut a corrected laser log into overlapping segments, each re-based to its own origin
+    /// (optionally with noisy odometry), with the ground truth kept apart.
+    Split(split::SplitArgs),
 }
 
 /// An error that maps to exit code 2.
@@ -69,6 +78,28 @@ impl std::fmt::Display for BadInput {
 }
 
 impl std::error::Error for BadInput {}
+
+/// A progress bar of `len` `unit`s with a message, or a hidden one when `visible` is false.
+pub fn progress_bar(
+    len: usize,
+    unit: &str,
+    message: &'static str,
+    visible: bool,
+) -> indicatif::ProgressBar {
+    let bar = if visible {
+        indicatif::ProgressBar::new(len as u64)
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(&format!(
+            "{{msg}} {{bar:40}} {{pos}}/{{len}} {unit} ({{eta}})"
+        ))
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    bar.set_message(message);
+    bar
+}
 
 /// Prints `report` as one JSON object on its own line (the `--json` output of every command).
 pub fn print_json(report: &impl serde::Serialize) -> anyhow::Result<()> {
@@ -130,6 +161,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Atlas(args) => atlas::run(args),
+        Command::Assemble(args) => assemble::run(args).map(|()| ExitCode::SUCCESS),
         Command::Optimize(args) => optimize::run(args),
         Command::Corrupt(args) => corrupt::run(args),
         Command::Compare(args) => compare::run(args),
@@ -140,6 +172,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Eval(args) => eval::run(args),
         Command::Slam(args) => slam::run(args),
+        Command::Split(args) => split::run(args),
     };
     match result {
         Ok(code) => code,

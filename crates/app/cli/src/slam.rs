@@ -179,16 +179,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
         reference = Some((corrected, noisy.odometry_poses()));
         log = noisy.log;
     }
-    let bar = if args.json {
-        indicatif::ProgressBar::hidden()
-    } else {
-        indicatif::ProgressBar::new(log.scans.len() as u64)
-    };
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} {bar:40} {pos}/{len} scans ({eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message("slam");
+    let bar = crate::progress_bar(log.scans.len(), "scans", "slam", !args.json);
     let params: FrontEndParams = match &args.config {
         None => FrontEndParams::default(),
         Some(path) => {

@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use mapmerge_atlas::{
     default_verifier, Atlas, AtlasError, AtlasEvent, AtlasParams, EpochEndReason, MapId,
-    UnmergeReason,
+    MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::ScanMatchVerifier;
@@ -41,10 +41,16 @@ pub enum EngineError {
     /// The verifier could not be built.
     #[error("place verification: {0}")]
     Verifier(String),
+    /// A graph could not be imported.
+    #[error("import: {0}")]
+    Import(String),
     /// No detector of that name.
     #[error("unknown invalid-merge detector `{0}` (known: {1})")]
     UnknownDetector(String, String),
 }
+
+/// [`EngineParams::detector`] for no verification.
+pub const NO_DETECTOR: &str = "none";
 
 /// Parameters of the loop.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -62,7 +68,8 @@ pub struct EngineParams {
     /// … once the current epoch has at least this many keyframes (default: 10): a local map
     /// needs some travel before it is distinctive.
     pub min_keyframes_before_merge: usize,
-    /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`; default
+    /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
+    /// for no verification, as in an evaluation that runs its own detectors; default
     /// `combined`).
     pub detector: String,
     /// Undo all merges when its invalidity exceeds this (default: 0.5).
@@ -113,7 +120,8 @@ pub struct Engine {
     atlas: Atlas,
     front_end: FrontEnd,
     verifier: ScanMatchVerifier,
-    detector: Box<dyn InvalidMergeDetector>,
+    /// `None`: merges are never checked (detector `none`).
+    detector: Option<Box<dyn InvalidMergeDetector>>,
     /// Atlas id of every front-end node of the current epoch.
     atlas_from_front_end: BTreeMap<NodeId, NodeId>,
     /// Front-end edges already copied (ids below this).
@@ -140,12 +148,18 @@ pub struct Engine {
 impl Engine {
     /// A new engine: epoch 0 starts.
     pub fn new(params: EngineParams) -> Result<Self, EngineError> {
-        let detector = mapmerge_verify::detector(&params.detector).ok_or_else(|| {
-            EngineError::UnknownDetector(
-                params.detector.clone(),
-                mapmerge_verify::DETECTOR_NAMES.join(", "),
-            )
-        })?;
+        let detector = match params.detector.as_str() {
+            NO_DETECTOR => None,
+            name => Some(mapmerge_verify::detector(name).ok_or_else(|| {
+                EngineError::UnknownDetector(
+                    params.detector.clone(),
+                    format!(
+                        "{}, {NO_DETECTOR}",
+                        mapmerge_verify::DETECTOR_NAMES.join(", ")
+                    ),
+                )
+            })?),
+        };
         let verifier = default_verifier().map_err(|e| EngineError::Verifier(e.to_string()))?;
         let mut engine = Self {
             front_end: FrontEnd::new(params.front_end.clone())?,
@@ -345,36 +359,23 @@ impl Engine {
         Ok(())
     }
 
-    /// The merged map as the detectors see it.
-    fn merged_map_scans(&self) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
-        let (mut current, mut other) = (Vec::new(), Vec::new());
-        for (node, vertex) in self.atlas.active().vertices() {
-            let Some(points) = self.atlas.scans().get(node) else {
-                continue;
-            };
-            let scan = DetectorScan {
-                node,
-                epoch: vertex.meta.session.0,
-                map_from_robot: vertex.pose,
-                points_in_robot: Arc::clone(points),
-            };
-            if self.atlas.is_current_epoch(node) {
-                current.push(scan);
-            } else {
-                other.push(scan);
-            }
-        }
-        (current, other)
+    /// The merged map as the detectors see it: the active graph's current-epoch and
+    /// other-epoch keyframes at their poses, with their points.
+    pub fn merged_map_scans(&self) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+        merged_map_scans(&self.atlas)
     }
 
     /// Runs the detector after a new keyframe; undoes every merge when it fires.
     fn verify(&mut self) -> Result<(), EngineError> {
-        let (current, other) = self.merged_map_scans();
+        let Some(detector) = self.detector.as_mut() else {
+            return Ok(());
+        };
+        let (current, other) = merged_map_scans(&self.atlas);
         let map = MergedMap {
             current: &current,
             other: &other,
         };
-        let invalidity = self.detector.on_vertex(&map);
+        let invalidity = detector.on_vertex(&map);
         self.max_invalidity = self.max_invalidity.max(invalidity);
         if invalidity > self.params.unmerge_threshold {
             let undone: Vec<(MapId, Se2)> = self
@@ -396,7 +397,7 @@ impl Engine {
                 .collect();
             self.before_last_change = Some(self.atlas.active().clone());
             self.atlas.unmerge_all(UnmergeReason::InvalidMerge {
-                detector: self.detector.name().to_owned(),
+                detector: detector.name().to_owned(),
                 invalidity,
             })?;
             self.refused.extend(undone);
@@ -418,10 +419,52 @@ impl Engine {
         }) else {
             return Ok(());
         };
+        self.apply_merge(proposal.into_request())
+    }
+
+    /// Merges inactive graph `map` into the active graph with a given transform (a forced
+    /// merge, as in Holoch et al.'s evaluation), then searches the overlap for loops and
+    /// re-optimises like a merge by recognition; the detector starts over on the merged map.
+    pub fn force_merge(
+        &mut self,
+        map: MapId,
+        active_from_inactive: Se2,
+        note: impl Into<String>,
+    ) -> Result<(), EngineError> {
+        self.apply_merge(MergeRequest::forced(map, active_from_inactive, note))
+    }
+
+    /// Adds `graph` (e.g. an earlier session's front-end graph, with `points(node)` as each
+    /// vertex's keyframe points) to the atlas as an inactive graph of its own epoch: it is
+    /// imported into the (empty) current epoch, which then ends. Returns its map id.
+    pub fn import_inactive(
+        &mut self,
+        graph: &PoseGraph2,
+        points: impl FnMut(NodeId) -> Option<Arc<[Point2]>>,
+    ) -> Result<MapId, EngineError> {
+        if self.atlas.active().num_vertices() > 0 {
+            return Err(EngineError::Import(
+                "the current epoch already has keyframes; end it first".into(),
+            ));
+        }
+        self.atlas.import_graph(graph, points)?;
+        let before = self.events.len();
+        self.end_epoch(EpochEndReason::Restart)?;
+        self.events
+            .get(before..)
+            .unwrap_or_default()
+            .iter()
+            .find_map(|e| match &e.event {
+                AtlasEvent::EpochEnded { map, .. } => *map,
+                _ => None,
+            })
+            .ok_or_else(|| EngineError::Import("the imported graph is empty".into()))
+    }
+
+    fn apply_merge(&mut self, request: MergeRequest) -> Result<(), EngineError> {
         self.before_last_change = Some(self.atlas.active().clone());
         let first_edge = self.atlas.active().next_edge_id();
-        self.atlas
-            .merge(proposal.into_request(), Some(&self.verifier))?;
+        self.atlas.merge(request, Some(&self.verifier))?;
         self.merge_edges.push(
             self.atlas
                 .active()
@@ -430,11 +473,13 @@ impl Engine {
                 .map(|(_, e)| (e.from, e.to, e.measurement))
                 .collect(),
         );
-        let (current, other) = self.merged_map_scans();
-        self.detector.on_merge(&MergedMap {
-            current: &current,
-            other: &other,
-        });
+        if let Some(detector) = self.detector.as_mut() {
+            let (current, other) = merged_map_scans(&self.atlas);
+            detector.on_merge(&MergedMap {
+                current: &current,
+                other: &other,
+            });
+        }
         self.max_invalidity = 0.0;
         Ok(())
     }
@@ -454,4 +499,26 @@ impl Engine {
         }
         self.atlas_events_seen = self.atlas.events().len();
     }
+}
+
+/// The merged map as the detectors see it (see [`Engine::merged_map_scans`]).
+fn merged_map_scans(atlas: &Atlas) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+    let (mut current, mut other) = (Vec::new(), Vec::new());
+    for (node, vertex) in atlas.active().vertices() {
+        let Some(points) = atlas.scans().get(node) else {
+            continue;
+        };
+        let scan = DetectorScan {
+            node,
+            epoch: vertex.meta.session.0,
+            map_from_robot: vertex.pose,
+            points_in_robot: Arc::clone(points),
+        };
+        if atlas.is_current_epoch(node) {
+            current.push(scan);
+        } else {
+            other.push(scan);
+        }
+    }
+    (current, other)
 }

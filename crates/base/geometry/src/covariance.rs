@@ -85,6 +85,31 @@ fn symmetrize<const D: usize>(m: SMatrix<f64, D, D>) -> SMatrix<f64, D, D> {
     (m + m.transpose()) * 0.5
 }
 
+/// Information of a planar `(vx, vy, ω)` edge: the inverse of `covariance` with standard
+/// deviations floored at `min_sigma` (m, rad) (a matcher's covariance can be overconfident or
+/// singular); a non-finite covariance gives the floor's information.
+pub fn planar_information_from_covariance(
+    covariance: &nalgebra::Matrix3<f64>,
+    min_sigma: (f64, f64),
+) -> nalgebra::Matrix3<f64> {
+    use nalgebra::{Matrix3, Vector3};
+    let floor = Matrix3::from_diagonal(&Vector3::new(
+        min_sigma.0 * min_sigma.0,
+        min_sigma.0 * min_sigma.0,
+        min_sigma.1 * min_sigma.1,
+    ));
+    let covariance = if covariance.iter().all(|v| v.is_finite()) {
+        covariance + floor
+    } else {
+        floor
+    };
+    covariance
+        .try_inverse()
+        .filter(|i| i.iter().all(|v| v.is_finite()))
+        .or_else(|| floor.try_inverse())
+        .unwrap_or_else(Matrix3::identity)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

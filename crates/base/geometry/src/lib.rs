@@ -31,7 +31,7 @@ mod trig;
 
 pub use covariance::{
     between_covariance, between_jacobians, compose_covariance, compose_covariance_correlated,
-    compose_jacobians, inverse_covariance, inverse_jacobian,
+    compose_jacobians, inverse_covariance, inverse_jacobian, planar_information_from_covariance,
 };
 pub use lie::{skew, LieGroup};
 pub use numerical::{numerical_jacobian, numerical_lie_jacobian};

@@ -46,6 +46,7 @@ mod error;
 mod g2o;
 mod graph_file;
 mod input;
+mod kitti;
 mod pgm;
 mod reader;
 mod rosmap;
@@ -62,6 +63,7 @@ pub use graph_file::{
     format_graph, parse_graph, parse_graph_with, read_graph, read_graph_with, write_graph,
     AnyGraph, BadInformation, GraphFormat, LoadedGraph, ReadParams,
 };
+pub use kitti::{parse_kitti_cloud, parse_kitti_poses, read_kitti_cloud, read_kitti_poses};
 pub use pgm::{format_pgm, parse_pgm, PgmImage};
 pub use rosmap::{
     format_ros_map_yaml, parse_ros_map_yaml, read_ros_map, write_ros_map, write_ros_map_with,

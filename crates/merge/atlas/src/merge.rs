@@ -6,7 +6,7 @@ use std::collections::BTreeSet;
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::GeometricVerifier;
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
 use crate::atlas::{epochs_of, optimize_holding, AppliedMerge, Atlas};
@@ -144,28 +144,7 @@ impl MergeRequest {
     }
 }
 
-/// Information of an edge: the inverse of `covariance` with standard deviations floored at
-/// `min_sigma` (m, rad).
-pub(crate) fn information_from_covariance(
-    covariance: &Matrix3<f64>,
-    min_sigma: (f64, f64),
-) -> Matrix3<f64> {
-    let floor = Matrix3::from_diagonal(&Vector3::new(
-        min_sigma.0 * min_sigma.0,
-        min_sigma.0 * min_sigma.0,
-        min_sigma.1 * min_sigma.1,
-    ));
-    let covariance = if covariance.iter().all(|v| v.is_finite()) {
-        covariance + floor
-    } else {
-        floor
-    };
-    covariance
-        .try_inverse()
-        .filter(|i| i.iter().all(|v| v.is_finite()))
-        .or_else(|| floor.try_inverse())
-        .unwrap_or_else(Matrix3::identity)
-}
+pub(crate) use mapmerge_geometry::planar_information_from_covariance as information_from_covariance;
 
 impl<B: BackupStore> Atlas<B> {
     /// Merges inactive graph `request.map` into the active graph (Sec. III-A):

@@ -76,14 +76,19 @@ impl ScanMatchVerifier {
             guess_candidate_from_query.y_m,
             guess_candidate_from_query.theta_rad + std::f64::consts::PI,
         );
-        let flip_ratio =
+        // A whole-circle search has already weighed the turned pose against the best one
+        // (it would find the same optimum again): no flip test then.
+        let flip_ratio = if self.window.angular_rad >= std::f64::consts::PI {
+            0.0
+        } else {
             match self
                 .matcher
                 .match_scan(&target, &query.points_in_keyframe, &turned, &self.window)
             {
                 Some(flipped) if found.score > 0.0 => flipped.score / found.score,
                 _ => 0.0,
-            };
+            }
+        };
         let params = self.evidence.unwrap_or_default();
         let proof = evidence(
             &query.points_in_keyframe,
