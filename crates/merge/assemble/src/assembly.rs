@@ -74,7 +74,9 @@ pub struct Arrival {
     pub segment: String,
     /// Its submaps.
     pub submaps: usize,
-    /// Segments it was associated with, and those it connected to (ω > 0).
+    /// Segments it was associated with, and those it connected to (ω > 0; the consistency
+    /// check after the arrival may still reject some of these pairs, see
+    /// [`Assembler::rejected_pairs`]).
     pub pairs: usize,
     pub connected: Vec<String>,
     /// Groups after the arrival.
