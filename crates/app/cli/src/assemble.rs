@@ -83,15 +83,9 @@ pub struct AssembleArgs {
     pub json: bool,
 }
 
-/// A segment's name: its file name without `.xz`, `.log` (and `-corrected`).
+/// A segment's name: a log's file stem (`crate::log_file_stem`), a folder's name.
 pub fn segment_name(path: &Path) -> String {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| path.display().to_string());
-    let name = name.strip_suffix(".xz").unwrap_or(&name);
-    let name = name.strip_suffix(".log").unwrap_or(name);
-    name.to_owned()
+    crate::log_file_stem(path)
 }
 
 /// A segment as read: 2D (a log with its trajectory) or 3D (a KITTI-style folder).

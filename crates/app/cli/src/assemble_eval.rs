@@ -110,14 +110,10 @@ pub struct AssembleScore {
 /// Path samples every `OVERLAP_SAMPLE_M` of travel: (scan, travel m, position).
 fn path_samples(truth: &[Se2]) -> Vec<(usize, f64, nalgebra::Vector2<f64>)> {
     let mut samples = Vec::new();
-    let mut travel = 0.0;
     let mut last_sample = f64::NEG_INFINITY;
-    for (k, pose) in truth.iter().enumerate() {
-        if k > 0 {
-            travel += (pose.translation() - truth[k - 1].translation()).norm();
-        }
+    for (k, travel) in travel_of(truth).into_iter().enumerate() {
         if travel - last_sample >= OVERLAP_SAMPLE_M {
-            samples.push((k, travel, pose.translation()));
+            samples.push((k, travel, truth[k].translation()));
             last_sample = travel;
         }
     }

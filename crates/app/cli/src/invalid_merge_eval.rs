@@ -330,13 +330,7 @@ fn far_from(a: &Se2, b: &Se2, second_from_robot: &Se2, (m, rad): (f64, f64)) -> 
 
 /// A log's short name: `intel` for `…/intel-corrected.log.xz`.
 fn log_name(log: &str) -> String {
-    let name = Path::new(log)
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| log.to_owned());
-    let name = name.strip_suffix(".xz").unwrap_or(&name);
-    let name = name.strip_suffix(".log").unwrap_or(name);
-    name.strip_suffix("-corrected").unwrap_or(name).to_owned()
+    crate::log_short_name(Path::new(log))
 }
 
 // ------------------------------------------------------------------ segments

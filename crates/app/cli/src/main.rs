@@ -79,6 +79,30 @@ impl std::fmt::Display for BadInput {
 
 impl std::error::Error for BadInput {}
 
+/// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
+/// (`…/intel_03.log.xz` → `intel_03`).
+pub fn log_file_stem(path: &std::path::Path) -> String {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string());
+    let name = name
+        .strip_suffix(".xz")
+        .or_else(|| name.strip_suffix(".gz"))
+        .unwrap_or(&name);
+    name.strip_suffix(".log").unwrap_or(name).to_owned()
+}
+
+/// A public log's short name: its stem without `-corrected` (`…/intel-corrected.log.xz` →
+/// `intel`).
+pub fn log_short_name(path: &std::path::Path) -> String {
+    let stem = log_file_stem(path);
+    match stem.strip_suffix("-corrected") {
+        Some(short) if !short.is_empty() => short.to_owned(),
+        _ => stem,
+    }
+}
+
 /// A progress bar of `len` `unit`s with a message, or a hidden one when `visible` is false.
 pub fn progress_bar(
     len: usize,

@@ -86,22 +86,6 @@ struct SplitReport<'a> {
     segments: Vec<SegmentEntry>,
 }
 
-/// The log's file name without `.xz`, `.gz`, `.log` and `-corrected`.
-fn stem_of(path: &Path) -> String {
-    let mut name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "log".to_owned());
-    for suffix in [".xz", ".gz", ".log", "-corrected"] {
-        if let Some(stripped) = name.strip_suffix(suffix) {
-            if !stripped.is_empty() {
-                name = stripped.to_owned();
-            }
-        }
-    }
-    name
-}
-
 /// `[first, end)` scan ranges of `segments` segments of a `scans`-scan log (module doc), or
 /// why the log cannot be cut so.
 fn segment_ranges(
@@ -181,7 +165,7 @@ pub fn run(args: &SplitArgs) -> anyhow::Result<ExitCode> {
     let ranges = segment_ranges(log.scans.len(), args.segments, args.overlap)
         .map_err(|reason| bad_input(format!("{}: {reason}", args.log.display())))?;
     let truth = scan_poses(&log).map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
-    let stem = stem_of(&args.log);
+    let stem = crate::log_short_name(&args.log);
     let truth_dir = args.output.join("truth");
     std::fs::create_dir_all(&truth_dir)
         .with_context(|| format!("creating {}", truth_dir.display()))?;
@@ -276,8 +260,11 @@ mod tests {
 
     #[test]
     fn stems_drop_the_known_suffixes() {
-        assert_eq!(stem_of(Path::new("/d/intel-corrected.log.xz")), "intel");
-        assert_eq!(stem_of(Path::new("run.log")), "run");
-        assert_eq!(stem_of(Path::new("x.gz")), "x");
+        assert_eq!(
+            crate::log_short_name(Path::new("/d/intel-corrected.log.xz")),
+            "intel"
+        );
+        assert_eq!(crate::log_short_name(Path::new("run.log")), "run");
+        assert_eq!(crate::log_short_name(Path::new("x.gz")), "x");
     }
 }
