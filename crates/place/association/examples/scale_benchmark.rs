@@ -11,7 +11,8 @@
 //!
 //! cargo run --release -p mapmerge-association --example scale_benchmark -- \
 //!     [--segments 50] [--submaps 2000] [--dim 256] [--seed 7] [--noise 1.5] \
-//!     [--parallel pairs|within] [--curve] [--json] [--velocity-steps K] [--velocity-phases P]
+//!     [--parallel pairs|within] [--curve] [--no-zones] [--json] [--velocity-steps K]
+//!     [--velocity-phases P]
 
 use mapmerge_association::{
     difference_matrix_into, sequence_matches, single_frame_matches, verify_zones, DescriptorMatrix,
@@ -40,6 +41,8 @@ struct Args {
     noise: f32,
     parallel: Parallel,
     curve: bool,
+    /// Stop after the candidates (no zones + RANSAC): the matchers' own recall.
+    no_zones: bool,
     json: bool,
     /// Overrides of `SequenceParams::velocity_steps` / `velocity_phases`.
     velocity_steps: Option<usize>,
@@ -55,6 +58,7 @@ fn parse_args() -> Result<Args, String> {
         noise: 1.5,
         parallel: Parallel::Pairs,
         curve: false,
+        no_zones: false,
         json: false,
         velocity_steps: None,
         velocity_phases: None,
@@ -82,6 +86,7 @@ fn parse_args() -> Result<Args, String> {
                 args.velocity_phases = Some(value()?.parse().map_err(|e| format!("{e}"))?)
             }
             "--curve" => args.curve = true,
+            "--no-zones" => args.no_zones = true,
             "--json" => args.json = true,
             "-h" | "--help" => {
                 return Err(
@@ -184,6 +189,8 @@ struct StageTimes {
 struct Params {
     sequence: SequenceParams,
     single: SingleFrameParams,
+    /// `None`: no zones + RANSAC stage (`--no-zones`).
+    zones: Option<ZoneParams>,
 }
 
 fn associate_pair(
@@ -204,14 +211,19 @@ fn associate_pair(
     // Zones + RANSAC (Eq. 7) on the candidates; submaps 1 m apart along each segment's own
     // straight path, so the planted overlaps are length-consistent.
     let along = |n: usize| -> Vec<[f64; 3]> { (0..n).map(|k| [k as f64, 0.0, 0.0]).collect() };
-    let zones = verify_zones(
-        &matches,
-        &along(world.segments[x].rows()),
-        &along(world.segments[y].rows()),
-        &ZoneParams::default(),
-    )
-    .map_err(|e| e.to_string())?;
-    let matches = zones.inliers;
+    let matches = match &params.zones {
+        None => matches,
+        Some(zone_params) => {
+            verify_zones(
+                &matches,
+                &along(world.segments[x].rows()),
+                &along(world.segments[y].rows()),
+                zone_params,
+            )
+            .map_err(|e| e.to_string())?
+            .inliers
+        }
+    };
     let t4 = Instant::now();
     times.zones.fetch_add(nanos(t3, t4), Ordering::Relaxed);
     times.difference.fetch_add(nanos(t0, t1), Ordering::Relaxed);
@@ -400,6 +412,7 @@ fn bench(args: &Args) -> Result<(), String> {
     let mut params = Params {
         sequence: SequenceParams::default(),
         single: SingleFrameParams::default(),
+        zones: (!args.no_zones).then(ZoneParams::default),
     };
     if let Some(steps) = args.velocity_steps {
         params.sequence.velocity_steps = steps;
