@@ -14,10 +14,11 @@ while [[ $# -gt 0 ]]; do
 done
 out="$(realpath -m "${OUT_DIR:-bench-out}")/atlas"
 mkdir -p "$out"
-cargo build --release -q -p mapmerge-cli
+if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
+bin="$(realpath "${MAPMERGE_BIN:-target/release/mapmerge}")"
 : > "$out/runs.jsonl"
 for seed in $(seq 1 "$seeds"); do
-  target/release/mapmerge atlas --sim "$world" --seed "$seed" --no-pictures -o "$out/seed-$seed" --json \
+  "$bin" atlas --sim "$world" --seed "$seed" --no-pictures -o "$out/seed-$seed" --json \
     | python3 -c "import json,sys; d=json.load(sys.stdin); d['seed']=$seed; print(json.dumps(d))" >> "$out/runs.jsonl"
 done
 python3 - "$out/runs.jsonl" "$world" > "$out/../atlas.md" <<'PY'

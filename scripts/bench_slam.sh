@@ -6,6 +6,7 @@
 # made by `mapmerge eval make-relations`), and mapmerge's accepted loop edges judged against
 # them. Usage: scripts/bench_slam.sh [--profile default|harsh] [--seed S] [--only NAME]...
 # [--no-mrpt]. Writes bench-out/slam.md (+ bench-out/slam/*). MRPT installs on first use.
+# MAPMERGE_BIN=PATH runs another build (e.g. the previous commit's, for a before/after table).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 profile=default; seed=0; only=(); mrpt=1
@@ -22,8 +23,8 @@ data="${MAPMERGE_DATA:-../shared/data}"
 peers="${MAPMERGE_PEERS:-../shared/peers}"
 out="$(realpath -m "${OUT_DIR:-bench-out}")/slam"
 mkdir -p "$out"
-cargo build --release -q -p mapmerge-cli
-bin="$(realpath target/release/mapmerge)"
+if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
+bin="$(realpath "${MAPMERGE_BIN:-target/release/mapmerge}")"
 one_core=(env RAYON_NUM_THREADS=1)
 command -v taskset >/dev/null && one_core+=(taskset -c 0)
 logs=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus infinite-corridor intel orebro seattle)

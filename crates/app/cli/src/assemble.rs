@@ -19,10 +19,10 @@ use mapmerge_assemble::{
     KittiFolderOptions, RingSpectrum3Params, RingSpectrumDescriptor3, Segment, Segment3,
     SubmapParams,
 };
+use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_render::{session_color, Picture, PictureStyle};
-use mapmerge_slam::{run_front_end, FrontEndParams};
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -138,7 +138,7 @@ pub fn load_segments(
             let segment = match source {
                 TrajectorySource::Odometry => Segment::from_log_odometry(name, &log),
                 TrajectorySource::Slam => {
-                    let run = run_front_end(&log, FrontEndParams::default())
+                    let run = run_slam(&log, EngineParams::default(), |_| {})
                         .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
                     Segment::from_log(name, &log, &run.trajectory)
                 }

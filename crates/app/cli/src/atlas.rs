@@ -46,7 +46,8 @@ pub struct AtlasArgs {
     #[arg(long, value_delimiter = ',')]
     pub kidnap_at: Vec<usize>,
     /// Simulate the sessions instead: a world preset (office, office-aliased, corridor-loop,
-    /// warehouse). Merges are then judged against the simulator's ground truth.
+    /// warehouse, symmetric-hall). Merges are then judged against the simulator's ground
+    /// truth.
     #[arg(long, conflicts_with = "logs")]
     pub sim: Option<String>,
     /// Simulated sessions.
@@ -228,6 +229,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
             let fresh: Vec<AtlasEvent> = engine
                 .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
                 .map_err(|e| anyhow::anyhow!("{}: scan {k}: {e}", session.name))?
+                .events
                 .iter()
                 .map(|e| e.event.clone())
                 .collect();
@@ -453,7 +455,7 @@ fn judge_merges(engine: &Engine, truth_at_stamp: &BTreeMap<u64, Se2>, merges: &m
 /// Draws a graph's scans coloured by epoch; the newest current-epoch scans (the detector's
 /// window) as larger dots.
 fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Result<()> {
-    let scans = engine.atlas().scans();
+    let scans = engine.atlas().keyframes();
     let mut points: Vec<(Point2, Rgb, bool)> = Vec::new();
     let current = engine.atlas().current_epoch().0;
     let recent: Vec<NodeId> = graph
@@ -540,7 +542,7 @@ fn window_classes(graph: &PoseGraph2, engine: &Engine) -> BTreeMap<NodeId, Vec<P
     let current = engine.atlas().current_epoch().0;
     let (mut now, mut other) = (Vec::new(), Vec::new());
     for (node, vertex) in graph.vertices() {
-        let Some(points) = engine.atlas().scans().get(node) else {
+        let Some(points) = engine.atlas().keyframes().get(node) else {
             continue;
         };
         let scan = DetectorScan {

@@ -50,8 +50,8 @@
 //!    Every case's merged maps overlap by at least `--min-overlap` m² (whole segments).
 //!
 //! # invalid-merge
-//! Per case: both segments' graphs from the project's front-end (`mapmerge_slam::FrontEnd`,
-//! default parameters) on their scans and the log's odometry, with the case's noise profile
+//! Per case: both segments' graphs from the project's SLAM (the lifelong engine with one
+//! epoch, default parameters) on their scans and the log's odometry, with the case's noise profile
 //! and seed (`mapmerge_eval::add_odometry_noise` on the whole log, so segments of one log and
 //! seed share one noisy odometry); `null` runs on the log's own odometry. The first segment
 //! runs to its end (its optimised graph) and becomes an inactive graph of the lifelong
@@ -62,7 +62,7 @@
 //! the merged data and re-optimising, as it does live) each detector gets the merged map
 //! (current: the second segment's keyframes, other: the first segment's, at their poses in
 //! the merged graph) and its invalidity ratio is recorded. Nothing is undone. Keyframe points
-//! are the front-end's (`FrontEnd::keyframe_points`, range-limited as it matches them).
+//! are the tracker's (range-limited as it matches them), as the atlas stores them.
 //! `ms_per_vertex` is the mean wall time of `on_vertex` (not of `on_merge`).
 //! A log is read once and each first-segment run (log, segment, noise, seed) is shared by the
 //! cases that name it.
@@ -83,7 +83,6 @@ use mapmerge_grid::{CellClass, ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanMatchVerifier};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
-use mapmerge_slam::{FrontEnd, FrontEndParams};
 use mapmerge_verify::{InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -542,13 +541,13 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     // Keep the file in segment order, whatever was drawn.
     pairs.sort_unstable();
     let bar = crate::progress_bar(pairs.len(), "pairs", "merge cases", progress);
-    let front_end = FrontEndParams::default();
-    let mut window = front_end.loops.place_window;
+    let engine_params = EngineParams::default();
+    let mut window = engine_params.atlas.loops.place_window;
     window.linear_m = window.linear_m.max(2.0);
-    let verifier = ScanMatchVerifier::new(front_end.matcher, window)
+    let verifier = ScanMatchVerifier::new(engine_params.tracker.matcher, window)
         .map_err(|e| anyhow::anyhow!("scan matcher: {e}"))?;
     let filter = BeamFilter {
-        max_range_m: front_end.max_match_range_m,
+        max_range_m: engine_params.tracker.max_match_range_m,
         ..BeamFilter::default()
     };
     let log_text = args.log.to_string_lossy().into_owned();
@@ -597,7 +596,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
                     linear_m: window.linear_m,
                     angular_rad: window.angular_rad,
                 },
-                &front_end,
+                &engine_params.atlas.loops.place,
             );
             if let Some((at, transform)) = found.filter(|(_, t)| overlaps(t)) {
                 cases.push(make("place", at, &transform, Label::Invalid));
@@ -723,10 +722,10 @@ fn careless_place_recognition(
     filter: &BeamFilter,
     verifier: &ScanMatchVerifier,
     window: &SearchWindowM,
-    front_end: &FrontEndParams,
+    place: &mapmerge_place::PlaceParams,
 ) -> Option<(usize, Se2)> {
-    let descriptor = &front_end.loops.place.descriptor;
-    let mut index: PlaceIndex<ScanContext> = PlaceIndex::new(front_end.loops.place.index.clone());
+    let descriptor = &place.descriptor;
+    let mut index: PlaceIndex<ScanContext> = PlaceIndex::new(place.index.clone());
     let mut keyframes = HashMap::new();
     for (k, record) in scans.iter().enumerate().take(first[1] + 1).skip(first[0]) {
         let points = record.scan.points_in_robot(filter);
@@ -917,26 +916,25 @@ struct FirstSegment {
 }
 
 fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<FirstSegment> {
-    let mut front_end = FrontEnd::new(FrontEndParams::default())?;
-    let mut points = BTreeMap::new();
+    let mut engine = Engine::new(EngineParams {
+        detector: NO_DETECTOR.into(),
+        ..EngineParams::default()
+    })?;
     let mut odometry = Se2::identity();
     for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
         odometry = record.odom_from_robot.unwrap_or(odometry);
-        let step = front_end
-            .add_scan(&odometry, &record.scan)
-            .with_context(|| format!("front-end at scan {k}"))?;
-        if let Some(node) = step.keyframe {
-            points.insert(
-                node,
-                Arc::from(front_end.keyframe_points(node).unwrap_or_default()),
-            );
-        }
+        engine
+            .add_scan(&odometry, &record.scan, None)
+            .with_context(|| format!("SLAM at scan {k}"))?;
     }
-    front_end.finish();
-    Ok(FirstSegment {
-        graph: front_end.graph().clone(),
-        points,
-    })
+    engine.finish()?;
+    let atlas = engine.atlas();
+    let graph = atlas.active().clone();
+    let points = graph
+        .vertices()
+        .filter_map(|(node, _)| Some((node, Arc::clone(atlas.keyframes().get(node)?))))
+        .collect();
+    Ok(FirstSegment { graph, points })
 }
 
 /// A log with an odometry: its path, noise profile and seed (0 without noise).
@@ -1027,11 +1025,11 @@ struct TraceLine<'a> {
 /// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
 /// under test look at its merged map), no merges by recognition (the case forces one).
 fn evaluation_engine() -> anyhow::Result<Engine> {
-    let params = EngineParams {
+    let mut params = EngineParams {
         detector: NO_DETECTOR.into(),
-        min_keyframes_before_merge: usize::MAX,
         ..EngineParams::default()
     };
+    params.atlas.recognition.min_epoch_keyframes = usize::MAX;
     Ok(Engine::new(params)?)
 }
 

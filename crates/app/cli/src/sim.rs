@@ -18,7 +18,7 @@ use crate::{bad_input, check_resolution, print_json};
 /// Arguments of `mapmerge sim`.
 #[derive(Args, Debug)]
 pub struct SimArgs {
-    /// World preset: office, office-aliased, corridor-loop, warehouse.
+    /// World preset: office, office-aliased, corridor-loop, warehouse, symmetric-hall.
     #[arg(long, default_value = "office")]
     pub world: String,
     /// Number of sessions (session 0 sees the generated world, later ones a changed one).

@@ -1,11 +1,14 @@
-//! `mapmerge slam`: the 2D graph-SLAM front-end on a laser log, writing the pose graph, the
-//! map, a picture and one pose per scan.
+//! `mapmerge slam`: 2D graph SLAM on a laser log (the lifelong engine with one epoch: the
+//! local tracker and the atlas's loop closing), writing the pose graph, the map, a picture and
+//! one pose per scan.
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::Args;
+use mapmerge_atlas::LoopSource;
+use mapmerge_engine::{run_slam, EngineParams, SlamInfo, SlamRun};
 use mapmerge_eval::{
     add_odometry_noise, make_relations, scan_poses, trajectory_report, OdometryNoiseProfile,
     RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
@@ -14,7 +17,6 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, InsertParams};
 use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
 use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
-use mapmerge_slam::{run_front_end_with_progress, FrontEndInfo, FrontEndParams, LoopSource};
 use serde::Serialize;
 
 use crate::grid::{build_grid, PosedLog};
@@ -39,7 +41,7 @@ pub struct SlamArgs {
     /// Cell side of the map (m).
     #[arg(long, default_value_t = 0.05)]
     pub resolution: f64,
-    /// Front-end parameters as JSON (any subset of the fields `--json` reports under
+    /// Engine parameters as JSON (any subset of the fields `--json` reports under
     /// `params`; the rest keep their defaults). Default: the one configuration used for
     /// every public log.
     #[arg(long)]
@@ -56,7 +58,7 @@ struct SlamReport<'a> {
     scans: usize,
     seconds: f64,
     ms_per_scan: f64,
-    front_end: FrontEndInfo,
+    front_end: SlamInfo,
     graph_vertices: usize,
     graph_edges: usize,
     /// With `--odometry-noise`: the SLAM trajectory and the noisy odometry scored against
@@ -66,7 +68,7 @@ struct SlamReport<'a> {
     /// With `--odometry-noise`: the accepted loop edges judged against the log's poses.
     loops: Option<LoopPrecision>,
     output: &'a Path,
-    params: &'a FrontEndParams,
+    params: &'a EngineParams,
 }
 
 /// Accepted loop edges judged against reference poses: true when within 0.5 m and 10° of
@@ -99,7 +101,7 @@ struct FalseLoop {
 }
 
 /// Judges every loop of `run` against `reference` (one pose per scan).
-fn loop_precision(run: &mapmerge_slam::FrontEndRun, reference: &[Se2]) -> LoopPrecision {
+fn loop_precision(run: &SlamRun, reference: &[Se2]) -> LoopPrecision {
     let mut precision = LoopPrecision {
         accepted: run.loops.len(),
         accepted_local: 0,
@@ -180,8 +182,8 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
         log = noisy.log;
     }
     let bar = crate::progress_bar(log.scans.len(), "scans", "slam", !args.json);
-    let params: FrontEndParams = match &args.config {
-        None => FrontEndParams::default(),
+    let params: EngineParams = match &args.config {
+        None => EngineParams::default(),
         Some(path) => {
             let text = std::fs::read_to_string(path)
                 .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
@@ -189,7 +191,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
                 .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
         }
     };
-    let run = run_front_end_with_progress(&log, params.clone(), |done| {
+    let run = run_slam(&log, params.clone(), |done| {
         bar.set_position(done as u64);
     })
     .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
@@ -266,14 +268,14 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         print_json(&report)?;
     } else {
-        let info = &report.front_end;
+        let (tracker, info) = (&report.front_end.tracker, &report.front_end.constraints);
         println!(
             "{} scans in {:.2} s ({:.1} ms/scan): {} keyframes, {} submaps, {} loops ({} local, {} by place recognition), {} optimisations; wrote {}",
             report.scans,
             report.seconds,
             report.ms_per_scan,
-            info.keyframes,
-            info.submaps,
+            tracker.keyframes,
+            tracker.submaps,
             info.local_loops + info.place_loops,
             info.local_loops,
             info.place_loops,

@@ -1,30 +1,33 @@
 //! The lifelong mapping loop: the only place that knows the order of the stages.
 //!
-//! Per scan: the 2D front-end (`mapmerge-slam`) matches it and makes keyframes; each new
-//! keyframe joins the atlas's active graph (`mapmerge-atlas`) with the front-end's edges;
-//! every few keyframes place recognition looks for the active graph in the inactive ones and
-//! merges; after a merge every new keyframe is checked by an invalid-merge detector
-//! (`mapmerge-verify`) and all merges are undone when it fires (Holoch et al., Sec. III–IV).
-//! A kidnap, restart or tracking failure ends the epoch ([`Engine::end_epoch`]).
+//! Two owners, in the manner of Cartographer's local/global split (Hess et al. 2016): the
+//! local tracker (`mapmerge-slam`) matches scans against its submaps and hands over
+//! keyframes; the atlas (`mapmerge-atlas`) owns every pose graph, every keyframe, the place
+//! index and the constraint builder. [`Engine::add_scan`] runs, per scan:
+//! 1. track (scan-to-submap matching; most scans stop here);
+//! 2. insert the keyframe into the atlas's active graph;
+//! 3. search constraints (loops in the epoch, loops into merged data, matches in the
+//!    inactive graphs);
+//! 4. update the merge hypotheses and merge when one is accepted;
+//! 5. optimise when loops wait;
+//! 6. verify the merges so far with an invalid-merge detector (`mapmerge-verify`;
+//!    Holoch et al., Sec. IV);
+//! 7. undo every merge when it fires.
 //!
-//! Poses: the front-end's graph and the atlas's active graph share the epoch's frame (the
-//! first keyframe at the origin; a merge moves the *inactive* graph, never the active one).
-//! While nothing is merged the front-end's estimate is copied; once other epochs are in the
-//! active graph, new keyframes are placed by the front-end's relative motion and the atlas
-//! re-optimises the merged graph whenever the front-end would have.
+//! A kidnap, restart or tracking failure ends the epoch ([`Engine::end_epoch`]). Single-log
+//! SLAM is the same loop with one epoch ([`run_slam`]).
 
-use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use mapmerge_atlas::{
-    default_verifier, Atlas, AtlasError, AtlasEvent, AtlasParams, EpochEndReason, MapId,
-    MergeRequest, UnmergeReason,
+    default_verifier, Atlas, AtlasError, AtlasEvent, AtlasParams, ConstraintInfo, ConstraintSearch,
+    EpochEndReason, LoopRecord, MapId, MergeProposal, MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::ScanMatchVerifier;
-use mapmerge_posegraph::{Edge, EdgeId, EdgeKind, NodeId, PoseGraph2, Vertex};
-use mapmerge_scan::{LaserScan, Point2};
-use mapmerge_slam::{FrontEnd, FrontEndError, FrontEndParams};
+use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
+use mapmerge_scan::{LaserLog, LaserScan, Point2};
+use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
 use mapmerge_verify::{DetectorScan, InvalidMergeDetector, MergedMap};
 use serde::{Deserialize, Serialize};
 
@@ -32,9 +35,9 @@ use serde::{Deserialize, Serialize};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum EngineError {
-    /// The front-end failed.
+    /// The tracker failed.
     #[error(transparent)]
-    FrontEnd(#[from] FrontEndError),
+    Tracker(#[from] TrackerError),
     /// The atlas refused an operation.
     #[error(transparent)]
     Atlas(#[from] AtlasError),
@@ -56,18 +59,10 @@ pub const NO_DETECTOR: &str = "none";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EngineParams {
-    /// The front-end.
-    pub front_end: FrontEndParams,
-    /// The atlas (recognition, merging, optimisation).
+    /// The local tracker.
+    pub tracker: TrackerParams,
+    /// The atlas (loop closing, recognition, merging, optimisation).
     pub atlas: AtlasParams,
-    /// Place recognition runs every this many new keyframes while inactive graphs exist
-    /// (default: 5), with the newest `atlas.recognition.recent_queries` keyframes (default
-    /// here: 1, with 3 candidates from score 0.7 and confidence 0.05: verification dominates
-    /// the cost, and a wrong merge is undone).
-    pub merge_every_keyframes: usize,
-    /// … once the current epoch has at least this many keyframes (default: 10): a local map
-    /// needs some travel before it is distinctive.
-    pub min_keyframes_before_merge: usize,
     /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
     /// for no verification, as in an evaluation that runs its own detectors; default
     /// `combined`).
@@ -82,19 +77,9 @@ pub struct EngineParams {
 
 impl Default for EngineParams {
     fn default() -> Self {
-        let mut atlas = AtlasParams::default();
-        // A live robot queries with its newest keyframes only, and merges readily: a wrong
-        // merge is undone by the detector (Holoch et al. run "careless" place recognition).
-        let recognition = &mut atlas.recognition;
-        recognition.recent_queries = 1;
-        recognition.min_confidence = 0.05;
-        recognition.place.candidates_per_query = 3;
-        recognition.place.min_score = 0.7;
         Self {
-            front_end: FrontEndParams::default(),
-            atlas,
-            merge_every_keyframes: 5,
-            min_keyframes_before_merge: 10,
+            tracker: TrackerParams::default(),
+            atlas: AtlasParams::default(),
             detector: "combined".into(),
             unmerge_threshold: 0.5,
             refused_within: (1.0, 10f64.to_radians()),
@@ -107,33 +92,37 @@ impl Default for EngineParams {
 pub struct EngineEvent {
     /// Scans fed to the engine so far (the event happened after scan `scan - 1`).
     pub scan: usize,
-    /// Robot travel so far (m, front-end estimate, summed over epochs).
+    /// Robot travel so far (m, tracker estimate, summed over epochs).
     pub travel_m: f64,
     /// The event.
     #[serde(flatten)]
     pub event: AtlasEvent,
 }
 
+/// What one scan did.
+#[derive(Debug)]
+pub struct ScanReport<'a> {
+    /// The keyframe the scan hangs on and its pose in that keyframe's frame.
+    pub anchor: (NodeId, Se2),
+    /// The keyframe the scan became.
+    pub keyframe: Option<NodeId>,
+    /// The events it caused.
+    pub events: &'a [EngineEvent],
+}
+
 /// The loop's state.
 pub struct Engine {
     params: EngineParams,
     atlas: Atlas,
-    front_end: FrontEnd,
+    tracker: LocalTracker,
     verifier: ScanMatchVerifier,
     /// `None`: merges are never checked (detector `none`).
     detector: Option<Box<dyn InvalidMergeDetector>>,
-    /// Atlas id of every front-end node of the current epoch.
-    atlas_from_front_end: BTreeMap<NodeId, NodeId>,
-    /// Front-end edges already copied (ids below this).
-    edges_copied: u64,
-    front_end_optimizations: usize,
-    keyframes_in_epoch: usize,
-    keyframes_since_query: usize,
     /// Merges undone in this epoch: (inactive map, its transform), not to be made again.
     refused: Vec<(MapId, Se2)>,
     scans: usize,
-    travel_m: f64,
-    last_pose: Option<Se2>,
+    /// Travel of the previous epochs (m).
+    travel_before_epoch_m: f64,
     events: Vec<EngineEvent>,
     atlas_events_seen: usize,
     /// Largest invalidity seen since the last merge.
@@ -143,6 +132,8 @@ pub struct Engine {
     /// Every merge's merge edges `(from, to, measurement)` as made, in merge order (an undo
     /// removes them from the graph).
     merge_edges: Vec<Vec<(NodeId, NodeId, Se2)>>,
+    /// Counters of the tracker of the previous epochs.
+    tracker_info_before_epoch: TrackerInfo,
 }
 
 impl Engine {
@@ -162,28 +153,28 @@ impl Engine {
         };
         let verifier = default_verifier().map_err(|e| EngineError::Verifier(e.to_string()))?;
         let mut engine = Self {
-            front_end: FrontEnd::new(params.front_end.clone())?,
-            atlas: Atlas::new(params.atlas.clone()),
+            tracker: LocalTracker::new(params.tracker.clone())?,
+            atlas: Atlas::new(params.atlas.clone())?,
             params,
             verifier,
             detector,
-            atlas_from_front_end: BTreeMap::new(),
-            edges_copied: 0,
-            front_end_optimizations: 0,
-            keyframes_in_epoch: 0,
-            keyframes_since_query: 0,
             refused: Vec::new(),
             scans: 0,
-            travel_m: 0.0,
-            last_pose: None,
+            travel_before_epoch_m: 0.0,
             events: Vec::new(),
             atlas_events_seen: 0,
             max_invalidity: 0.0,
             before_last_change: None,
             merge_edges: Vec::new(),
+            tracker_info_before_epoch: TrackerInfo::default(),
         };
         engine.collect_events();
         Ok(engine)
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &EngineParams {
+        &self.params
     }
 
     /// The atlas.
@@ -198,12 +189,27 @@ impl Engine {
 
     /// Robot travel so far (m).
     pub fn travel_m(&self) -> f64 {
-        self.travel_m
+        self.travel_before_epoch_m + self.tracker.travel_m()
     }
 
     /// Scans fed so far.
     pub fn scans(&self) -> usize {
         self.scans
+    }
+
+    /// The tracker's counters over every epoch so far.
+    pub fn tracker_info(&self) -> TrackerInfo {
+        let (a, b) = (self.tracker_info_before_epoch, self.tracker.info());
+        TrackerInfo {
+            scans: a.scans + b.scans,
+            matched: a.matched + b.matched,
+            odometry_only: a.odometry_only + b.odometry_only,
+            refined: a.refined + b.refined,
+            keyframes: a.keyframes + b.keyframes,
+            submaps: a.submaps + b.submaps,
+            matching_seconds: a.matching_seconds + b.matching_seconds,
+            submaps_seconds: a.submaps_seconds + b.submaps_seconds,
+        }
     }
 
     /// The largest invalidity the detector reported since the last merge.
@@ -227,136 +233,82 @@ impl Engine {
     }
 
     /// Ends the epoch (kidnap, restart, tracking failure): the active graph becomes inactive,
-    /// the front-end starts afresh. Returns the new events.
+    /// the tracker starts afresh. Returns the new events.
     pub fn end_epoch(&mut self, reason: EpochEndReason) -> Result<&[EngineEvent], EngineError> {
         let before = self.events.len();
+        self.atlas.optimize_if_due(true)?;
         self.atlas.end_epoch(reason);
-        self.front_end = FrontEnd::new(self.params.front_end.clone())?;
-        self.atlas_from_front_end.clear();
-        self.edges_copied = 0;
-        self.front_end_optimizations = 0;
-        self.keyframes_in_epoch = 0;
-        self.keyframes_since_query = 0;
+        self.tracker_info_before_epoch = self.tracker_info();
+        self.travel_before_epoch_m += self.tracker.travel_m();
+        self.tracker = LocalTracker::new(self.params.tracker.clone())?;
         self.refused.clear();
-        self.last_pose = None;
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
     }
 
-    /// Feeds one scan with its wheel-odometry pose. Returns the events it caused.
+    /// Optimises once more if loops wait (call after a log's last scan).
+    pub fn finish(&mut self) -> Result<(), EngineError> {
+        self.atlas.optimize_if_due(true)?;
+        Ok(())
+    }
+
+    /// Feeds one scan with its wheel-odometry pose; see the crate docs for the steps.
     pub fn add_scan(
         &mut self,
         odom_from_robot: &Se2,
         scan: &LaserScan,
         stamp_secs: Option<f64>,
-    ) -> Result<&[EngineEvent], EngineError> {
+    ) -> Result<ScanReport<'_>, EngineError> {
         let before = self.events.len();
-        let step = self.front_end.add_scan(odom_from_robot, scan)?;
         self.scans += 1;
-        if let Some(last) = self.last_pose {
-            self.travel_m += last.between(&step.local_from_robot).translation().norm();
-        }
-        self.last_pose = Some(step.local_from_robot);
-        let Some(keyframe) = step.keyframe else {
-            return Ok(self.events.get(before..).unwrap_or_default());
+        // 1. Track.
+        let tracked = self
+            .tracker
+            .add_scan(odom_from_robot, scan, self.atlas.next_node_id())?;
+        let anchor = tracked.anchor;
+        let Some(insertion) = tracked.keyframe else {
+            return Ok(ScanReport {
+                anchor,
+                keyframe: None,
+                events: self.events.get(before..).unwrap_or_default(),
+            });
         };
-        self.add_keyframe(keyframe, stamp_secs)?;
-        self.keyframes_in_epoch += 1;
-        self.keyframes_since_query += 1;
-        // Loops into the merged data (drift), verification of the merges so far (Sec. IV),
-        // then new merges (Sec. III-A).
-        if self.atlas.is_undoable() {
-            if self.keyframes_in_epoch % self.params.merge_every_keyframes.max(1) == 0 {
-                self.atlas.close_loops_into_merged(
-                    self.params.merge_every_keyframes.max(1),
-                    &self.verifier,
-                )?;
-            }
-            self.verify()?;
-        }
-        if self.atlas.inactive_maps().len() > 0
-            && self.keyframes_in_epoch >= self.params.min_keyframes_before_merge
-            && self.keyframes_since_query >= self.params.merge_every_keyframes.max(1)
-        {
-            self.keyframes_since_query = 0;
-            self.try_merge()?;
+        // 2. Insert the keyframe.
+        let node = self.atlas.insert_keyframe(insertion, stamp_secs)?;
+        // 3. Search constraints.
+        let found = self.atlas.search_constraints(node, &self.verifier)?;
+        // 4. Update the merge hypotheses.
+        let merged = self.update_hypotheses(found)?;
+        // 5. Optimise.
+        self.atlas.optimize_if_due(false)?;
+        // 6. Verify and 7. undo (a merge made now is checked from the next keyframe on).
+        if !merged && self.atlas.is_undoable() {
+            self.verify_and_undo()?;
         }
         self.collect_events();
-        Ok(self.events.get(before..).unwrap_or_default())
+        Ok(ScanReport {
+            anchor,
+            keyframe: Some(node),
+            events: self.events.get(before..).unwrap_or_default(),
+        })
     }
 
-    /// Copies a new front-end keyframe, its edges and (after a front-end optimisation) the
-    /// poses into the atlas.
-    fn add_keyframe(
-        &mut self,
-        keyframe: NodeId,
-        stamp_secs: Option<f64>,
-    ) -> Result<(), EngineError> {
-        let graph = self.front_end.graph();
-        let Some(vertex) = graph.vertex(keyframe) else {
-            return Ok(());
+    /// Step 4: the best match in an inactive graph not refused before is merged. Returns
+    /// whether a merge happened.
+    fn update_hypotheses(&mut self, found: ConstraintSearch) -> Result<bool, EngineError> {
+        let (m, rad) = self.params.refused_within;
+        let refused = |p: &MergeProposal| {
+            self.refused.iter().any(|(map, t)| {
+                *map == p.map
+                    && (t.translation() - p.active_from_inactive.translation()).norm() <= m
+                    && wrap_angle_rad(t.theta_rad - p.active_from_inactive.theta_rad).abs() <= rad
+            })
         };
-        let merged = self.atlas.is_undoable();
-        // Place the new keyframe by the front-end's motion from the robot's last keyframe.
-        let previous = self
-            .atlas_from_front_end
-            .last_key_value()
-            .map(|(f, a)| (*f, *a));
-        let pose = match previous {
-            Some((fe_prev, atlas_prev)) if merged => {
-                match (
-                    graph.vertex(fe_prev),
-                    self.atlas.active().vertex(atlas_prev),
-                ) {
-                    (Some(f), Some(a)) => a.pose.compose(&f.pose.between(&vertex.pose)),
-                    _ => vertex.pose,
-                }
-            }
-            _ => vertex.pose,
+        let Some(proposal) = found.merge_candidates.into_iter().find(|p| !refused(p)) else {
+            return Ok(false);
         };
-        let points: Arc<[Point2]> = Arc::from(
-            self.front_end
-                .keyframe_points(keyframe)
-                .unwrap_or_default()
-                .to_vec(),
-        );
-        let mut atlas_vertex = Vertex::new(pose);
-        atlas_vertex.meta.stamp_secs = stamp_secs;
-        let id = self.atlas.add_vertex(atlas_vertex, points);
-        self.atlas_from_front_end.insert(keyframe, id);
-        // The front-end's new edges (odometry, submap, loops), in id order.
-        let graph = self.front_end.graph();
-        let new_edges: Vec<(EdgeId, Edge<Se2, 3>)> = graph
-            .edges()
-            .filter(|(e, _)| e.0 >= self.edges_copied)
-            .map(|(e, edge)| (e, *edge))
-            .collect();
-        for (e, edge) in new_edges {
-            self.edges_copied = self.edges_copied.max(e.0 + 1);
-            let (Some(from), Some(to)) = (
-                self.atlas_from_front_end.get(&edge.from).copied(),
-                self.atlas_from_front_end.get(&edge.to).copied(),
-            ) else {
-                continue;
-            };
-            self.atlas.add_edge(Edge { from, to, ..edge })?;
-        }
-        // Poses after a front-end optimisation (loop closure).
-        let optimizations = self.front_end.info().optimizations;
-        if optimizations != self.front_end_optimizations {
-            self.front_end_optimizations = optimizations;
-            if merged {
-                self.atlas.optimize_active()?;
-            } else {
-                let graph = self.front_end.graph();
-                for (fe, atlas) in &self.atlas_from_front_end {
-                    if let Some(v) = graph.vertex(*fe) {
-                        self.atlas.set_pose(*atlas, v.pose)?;
-                    }
-                }
-            }
-        }
-        Ok(())
+        self.apply_merge(proposal.into_request())?;
+        Ok(true)
     }
 
     /// The merged map as the detectors see it: the active graph's current-epoch and
@@ -365,8 +317,9 @@ impl Engine {
         merged_map_scans(&self.atlas)
     }
 
-    /// Runs the detector after a new keyframe; undoes every merge when it fires.
-    fn verify(&mut self) -> Result<(), EngineError> {
+    /// Steps 6 and 7: runs the detector after a new keyframe; undoes every merge when it
+    /// fires, and refuses those merges for the rest of the epoch.
+    fn verify_and_undo(&mut self) -> Result<(), EngineError> {
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
         };
@@ -378,48 +331,22 @@ impl Engine {
         let invalidity = detector.on_vertex(&map);
         self.max_invalidity = self.max_invalidity.max(invalidity);
         if invalidity > self.params.unmerge_threshold {
-            let undone: Vec<(MapId, Se2)> = self
-                .events
-                .iter()
-                .rev()
-                .filter_map(|e| match &e.event {
-                    AtlasEvent::Merged(m) => Some((
-                        m.map,
-                        Se2::new(
-                            m.active_from_inactive[0],
-                            m.active_from_inactive[1],
-                            m.active_from_inactive[2],
-                        ),
-                    )),
-                    _ => None,
-                })
-                .take(self.atlas.undoable_merges().len())
-                .collect();
             self.before_last_change = Some(self.atlas.active().clone());
-            self.atlas.unmerge_all(UnmergeReason::InvalidMerge {
+            let undone = self.atlas.unmerge_all(UnmergeReason::InvalidMerge {
                 detector: detector.name().to_owned(),
                 invalidity,
             })?;
-            self.refused.extend(undone);
+            if let Some(undone) = undone {
+                self.refused.extend(
+                    undone
+                        .restored_maps
+                        .iter()
+                        .zip(&undone.undone_transforms)
+                        .map(|(map, t)| (*map, Se2::new(t[0], t[1], t[2]))),
+                );
+            }
         }
         Ok(())
-    }
-
-    /// Place recognition against the inactive graphs; the best proposal not refused before
-    /// is merged, and the detector starts over on the new merged map.
-    fn try_merge(&mut self) -> Result<(), EngineError> {
-        let (m, rad) = self.params.refused_within;
-        let proposals = self.atlas.find_merges(&self.verifier);
-        let Some(proposal) = proposals.into_iter().find(|p| {
-            !self.refused.iter().any(|(map, t)| {
-                *map == p.map
-                    && (t.translation() - p.active_from_inactive.translation()).norm() <= m
-                    && wrap_angle_rad(t.theta_rad - p.active_from_inactive.theta_rad).abs() <= rad
-            })
-        }) else {
-            return Ok(());
-        };
-        self.apply_merge(proposal.into_request())
     }
 
     /// Merges inactive graph `map` into the active graph with a given transform (a forced
@@ -431,12 +358,14 @@ impl Engine {
         active_from_inactive: Se2,
         note: impl Into<String>,
     ) -> Result<(), EngineError> {
-        self.apply_merge(MergeRequest::forced(map, active_from_inactive, note))
+        self.apply_merge(MergeRequest::forced(map, active_from_inactive, note))?;
+        self.collect_events();
+        Ok(())
     }
 
-    /// Adds `graph` (e.g. an earlier session's front-end graph, with `points(node)` as each
-    /// vertex's keyframe points) to the atlas as an inactive graph of its own epoch: it is
-    /// imported into the (empty) current epoch, which then ends. Returns its map id.
+    /// Adds `graph` (e.g. an earlier session's graph, with `points(node)` as each vertex's
+    /// keyframe points) to the atlas as an inactive graph of its own epoch: it is imported
+    /// into the (empty) current epoch, which then ends. Returns its map id.
     pub fn import_inactive(
         &mut self,
         graph: &PoseGraph2,
@@ -462,9 +391,10 @@ impl Engine {
     }
 
     fn apply_merge(&mut self, request: MergeRequest) -> Result<(), EngineError> {
-        self.before_last_change = Some(self.atlas.active().clone());
+        let before = self.atlas.active().clone();
         let first_edge = self.atlas.active().next_edge_id();
         self.atlas.merge(request, Some(&self.verifier))?;
+        self.before_last_change = Some(before);
         self.merge_edges.push(
             self.atlas
                 .active()
@@ -485,6 +415,7 @@ impl Engine {
     }
 
     fn collect_events(&mut self) {
+        let travel_m = self.travel_m();
         let fresh = self
             .atlas
             .events()
@@ -493,7 +424,7 @@ impl Engine {
         for event in fresh {
             self.events.push(EngineEvent {
                 scan: self.scans,
-                travel_m: self.travel_m,
+                travel_m,
                 event: event.clone(),
             });
         }
@@ -505,7 +436,7 @@ impl Engine {
 fn merged_map_scans(atlas: &Atlas) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
     let (mut current, mut other) = (Vec::new(), Vec::new());
     for (node, vertex) in atlas.active().vertices() {
-        let Some(points) = atlas.scans().get(node) else {
+        let Some(points) = atlas.keyframes().get(node) else {
             continue;
         };
         let scan = DetectorScan {
@@ -521,4 +452,78 @@ fn merged_map_scans(atlas: &Atlas) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
         }
     }
     (current, other)
+}
+
+/// Counters of a SLAM run: the tracker's and the constraint builder's.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct SlamInfo {
+    /// The tracker.
+    #[serde(flatten)]
+    pub tracker: TrackerInfo,
+    /// Loop closing and optimisation.
+    #[serde(flatten)]
+    pub constraints: ConstraintInfo,
+}
+
+/// The result of [`run_slam`]: every scan's pose and the counters.
+#[derive(Clone, Debug)]
+pub struct SlamRun {
+    /// `map_from_robot` of every scan of the log, in log order (from the final graph).
+    pub trajectory: Vec<Se2>,
+    /// The final pose graph (node `k` is keyframe `k`).
+    pub graph: PoseGraph2,
+    /// Scan index (log order) of every keyframe node, by node id.
+    pub keyframe_scans: Vec<usize>,
+    /// Every loop edge added, in order.
+    pub loops: Vec<LoopRecord>,
+    /// Counters.
+    pub info: SlamInfo,
+    /// Wall time of the loop alone (s).
+    pub seconds: f64,
+}
+
+/// 2D graph SLAM on one log: the engine with one epoch (no inactive graphs, so nothing to
+/// merge or verify), each scan's `odom_from_robot` as the wheel odometry (scans without one
+/// reuse the previous one), calling `progress(scans_done)` after every scan.
+pub fn run_slam(
+    log: &LaserLog,
+    params: EngineParams,
+    mut progress: impl FnMut(usize),
+) -> Result<SlamRun, EngineError> {
+    let mut engine = Engine::new(EngineParams {
+        detector: NO_DETECTOR.into(),
+        ..params
+    })?;
+    let started = std::time::Instant::now();
+    let mut odometry = Se2::identity();
+    let mut keyframe_scans = Vec::new();
+    let mut anchors = ScanAnchors::new();
+    for (index, record) in log.scans.iter().enumerate() {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        let report = engine.add_scan(&odometry, &record.scan, None)?;
+        anchors.push(report.anchor.0, report.anchor.1);
+        if report.keyframe.is_some() {
+            keyframe_scans.push(index);
+        }
+        progress(index + 1);
+    }
+    engine.finish()?;
+    let seconds = started.elapsed().as_secs_f64();
+    let graph = engine.atlas.active().clone();
+    let trajectory = anchors
+        .trajectory(&graph)
+        .into_iter()
+        .map(|pose| pose.unwrap_or_else(Se2::identity))
+        .collect();
+    Ok(SlamRun {
+        trajectory,
+        info: SlamInfo {
+            tracker: engine.tracker_info(),
+            constraints: engine.atlas.constraint_info(),
+        },
+        loops: engine.atlas.loops().to_vec(),
+        graph,
+        keyframe_scans,
+        seconds,
+    })
 }

@@ -1,10 +1,10 @@
 //! The simulator: mapmerge's own data source for the hard cases of map merging. It generates
 //! office floors and warehouses that look real to a laser (thick walls, ~1 m doors, 2 m
-//! corridors, furniture, deliberately repeated rooms and corridor sections), drives a
-//! differential-drive robot from room to room through them, and records what its wheel
-//! odometry (with noise and slip) and 2D lidar saw, over several sessions with kidnaps and with
-//! the world changing between sessions (doors closed, furniture moved). Everything is
-//! deterministic for a given seed.
+//! corridors, furniture, deliberately repeated rooms and corridor sections, a point-symmetric
+//! hall whose opposite sides look alike), drives a differential-drive robot from room to room
+//! through them, and records what its wheel odometry (with noise and slip) and 2D lidar saw,
+//! over several sessions with kidnaps and with the world changing between sessions (doors
+//! closed, furniture moved). Everything is deterministic for a given seed.
 //!
 //! Entry points:
 //! - [`simulate`] with [`SimParams`]: a multi-session [`Dataset`] (laser logs plus ground
@@ -35,6 +35,7 @@
 mod changes;
 mod error;
 mod furniture;
+mod hall;
 mod kidnap;
 mod lidar;
 mod motion;
@@ -52,6 +53,7 @@ mod world;
 
 pub use changes::{ChangeParams, WorldChange};
 pub use error::SimError;
+pub use hall::SymmetricHallParams;
 pub use kidnap::{Kidnap, KidnapParams, KidnapTarget};
 pub use lidar::{Lidar, LidarParams};
 pub use mapmerge_eval::SlipKind;

@@ -33,7 +33,7 @@ const DOOR_CORNER_MARGIN_M: f64 = 0.25;
 const FURNISH_ATTEMPTS: u64 = 4;
 
 /// Parameters of an office floor (the `office`, `office-aliased` and `corridor-loop`
-/// presets). Lengths in metres.
+/// presets, and the wings of `symmetric-hall`). Lengths in metres.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OfficeParams {
@@ -142,13 +142,13 @@ struct Slot {
 /// A room's size, main door and furniture in its own frame: `[0, width] × [0, depth]`, the
 /// main door in the top wall (`y = depth`) from `door_offset` to `door_offset + door_width`.
 #[derive(Clone, Debug)]
-struct Template {
-    width_m: f64,
-    depth_m: f64,
-    door_offset_m: f64,
-    door_width_m: f64,
-    storage: bool,
-    furniture_count: usize,
+pub(crate) struct Template {
+    pub(crate) width_m: f64,
+    pub(crate) depth_m: f64,
+    pub(crate) door_offset_m: f64,
+    pub(crate) door_width_m: f64,
+    pub(crate) storage: bool,
+    pub(crate) furniture_count: usize,
     uses: usize,
 }
 
@@ -476,7 +476,7 @@ fn door_up_for(rng: &mut SimRng, kind: BandKind) -> bool {
 
 /// Widths of rooms filling `length_m` with inner walls between them (empty when the gap is
 /// too narrow even for a storage room).
-fn random_widths(rng: &mut SimRng, p: &OfficeParams, length_m: f64) -> Vec<f64> {
+pub(crate) fn random_widths(rng: &mut SimRng, p: &OfficeParams, length_m: f64) -> Vec<f64> {
     let ti = p.inner_wall_m;
     let (w_min, w_max) = (p.room_width_min_m, p.room_width_max_m);
     if length_m < MIN_STORAGE_WIDTH_M {
@@ -504,7 +504,7 @@ fn random_widths(rng: &mut SimRng, p: &OfficeParams, length_m: f64) -> Vec<f64> 
 }
 
 /// A new template of the given size with a random door; returns its index.
-fn new_template(
+pub(crate) fn new_template(
     rng: &mut SimRng,
     p: &OfficeParams,
     templates: &mut Vec<Template>,

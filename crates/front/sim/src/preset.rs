@@ -1,10 +1,11 @@
 //! World parameters, the named presets, and [`generate_world`], which dispatches to the
-//! office or warehouse generator.
+//! office, warehouse or symmetric-hall generator.
 
 use std::fmt;
 
 use serde::{Deserialize, Serialize};
 
+use crate::hall::{generate_symmetric_hall, SymmetricHallParams};
 use crate::office::{generate_office, OfficeParams};
 use crate::warehouse::{generate_warehouse, WarehouseParams};
 use crate::{SimError, World};
@@ -17,6 +18,8 @@ pub enum LayoutParams {
     Office(OfficeParams),
     /// A warehouse hall with racking.
     Warehouse(WarehouseParams),
+    /// A point-symmetric hall with rooms between two office wings.
+    SymmetricHall(SymmetricHallParams),
 }
 
 /// Everything [`generate_world`] needs.
@@ -51,15 +54,21 @@ pub enum WorldPreset {
     /// `warehouse`: a 40 × 30 m hall with identical rows of racking, a cross aisle, a loading
     /// area with pallets and two offices; highly repetitive.
     Warehouse,
+    /// `symmetric-hall`: a 40 × 20 m floor: a 14 m wide hall with a row of rooms on either
+    /// side, between two different office wings. The hall block (walls, doors, rooms,
+    /// furniture, pillars) is point-symmetric about the hall's centre, so places on opposite
+    /// sides of it look alike when seen turned by 180°; the wings tell them apart.
+    SymmetricHall,
 }
 
 impl WorldPreset {
     /// Every preset, in the order of [`WorldPreset::names`].
-    pub const ALL: [WorldPreset; 4] = [
+    pub const ALL: [WorldPreset; 5] = [
         WorldPreset::Office,
         WorldPreset::OfficeAliased,
         WorldPreset::CorridorLoop,
         WorldPreset::Warehouse,
+        WorldPreset::SymmetricHall,
     ];
 
     /// The names of every preset.
@@ -86,6 +95,7 @@ impl WorldPreset {
             WorldPreset::OfficeAliased => "office-aliased",
             WorldPreset::CorridorLoop => "corridor-loop",
             WorldPreset::Warehouse => "warehouse",
+            WorldPreset::SymmetricHall => "symmetric-hall",
         }
     }
 
@@ -110,6 +120,9 @@ impl WorldPreset {
                 ..OfficeParams::default()
             }),
             WorldPreset::Warehouse => LayoutParams::Warehouse(WarehouseParams::default()),
+            WorldPreset::SymmetricHall => {
+                LayoutParams::SymmetricHall(SymmetricHallParams::default())
+            }
         };
         WorldParams {
             name: self.name().to_owned(),
@@ -139,6 +152,7 @@ pub fn generate_world(params: &WorldParams, seed: u64) -> Result<World, SimError
     match &params.layout {
         LayoutParams::Office(office) => generate_office(&params.name, office, seed),
         LayoutParams::Warehouse(warehouse) => generate_warehouse(&params.name, warehouse, seed),
+        LayoutParams::SymmetricHall(hall) => generate_symmetric_hall(&params.name, hall, seed),
     }
 }
 
@@ -153,7 +167,10 @@ mod tests {
         }
         let err = WorldPreset::from_name("castle").unwrap_err().to_string();
         assert!(
-            err.contains("castle") && err.contains("office-aliased") && err.contains("warehouse"),
+            err.contains("castle")
+                && err.contains("office-aliased")
+                && err.contains("warehouse")
+                && err.contains("symmetric-hall"),
             "{err}"
         );
     }

@@ -78,7 +78,7 @@ proptest::proptest! {
 
     /// Any seed, any preset: no move between two scans crosses an obstacle.
     #[test]
-    fn no_seed_makes_the_robot_cross_a_wall(seed in proptest::prelude::any::<u64>(), preset in 0usize..4) {
+    fn no_seed_makes_the_robot_cross_a_wall(seed in proptest::prelude::any::<u64>(), preset in 0usize..WorldPreset::ALL.len()) {
         let params = SimParams::default()
             .with_preset(WorldPreset::ALL[preset])
             .with_sessions(2)

@@ -91,7 +91,13 @@ fn check_reachable(world: &World) {
 fn presets_are_listed_and_unknown_names_are_refused() {
     assert_eq!(
         WorldPreset::names(),
-        vec!["office", "office-aliased", "corridor-loop", "warehouse"]
+        vec![
+            "office",
+            "office-aliased",
+            "corridor-loop",
+            "warehouse",
+            "symmetric-hall"
+        ]
     );
     let err = WorldPreset::from_name("offce").unwrap_err();
     assert!(matches!(err, SimError::UnknownPreset { .. }));

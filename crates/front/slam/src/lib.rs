@@ -1,7 +1,8 @@
-//! The 2D graph-SLAM front-end (issue 4, being built): keyframe selection and the bookkeeping
-//! that gives every scan of a log a pose from the current graph. Scan-to-map odometry and loop
-//! closing come with the scan matcher (`mapmerge-scanmatch`) and place recognition
-//! (`mapmerge-place`).
+//! The front of 2D graph SLAM: the local tracker (scan-to-submap matching, keyframes,
+//! submaps; Hess et al. 2016's local trajectory builder) and the bookkeeping that gives every
+//! scan a pose from the current graph. It holds no pose graph: keyframes, their edges and the
+//! finished submaps go to the graph's one owner (`mapmerge-atlas`), which closes loops and
+//! optimises.
 //!
 //! ```
 //! use mapmerge_geometry::Se2;
@@ -12,16 +13,14 @@
 //! ```
 
 mod anchors;
-mod front_end;
 mod keyframe;
-mod loop_closing;
 mod submap;
+mod tracker;
 
 pub use anchors::ScanAnchors;
-pub use front_end::{
-    run_front_end, run_front_end_with_progress, FrontEnd, FrontEndError, FrontEndInfo,
-    FrontEndParams, FrontEndRun, LoopRecord, LoopSource, RefineFirst, ScanStep, StageSeconds,
-};
 pub use keyframe::KeyframePolicy;
-pub use loop_closing::LoopClosureParams;
 pub use submap::Submap;
+pub use tracker::{
+    edge_information, odometry_covariance, KeyframeInsertion, LocalTracker, RefineFirst,
+    TrackedScan, TrackerError, TrackerInfo, TrackerParams, LOOP_BRANCH_AND_BOUND_DEPTH,
+};

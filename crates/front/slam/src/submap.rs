@@ -23,6 +23,16 @@ pub struct Submap {
     target: ScanMatchTarget,
 }
 
+impl std::fmt::Debug for Submap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Submap")
+            .field("anchor", &self.anchor)
+            .field("keyframes", &self.keyframes.len())
+            .field("finished", &self.finished)
+            .finish_non_exhaustive()
+    }
+}
+
 impl Submap {
     /// An empty submap anchored at `anchor`, whose local pose is `local_from_submap`.
     pub fn new(

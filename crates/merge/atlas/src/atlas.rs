@@ -1,27 +1,31 @@
-//! The atlas: epochs, one active graph, any number of inactive graphs, shared scans
+//! The atlas: epochs, one active graph, any number of inactive graphs, shared keyframes
 //! (Holoch et al., Sec. III).
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 
-use mapmerge_geometry::Se2;
+use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::{Edge, EdgeId, NodeId, PoseGraph2, Vertex};
 use mapmerge_scan::Point2;
+use mapmerge_slam::KeyframeInsertion;
 use mapmerge_solve::{chi2_quantile_99, OptimizerInfo, OptimizerParams, RobustKernel};
 use serde::{Deserialize, Serialize};
 
 use crate::backup::{BackupStore, MemoryBackups};
+use crate::constraints::{ConstraintBuilder, LoopClosureParams};
 use crate::error::AtlasError;
 use crate::events::{AtlasEvent, EpochEndReason};
 use crate::ids::{EpochId, MapId, MergeId};
+use crate::keyframes::{KeyframeRecord, KeyframeStore};
 use crate::merge::MergeParams;
-use crate::recognition::{CachedDatabase, KeyframeParams, RecognitionParams};
-use crate::scans::ScanStore;
+use crate::recognition::{KeyframeParams, RecognitionParams};
 
 /// Parameters of the atlas, one default for every log.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct AtlasParams {
+    /// Loop closing inside the current epoch (see [`LoopClosureParams`]).
+    pub loops: LoopClosureParams,
     /// Re-optimisation after a merge and after an unmerge (default: Levenberg–Marquardt, DCS
     /// with Φ = χ²₃(0.99) on every edge, at most 50 iterations): robust, so one bad loop edge
     /// of a merge bends the map less.
@@ -38,6 +42,7 @@ pub struct AtlasParams {
 impl Default for AtlasParams {
     fn default() -> Self {
         Self {
+            loops: LoopClosureParams::default(),
             optimizer: OptimizerParams {
                 robust: RobustKernel::Dcs {
                     phi: chi2_quantile_99(3),
@@ -53,17 +58,22 @@ impl Default for AtlasParams {
 }
 
 /// A merge into the active graph that can still be undone.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AppliedMerge {
     /// The merge (and its backup).
     pub merge: MergeId,
     /// The inactive graph it took in, restored under this id by an unmerge.
     pub map: MapId,
+    /// Where it went: the inactive graph's frame in the active graph's, `[x_m, y_m, yaw_rad]`.
+    pub active_from_inactive: [f64; 3],
 }
 
 /// The lifelong atlas (Holoch et al., Sec. III): the active graph `G_{I*}` the robot is
-/// localised in and adds to, the inactive graphs `G_{I_1} … G_{I_{n-1}}`, every vertex's scan
-/// stored once, and the backups that make the merges into the active graph undoable.
+/// localised in and adds to, the inactive graphs `G_{I_1} … G_{I_{n-1}}`, every vertex's
+/// keyframe stored once, the backups that make the merges into the active graph undoable, and
+/// the one constraint builder with its place index ([`crate::constraints`]). It is the only
+/// owner of every pose graph: the tracker in front of it hands over keyframes
+/// ([`Atlas::insert_keyframe`]) and holds no graph.
 ///
 /// Invariants: node ids are unique across every graph and backup (the atlas hands them out);
 /// every vertex carries its epoch as [`mapmerge_posegraph::VertexMeta::session`]; the active
@@ -77,50 +87,47 @@ pub struct Atlas<B: BackupStore = MemoryBackups> {
     pub(crate) robot: Option<NodeId>,
     pub(crate) merges: Vec<AppliedMerge>,
     pub(crate) inactive: BTreeMap<MapId, PoseGraph2>,
-    pub(crate) scans: ScanStore,
+    pub(crate) keyframes: KeyframeStore,
     pub(crate) backups: B,
+    /// The tracker's local frame of the current epoch in the active graph's frame, re-derived
+    /// from the robot's vertex after every optimisation (Hess et al. 2016: the global pose
+    /// of the local trajectory).
+    pub(crate) map_from_local: Se2,
+    pub(crate) constraints: ConstraintBuilder,
     next_node: u64,
     next_epoch: u32,
     next_map: u32,
     pub(crate) next_merge: u64,
     pub(crate) events: Vec<AtlasEvent>,
-    /// Place databases of the inactive graphs (`Atlas::find_merges`), rebuilt when a graph
-    /// changes.
-    pub(crate) place_cache: Mutex<BTreeMap<MapId, CachedDatabase>>,
 }
 
 impl Atlas<MemoryBackups> {
-    /// An atlas with backups in RAM; epoch 0 has started.
-    pub fn new(params: AtlasParams) -> Self {
+    /// An atlas with backups in RAM; epoch 0 has started. Fails on invalid parameters.
+    pub fn new(params: AtlasParams) -> Result<Self, AtlasError> {
         Self::with_backups(params, MemoryBackups::default())
-    }
-}
-
-impl Default for Atlas<MemoryBackups> {
-    fn default() -> Self {
-        Self::new(AtlasParams::default())
     }
 }
 
 impl<B: BackupStore> Atlas<B> {
     /// An atlas with the given backup store (e.g. [`crate::DiskBackups`]); epoch 0 has started.
-    pub fn with_backups(params: AtlasParams, backups: B) -> Self {
-        Self {
+    pub fn with_backups(params: AtlasParams, backups: B) -> Result<Self, AtlasError> {
+        Ok(Self {
+            constraints: ConstraintBuilder::new(&params.loops)?,
+            map_from_local: Se2::identity(),
             params,
             epoch: EpochId(0),
             active: PoseGraph2::new(),
             robot: None,
             merges: Vec::new(),
             inactive: BTreeMap::new(),
-            scans: ScanStore::default(),
+            keyframes: KeyframeStore::default(),
             backups,
             next_node: 0,
             next_epoch: 1,
             next_map: 0,
             next_merge: 0,
             events: vec![AtlasEvent::EpochStarted { epoch: EpochId(0) }],
-            place_cache: Mutex::new(BTreeMap::new()),
-        }
+        })
     }
 
     /// The parameters.
@@ -153,9 +160,27 @@ impl<B: BackupStore> Atlas<B> {
         self.inactive.get(&map)
     }
 
-    /// Every vertex's scan.
-    pub fn scans(&self) -> &ScanStore {
-        &self.scans
+    /// Every vertex's keyframe.
+    pub fn keyframes(&self) -> &KeyframeStore {
+        &self.keyframes
+    }
+
+    /// The id the next vertex will get.
+    pub fn next_node_id(&self) -> NodeId {
+        NodeId(self.next_node)
+    }
+
+    /// The tracker's local frame of the current epoch in the active graph's frame.
+    pub fn map_from_local(&self) -> Se2 {
+        self.map_from_local
+    }
+
+    /// The pose of `node` in whichever graph holds it (active first).
+    pub fn pose_of(&self, node: NodeId) -> Option<Se2> {
+        std::iter::once(&self.active)
+            .chain(self.inactive.values())
+            .find_map(|g| g.vertex(node))
+            .map(|v| v.pose)
     }
 
     /// The backups.
@@ -204,7 +229,8 @@ impl<B: BackupStore> Atlas<B> {
     /// Adds a vertex of the current epoch to the active graph and returns its new, globally
     /// unique id. The atlas stamps the epoch into `vertex.meta.session`; pose, fixed flag,
     /// robot and stamp are the caller's. `points_in_robot` are the keyframe's points in the
-    /// vertex's frame, stored once. The vertex becomes the robot's current one.
+    /// vertex's frame, stored once. The vertex becomes the robot's current one. (A live
+    /// robot's keyframes come through [`Atlas::insert_keyframe`].)
     pub fn add_vertex(
         &mut self,
         mut vertex: Vertex<Se2>,
@@ -213,11 +239,94 @@ impl<B: BackupStore> Atlas<B> {
         let id = NodeId(self.next_node);
         self.next_node += 1;
         vertex.meta.session = self.epoch.session();
+        let travel_m = self.robot.and_then(|r| {
+            let previous = self.active.vertex(r)?.pose;
+            let record = self.keyframes.record(r)?;
+            Some(record.travel_m + (previous.translation() - vertex.pose.translation()).norm())
+        });
+        let record = KeyframeRecord {
+            points_in_robot,
+            travel_m: travel_m.unwrap_or(0.0),
+            local_from_robot: vertex.pose,
+            submap: None,
+        };
         // Fresh id: cannot clash.
         let _ = self.active.add_vertex(id, vertex);
-        self.scans.insert(id, points_in_robot);
+        self.keyframes.insert(id, record);
         self.robot = Some(id);
+        self.constraints.epoch_keyframes += 1;
         id
+    }
+
+    /// Inserts a keyframe the tracker made (Hess et al. 2016's hand-over from the local to
+    /// the global side): its vertex at `map_from_local · local_from_robot`, its edges, its
+    /// keyframe data; a submap it finished becomes a loop-closure target. Its node must be
+    /// [`Atlas::next_node_id`] and its edges must join it to earlier vertices of the active
+    /// graph. On error the atlas is unchanged.
+    pub fn insert_keyframe(
+        &mut self,
+        insertion: KeyframeInsertion,
+        stamp_secs: Option<f64>,
+    ) -> Result<NodeId, AtlasError> {
+        let node = insertion.node;
+        let bad = |reason: String| AtlasError::BadKeyframe { node, reason };
+        if node != self.next_node_id() {
+            return Err(bad(format!("expected node id {}", self.next_node_id())));
+        }
+        if !insertion.local_from_robot.is_finite() {
+            return Err(bad("non-finite pose".into()));
+        }
+        for edge in &insertion.edges {
+            let other = if edge.to == node { edge.from } else { edge.to };
+            if !(edge.from == node || edge.to == node) || !self.active.contains_vertex(other) {
+                return Err(bad(format!(
+                    "edge {} -> {} does not join it to the active graph",
+                    edge.from, edge.to
+                )));
+            }
+        }
+        let mut vertex = Vertex::new(self.map_from_local.compose(&insertion.local_from_robot));
+        vertex.meta.stamp_secs = stamp_secs;
+        vertex.meta.session = self.epoch.session();
+        self.active.add_vertex(node, vertex)?;
+        for edge in &insertion.edges {
+            // Checked above: both ends exist.
+            self.active.add_edge(*edge)?;
+        }
+        self.next_node += 1;
+        // The submap it finished first: its other keyframes join the place index now, this
+        // one with its next submap (it is in both).
+        if let Some(finished) = insertion.finished_submap {
+            self.add_finished_submap(finished);
+        }
+        self.keyframes.insert(
+            node,
+            KeyframeRecord {
+                points_in_robot: insertion.points_in_robot,
+                travel_m: insertion.travel_m,
+                local_from_robot: insertion.local_from_robot,
+                submap: Some(insertion.submap),
+            },
+        );
+        self.robot = Some(node);
+        self.constraints.epoch_keyframes += 1;
+        self.constraints.travel_m = insertion.travel_m;
+        Ok(node)
+    }
+
+    /// Re-derives [`Atlas::map_from_local`] from the robot's vertex (after its pose moved).
+    pub(crate) fn update_map_from_local(&mut self) {
+        let Some(robot) = self.robot else {
+            return;
+        };
+        if let (Some(vertex), Some(record)) =
+            (self.active.vertex(robot), self.keyframes.record(robot))
+        {
+            let map_from_local = vertex.pose.compose(&record.local_from_robot.inverse());
+            if map_from_local.is_finite() {
+                self.map_from_local = map_from_local;
+            }
+        }
     }
 
     /// Adds an edge between vertices of the active graph (any epochs: a front-end loop
@@ -278,10 +387,26 @@ impl<B: BackupStore> Atlas<B> {
         // Commit: nothing below fails.
         self.active = staged;
         self.next_node = next_node;
+        let mut travel_m = 0.0;
+        let mut previous: Option<Se2> = None;
         for (old, new) in &new_from_old {
             let scan = points(*old).unwrap_or_else(|| Arc::from(Vec::new()));
-            self.scans.insert(*new, scan);
+            let pose = self.active.vertex(*new).map_or(Se2::identity(), |v| v.pose);
+            if let Some(previous) = previous {
+                travel_m += (pose.translation() - previous.translation()).norm();
+            }
+            previous = Some(pose);
+            self.keyframes.insert(
+                *new,
+                KeyframeRecord {
+                    points_in_robot: scan,
+                    travel_m,
+                    local_from_robot: pose,
+                    submap: None,
+                },
+            );
         }
+        self.constraints.epoch_keyframes += new_from_old.len();
         if let Some(last) = new_from_old.values().next_back() {
             self.robot = Some(*last);
         }
@@ -290,7 +415,9 @@ impl<B: BackupStore> Atlas<B> {
 
     /// Re-optimises the active graph with the robot's vertex held, so the robot does not jump.
     pub fn optimize_active(&mut self) -> Result<Option<OptimizerInfo>, AtlasError> {
-        optimize_holding(&mut self.active, self.robot, &self.params.optimizer)
+        let info = optimize_holding(&mut self.active, self.robot, &self.params.optimizer)?;
+        self.update_map_from_local();
+        Ok(info)
     }
 
     /// Ends the current epoch (kidnap, restart, tracking failure; Sec. III): the active graph
@@ -300,6 +427,10 @@ impl<B: BackupStore> Atlas<B> {
     /// Returns the `EpochEnded` and `EpochStarted` events.
     pub fn end_epoch(&mut self, reason: EpochEndReason) -> Vec<AtlasEvent> {
         let ended = self.epoch;
+        // Its keyframes not indexed yet (unfinished submaps) join the place index now.
+        self.index_active_graph();
+        self.constraints.start_epoch();
+        self.map_from_local = Se2::identity();
         let graph = std::mem::take(&mut self.active);
         let map = (graph.num_vertices() > 0).then(|| {
             let map = MapId(self.next_map);
@@ -368,7 +499,7 @@ impl<B: BackupStore> Atlas<B> {
             let removed = graph.remove_vertex(node)?;
             (EpochId::of(&removed.vertex.meta), Some(*map))
         };
-        self.scans.remove(node);
+        self.keyframes.remove(node);
         let event = AtlasEvent::Pruned { node, epoch, map };
         self.events.push(event.clone());
         Ok(event)

@@ -10,6 +10,17 @@ use crate::ids::{EpochId, MapId, MergeId};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum AtlasError {
+    /// The parameters are invalid.
+    #[error("invalid parameters: {0}")]
+    Config(String),
+    /// A keyframe insertion was refused.
+    #[error("keyframe {node}: {reason}")]
+    BadKeyframe {
+        /// The keyframe's node.
+        node: NodeId,
+        /// Why.
+        reason: String,
+    },
     /// A graph edit failed (duplicate or missing id, malformed edge).
     #[error("graph edit failed: {0}")]
     Graph(#[from] GraphError),

@@ -97,6 +97,10 @@ pub struct UnmergeEvent {
     pub merges: Vec<MergeId>,
     /// The inactive graphs restored from their backups.
     pub restored_maps: Vec<MapId>,
+    /// The transforms those merges had applied (`active_from_inactive`, `[x_m, y_m,
+    /// yaw_rad]`), in the same order.
+    #[serde(default)]
+    pub undone_transforms: Vec<[f64; 3]>,
     /// Other-epoch vertices removed from the active graph.
     pub removed_vertices: usize,
     /// Edges removed with them.

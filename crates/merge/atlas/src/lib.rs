@@ -21,7 +21,7 @@
 //! use mapmerge_posegraph::{Edge, EdgeKind, Vertex};
 //! use nalgebra::Matrix3;
 //!
-//! let mut atlas = Atlas::default();
+//! let mut atlas = Atlas::new(Default::default()).unwrap();
 //! let mut path = |atlas: &mut Atlas| {
 //!     let a = atlas.add_vertex(Vertex::new(Se2::identity()), Arc::from(Vec::new()));
 //!     let b = atlas.add_vertex(Vertex::new(Se2::new(1.0, 0.0, 0.0)), Arc::from(Vec::new()));
@@ -45,21 +45,25 @@
 
 mod atlas;
 mod backup;
+mod constraints;
 mod error;
 mod events;
 mod ids;
+mod keyframes;
 mod merge;
 mod recognition;
-mod scans;
 
 pub use atlas::{epochs_of, AppliedMerge, Atlas, AtlasParams};
 pub use backup::{BackupStore, DiskBackups, MemoryBackups};
+pub use constraints::{
+    ConstraintInfo, ConstraintSearch, LoopClosureParams, LoopRecord, LoopSource,
+};
 pub use error::AtlasError;
 pub use events::{
     pose_array, read_events, AtlasEvent, EpochEndReason, EventLogWriter, MergeEvent, MergeReason,
     UnmergeEvent, UnmergeReason,
 };
 pub use ids::{EpochId, MapId, MergeId};
+pub use keyframes::{KeyframeRecord, KeyframeStore};
 pub use merge::{LoopEdge, MergeParams, MergeRequest, OverlapParams};
 pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};
-pub use scans::ScanStore;

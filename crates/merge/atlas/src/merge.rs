@@ -245,7 +245,11 @@ impl<B: BackupStore> Atlas<B> {
         self.next_merge += 1;
         self.inactive.remove(&map);
         self.active = merged;
-        self.merges.push(AppliedMerge { merge, map });
+        self.merges.push(AppliedMerge {
+            merge,
+            map,
+            active_from_inactive: pose_array(&active_from_inactive),
+        });
         let event = MergeEvent {
             merge,
             active_epoch: self.epoch,
@@ -331,7 +335,8 @@ impl<B: BackupStore> Atlas<B> {
             return Vec::new();
         }
         let wanted: Vec<NodeId> = pairs.iter().flat_map(|(a, b)| [*a, *b]).collect();
-        let keyframes = local_map_keyframes(merged, &self.scans, &self.params.keyframes, &wanted);
+        let keyframes =
+            local_map_keyframes(merged, &self.keyframes, &self.params.keyframes, &wanted);
         let mut loops = Vec::new();
         for (a, b) in pairs {
             if loops.len() >= p.max_loops {
@@ -440,7 +445,9 @@ impl<B: BackupStore> Atlas<B> {
         self.active = graph;
         let mut merges = Vec::with_capacity(restored.len());
         let mut restored_maps = Vec::with_capacity(restored.len());
+        let mut undone_transforms = Vec::with_capacity(restored.len());
         for (applied, backup) in restored {
+            undone_transforms.push(applied.active_from_inactive);
             self.inactive.insert(applied.map, backup);
             // A backup that cannot be deleted is only a stale file (merge ids are not reused).
             let _ = self.backups.remove(applied.merge);
@@ -452,6 +459,7 @@ impl<B: BackupStore> Atlas<B> {
             active_epoch: self.epoch,
             merges,
             restored_maps,
+            undone_transforms,
             removed_vertices,
             removed_edges,
             reason,
@@ -470,6 +478,7 @@ mod tests {
 
     use super::*;
     use crate::events::EpochEndReason;
+    use crate::AtlasParams;
 
     /// A straight path of `n` vertices from `start`, 0.5 m apart, with odometry edges.
     fn path(atlas: &mut Atlas, start: Se2, n: usize) -> Vec<NodeId> {
@@ -504,7 +513,7 @@ mod tests {
 
     #[test]
     fn a_loop_edge_alone_places_the_inactive_graph() {
-        let mut atlas = Atlas::default();
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
         let old = path(&mut atlas, Se2::identity(), 10);
         let old_poses: Vec<Se2> = old
             .iter()
@@ -559,7 +568,7 @@ mod tests {
     }
 
     fn overlapping() -> Atlas {
-        let mut atlas = Atlas::default();
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
         path(&mut atlas, Se2::identity(), 12);
         atlas.end_epoch(EpochEndReason::Kidnap);
         path(&mut atlas, Se2::identity(), 12);

@@ -1,54 +1,61 @@
 //! The atlas on real data: the Intel Research Lab log cut into two sessions (a kidnap between
-//! them), each mapped by the project's front-end; the second recognises the first, merges onto
+//! them), each mapped by the local tracker with the atlas as the graph's owner; the second recognises the first, merges onto
 //! the right transform, keeps mapping, and an unmerge restores the first session's graph
 //! exactly while keeping every vertex of the second.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
 
 use mapmerge_atlas::{
     default_verifier, Atlas, AtlasParams, EpochEndReason, EpochId, MapId, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
-use mapmerge_posegraph::{Edge, NodeId, PoseGraph2};
-use mapmerge_scan::{LaserLog, Point2};
-use mapmerge_slam::{FrontEnd, FrontEndParams};
+use mapmerge_posegraph::{EdgeKind, NodeId};
+use mapmerge_scan::LaserLog;
+use mapmerge_slam::{LocalTracker, TrackerParams};
 
-/// A session's graph, each node's points, each node's scan index.
-type Session = (
-    PoseGraph2,
-    BTreeMap<NodeId, Arc<[Point2]>>,
+/// Feeds `scans` through a fresh tracker into the atlas's current epoch, searching
+/// constraints after every keyframe (loops in the epoch, matches in the inactive graphs) and
+/// optimising when due, as the engine does; stops after the first keyframe whose search
+/// matched an inactive graph when `stop_at_match`. Returns each keyframe's scan index and the
+/// first match.
+fn map_scans(
+    atlas: &mut Atlas,
+    log: &LaserLog,
+    scans: std::ops::Range<usize>,
+    stop_at_match: bool,
+) -> (
     BTreeMap<NodeId, usize>,
-);
-
-/// Runs the front-end over `scans` and returns its graph, each node's points and scan index.
-fn session(log: &LaserLog, scans: std::ops::Range<usize>) -> Session {
-    let mut front_end = FrontEnd::new(FrontEndParams::default()).unwrap();
+    Option<mapmerge_atlas::MergeProposal>,
+    usize,
+) {
+    let verifier = default_verifier().unwrap();
+    let mut tracker = LocalTracker::new(TrackerParams::default()).unwrap();
     let mut odometry = Se2::identity();
     let mut scan_of = BTreeMap::new();
-    for index in scans {
+    for index in scans.clone() {
         let record = &log.scans[index];
         odometry = record.odom_from_robot.unwrap_or(odometry);
-        if let Some(node) = front_end
-            .add_scan(&odometry, &record.scan)
-            .unwrap()
-            .keyframe
-        {
-            scan_of.insert(node, index);
+        let tracked = tracker
+            .add_scan(&odometry, &record.scan, atlas.next_node_id())
+            .unwrap();
+        let Some(insertion) = tracked.keyframe else {
+            continue;
+        };
+        let node = atlas.insert_keyframe(insertion, None).unwrap();
+        scan_of.insert(node, index);
+        let found = atlas.search_constraints(node, &verifier).unwrap();
+        atlas.optimize_if_due(false).unwrap();
+        if stop_at_match {
+            if let Some(best) = found.merge_candidates.into_iter().next() {
+                return (scan_of, Some(best), index + 1);
+            }
         }
     }
-    front_end.finish();
-    let points = scan_of
-        .keys()
-        .map(|node| (*node, Arc::from(front_end.keyframe_points(*node).unwrap())))
-        .collect();
-    (front_end.graph().clone(), points, scan_of)
+    atlas.optimize_if_due(true).unwrap();
+    (scan_of, None, scans.end)
 }
-
-/// How many of its newest keyframes the robot queries, and how often.
-const QUERY_EVERY: usize = 15;
 
 #[test]
 fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
@@ -62,60 +69,24 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
         .map(|s| s.odom_from_robot.unwrap())
         .collect();
     let (first, second) = (0..500, 500..log.scans.len());
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
     let started = std::time::Instant::now();
-    let (graph_a, points_a, scans_a) = session(&log, first.clone());
-    let (graph_b, points_b, scans_b) = session(&log, second.clone());
-    let front_end_secs = started.elapsed().as_secs_f64();
-
-    let mut params = AtlasParams::default();
-    params.recognition.recent_queries = QUERY_EVERY;
-    let mut atlas = Atlas::new(params);
-    let new_a = atlas
-        .import_graph(&graph_a, |n| points_a.get(&n).cloned())
-        .unwrap();
+    let (scans_a, _, _) = map_scans(&mut atlas, &log, first.clone(), false);
     atlas.end_epoch(EpochEndReason::Kidnap);
     let inactive_before = atlas.inactive(MapId(0)).unwrap().clone();
-
-    // The second session, keyframe by keyframe; like a live robot it queries its newest
-    // keyframes every few keyframes until it recognises the first session.
-    let nodes_b: Vec<NodeId> = graph_b.vertices().map(|(id, _)| id).collect();
-    let mut new_b: BTreeMap<NodeId, NodeId> = BTreeMap::new();
-    let feed = |atlas: &mut Atlas, new_b: &mut BTreeMap<NodeId, NodeId>, old: NodeId| {
-        let id = atlas.add_vertex(*graph_b.vertex(old).unwrap(), points_b[&old].clone());
-        new_b.insert(old, id);
-        for (_, e) in graph_b.edges().filter(|(_, e)| e.from.max(e.to) == old) {
-            atlas
-                .add_edge(Edge {
-                    from: new_b[&e.from],
-                    to: new_b[&e.to],
-                    ..*e
-                })
-                .unwrap();
-        }
-    };
-    let verifier = default_verifier().unwrap();
-    let started = std::time::Instant::now();
-    let mut merged = None;
-    let mut robot_pose = Se2::identity();
-    let mut fed = 0;
-    while merged.is_none() && fed < nodes_b.len() {
-        feed(&mut atlas, &mut new_b, nodes_b[fed]);
-        fed += 1;
-        if fed % QUERY_EVERY == 0 {
-            robot_pose = atlas
-                .active()
-                .vertex(atlas.robot_node().unwrap())
-                .unwrap()
-                .pose;
-            merged = atlas.merge_by_recognition(&verifier).unwrap();
-        }
-    }
-    let event = merged.expect("the second session recognises the first");
-    let merge_secs = started.elapsed().as_secs_f64();
-    eprintln!(
-        "front-ends {front_end_secs:.1} s, recognition + merge after {fed} keyframes {merge_secs:.1} s: {event:?}"
-    );
+    // The second session keyframe by keyframe until it recognises the first.
+    let (mut scans_b, proposal, resume_at) = map_scans(&mut atlas, &log, second.clone(), true);
+    let proposal = proposal.expect("the second session recognises the first");
     let robot = atlas.robot_node().unwrap();
+    let robot_pose = atlas.active().vertex(robot).unwrap().pose;
+    let verifier = default_verifier().unwrap();
+    let event = atlas
+        .merge(proposal.into_request(), Some(&verifier))
+        .unwrap();
+    eprintln!(
+        "two sessions mapped and merged after scan {resume_at} in {:.1} s: {event:?}",
+        started.elapsed().as_secs_f64()
+    );
     assert_eq!(atlas.active().vertex(robot).unwrap().pose, robot_pose);
 
     // The transform is the truth: session frames are the poses of their first scans.
@@ -128,17 +99,20 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
         "merge {t:?} vs truth {truth:?}"
     );
     // Every merge edge agrees with the corrected poses.
-    let scan_of: BTreeMap<NodeId, usize> = new_a
-        .iter()
-        .map(|(old, new)| (*new, scans_a[old]))
-        .chain(new_b.iter().map(|(old, new)| (*new, scans_b[old])))
-        .collect();
+    let scan_of = |node: &NodeId| scans_a.get(node).or(scans_b.get(node)).copied();
+    let merge_edges = atlas
+        .active()
+        .edges()
+        .filter(|(_, e)| e.kind == EdgeKind::Merge)
+        .count();
+    assert!(merge_edges > 0);
     for (_, e) in atlas
         .active()
         .edges()
-        .filter(|(_, e)| e.kind == mapmerge_posegraph::EdgeKind::Merge)
+        .filter(|(_, e)| e.kind == EdgeKind::Merge)
     {
-        let z = corrected[scan_of[&e.from]].between(&corrected[scan_of[&e.to]]);
+        let (from, to) = (scan_of(&e.from).unwrap(), scan_of(&e.to).unwrap());
+        let z = corrected[from].between(&corrected[to]);
         let d = z.between(&e.measurement);
         assert!(
             d.translation().norm() < 0.5 && wrap_angle_rad(d.theta_rad).abs() < 0.1,
@@ -146,12 +120,18 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
         );
     }
 
-    // The robot maps on after the merge: the rest of the second session.
+    // The robot maps on after the merge: the rest of the second session (a fresh tracker
+    // stands in for the one that would continue; the new keyframes join the same epoch).
     let current = atlas.current_epoch();
-    for old in &nodes_b[fed..] {
-        feed(&mut atlas, &mut new_b, *old);
-    }
-    let current_vertices: BTreeSet<NodeId> = new_b.values().copied().collect();
+    let (rest, _, _) = map_scans(&mut atlas, &log, resume_at..second.end, false);
+    scans_b.extend(rest);
+    let current_vertices: BTreeSet<NodeId> = scans_b.keys().copied().collect();
+    let current_edges = atlas
+        .active()
+        .edges()
+        .filter(|(_, e)| current_vertices.contains(&e.from) && current_vertices.contains(&e.to))
+        .filter(|(_, e)| e.kind != EdgeKind::Merge)
+        .count();
 
     // An invalid-merge detector fires: everything merged goes, the second session stays.
     let undo = atlas
@@ -169,5 +149,5 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
         .active()
         .vertices()
         .all(|(_, v)| EpochId::of(&v.meta) == current));
-    assert_eq!(atlas.active().num_edges(), graph_b.num_edges());
+    assert_eq!(atlas.active().num_edges(), current_edges);
 }

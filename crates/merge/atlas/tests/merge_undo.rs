@@ -132,7 +132,7 @@ fn scenario() -> impl Strategy<Value = Scenario> {
 
 /// Runs a scenario and checks every invariant; returns the atlas for further checks.
 fn run<B: BackupStore>(s: &Scenario, backups: B) -> Atlas<B> {
-    let mut atlas = Atlas::with_backups(AtlasParams::default(), backups);
+    let mut atlas = Atlas::with_backups(AtlasParams::default(), backups).unwrap();
     for (i, path) in s.old.iter().enumerate() {
         add_path(&mut atlas, path, Se2::new(i as f64, 0.0, 0.0));
         if i == 1 && s.pre_merge {
@@ -304,7 +304,7 @@ fn run<B: BackupStore>(s: &Scenario, backups: B) -> Atlas<B> {
     // Every vertex still has its scan.
     for (_, g) in atlas.inactive_maps() {
         for (id, _) in g.vertices() {
-            assert!(atlas.scans().get(id).is_some());
+            assert!(atlas.keyframes().get(id).is_some());
         }
     }
     // Nothing left to undo; pruning other epochs' data is allowed again.
@@ -359,7 +359,7 @@ fn disk_backups_restore_exactly_too() {
 
 #[test]
 fn pruning_is_free_again_after_the_epoch_ends() {
-    let mut atlas = Atlas::default();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
     let old = add_path(&mut atlas, &[(1.0, 0.0, 0.0); 4], Se2::identity());
     atlas.end_epoch(EpochEndReason::Restart);
     add_path(&mut atlas, &[(1.0, 0.0, 0.0); 3], Se2::identity());
@@ -378,13 +378,13 @@ fn pruning_is_free_again_after_the_epoch_ends() {
     // The merged graph is inactive now and final: prunable, scan and all.
     assert!(atlas.can_prune(old[1]));
     atlas.prune_vertex(old[1]).unwrap();
-    assert!(atlas.scans().get(old[1]).is_none());
+    assert!(atlas.keyframes().get(old[1]).is_none());
     assert!(!atlas.can_prune(old[1]));
 }
 
 #[test]
 fn merge_errors_leave_the_atlas_unchanged() {
-    let mut atlas = Atlas::default();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
     add_path(&mut atlas, &[(1.0, 0.0, 0.0); 4], Se2::identity());
     atlas.end_epoch(EpochEndReason::Kidnap);
     // No vertex in the active graph yet: nowhere to put the robot.

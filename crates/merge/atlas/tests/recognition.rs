@@ -121,9 +121,7 @@ fn along(corners: &[(f64, f64)]) -> Vec<Se2> {
 #[test]
 fn recognition_merges_onto_the_true_transform_and_unmerge_restores() {
     let world = world();
-    let mut params = AtlasParams::default();
-    params.recognition.recent_queries = 8;
-    let mut atlas = Atlas::new(params);
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
     // Epoch 0 tours the room in the world frame.
     add_epoch(
         &mut atlas,

@@ -1,5 +1,7 @@
 //! Keyframes: the points a place is recognised from, in the keyframe's own frame.
 
+use std::sync::Arc;
+
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
@@ -19,16 +21,18 @@ impl std::fmt::Display for KeyframeId {
 pub struct Keyframe {
     /// Its id.
     pub id: KeyframeId,
-    /// Obstacle points in the keyframe frame (m).
-    pub points_in_keyframe: Vec<Point2>,
+    /// Obstacle points in the keyframe frame (m), shared: a keyframe is made from stored
+    /// points without copying them.
+    pub points_in_keyframe: Arc<[Point2]>,
 }
 
 impl Keyframe {
-    /// A keyframe with id `id` and the points `points_in_keyframe`.
-    pub fn new(id: u64, points_in_keyframe: Vec<Point2>) -> Self {
+    /// A keyframe with id `id` and the points `points_in_keyframe` (a `Vec` or a shared
+    /// `Arc<[Point2]>`).
+    pub fn new(id: u64, points_in_keyframe: impl Into<Arc<[Point2]>>) -> Self {
         Self {
             id: KeyframeId(id),
-            points_in_keyframe,
+            points_in_keyframe: points_in_keyframe.into(),
         }
     }
 }

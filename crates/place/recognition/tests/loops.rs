@@ -37,7 +37,7 @@ fn keyframe(id: u64, world_points: &[Point2], world_from_keyframe: &Se2) -> Keyf
         world_points
             .iter()
             .map(|p| keyframe_from_world.transform_point(p))
-            .collect(),
+            .collect::<Vec<_>>(),
     )
 }
 

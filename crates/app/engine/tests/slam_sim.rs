@@ -1,13 +1,13 @@
-//! The front-end on the simulated office session the repository carries (noisy odometry,
+//! SLAM (the engine with one epoch) on the simulated office session the repository carries (noisy odometry,
 //! wheel slips, exact ground truth): runs without the shared data.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
 
+use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_eval::absolute_trajectory_error;
 use mapmerge_geometry::Se2;
-use mapmerge_slam::{run_front_end, FrontEndParams};
 
 fn testdata(name: &str) -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../testdata")).join(name)
@@ -27,7 +27,7 @@ fn simulated_session_is_mapped_within_ten_centimetres() {
         .iter()
         .map(|s| s.odom_from_robot.unwrap())
         .collect();
-    let run = run_front_end(&log, FrontEndParams::default()).unwrap();
+    let run = run_slam(&log, EngineParams::default(), |_| {}).unwrap();
     let ate = absolute_trajectory_error(&truth, &run.trajectory, true).unwrap();
     let ate_odometry = absolute_trajectory_error(&truth, &odometry, true).unwrap();
     eprintln!(
@@ -36,7 +36,7 @@ fn simulated_session_is_mapped_within_ten_centimetres() {
     );
     assert!(ate.rms_m < 0.1, "{}", ate.rms_m);
     assert!(ate.rms_m * 5.0 < ate_odometry.rms_m);
-    assert!(run.info.local_loops > 0);
+    assert!(run.info.constraints.local_loops > 0);
     // Every scan hangs on a keyframe of the graph.
     assert_eq!(run.trajectory.len(), log.scans.len());
     assert_eq!(run.keyframe_scans.len(), run.graph.num_vertices());

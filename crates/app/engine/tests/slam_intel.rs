@@ -1,10 +1,10 @@
-//! The front-end end to end on real data: the Intel log with the default odometry noise.
+//! SLAM (the engine with one epoch) end to end on real data: the Intel log with the default odometry noise.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_eval::{absolute_trajectory_error, add_odometry_noise, OdometryNoiseProfile};
 use mapmerge_geometry::{LieGroup, Se2};
-use mapmerge_slam::{run_front_end, FrontEndParams};
 
 #[test]
 fn slam_on_intel_closes_loops_and_beats_the_noisy_odometry_tenfold() {
@@ -18,7 +18,7 @@ fn slam_on_intel_closes_loops_and_beats_the_noisy_odometry_tenfold() {
         .map(|s| s.odom_from_robot.unwrap())
         .collect();
     let noisy = add_odometry_noise(&corrected_log, &OdometryNoiseProfile::default(), 0).unwrap();
-    let run = run_front_end(&noisy.log, FrontEndParams::default()).unwrap();
+    let run = run_slam(&noisy.log, EngineParams::default(), |_| {}).unwrap();
     let ate = absolute_trajectory_error(&corrected, &run.trajectory, true).unwrap();
     let ate_odometry =
         absolute_trajectory_error(&corrected, &noisy.odometry_poses(), true).unwrap();

@@ -1,0 +1,918 @@
+//! The atlas's one constraint builder (Cartographer's global side: Hess et al. 2016, Sec. V):
+//! from each new keyframe it searches
+//! 1. loops inside the current epoch: the epoch's finished submaps near the estimate, in a
+//!    window that grows with the drift since the last long loop, then place recognition when
+//!    the robot has been without a loop for a while (gated by that drift; large corrections
+//!    wait for a second loop that agrees);
+//! 2. loops into merged data: after a merge, new keyframes against the nearest other-epoch
+//!    keyframes of the active graph (`Atlas::close_loops_into_merged`);
+//! 3. merge candidates: place recognition of the newest keyframe in each inactive graph
+//!    (Holoch et al., Sec. III-A), returned as observations for the caller to decide on.
+//!
+//! One place index serves 1 and 3: every keyframe of the atlas is described once (Scan
+//! Context, Kim & Kim 2018) — a current-epoch keyframe when its submap is finished, the rest
+//! when its epoch ends or its graph is imported — and each search filters the candidates by
+//! the graph they belong to.
+
+use std::collections::{BTreeMap, HashMap};
+use std::time::Instant;
+
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_place::{
+    verify_candidates, GeometricVerifier, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
+    PlaceParams, ScanContext, Verification,
+};
+use mapmerge_posegraph::{Edge, EdgeKind, NodeId};
+use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
+use mapmerge_slam::{edge_information, RefineFirst, Submap, TrackerParams};
+use mapmerge_solve::{chi2_quantile_99, OptimizerParams, RobustKernel};
+use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
+
+use crate::atlas::Atlas;
+use crate::backup::BackupStore;
+use crate::error::AtlasError;
+use crate::merge::{information_from_covariance, LoopEdge};
+use crate::recognition::{local_map_keyframes, MergeProposal};
+
+/// Loop closing inside the current epoch, one default for every log.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LoopClosureParams {
+    /// Search for loops at all (default: true).
+    pub enabled: bool,
+    /// The matcher of the local search (default: the tracker's).
+    pub matcher: ScanMatchParams,
+    /// When ICP from the estimate is trusted without the correlative search (default: the
+    /// tracker's rule).
+    pub refine_first: RefineFirst,
+    /// A loop match is accepted when its score reaches this (default: 0.6).
+    pub min_score: f64,
+    /// Finished submaps with a keyframe within this distance (m) of the current estimate
+    /// are searched (default: 5).
+    pub max_distance_m: f64,
+    /// At most this many nearby submaps are searched per keyframe, nearest first (default: 2).
+    pub max_submaps_per_keyframe: usize,
+    /// Translation half-width of the local search: `min + per_m · d`, not searched beyond
+    /// `max`, with `d` the path since the submap or since the last long loop, whichever is
+    /// shorter (m) (default: 0.5, 0.05, 7).
+    pub window_linear: (f64, f64, f64),
+    /// Heading half-width the same way (rad), clamped at `max` (default: 10°, 0.5°/m, 45°).
+    pub window_angular: (f64, f64, f64),
+    /// While that `d` is below this (m), ICP from the estimate is tried first and kept
+    /// under the `refine_first` rule (default: 5).
+    pub refine_below_drift_m: f64,
+    /// Place recognition runs once the robot travelled this far (m) without a long loop
+    /// (default: 5) and the local search found nothing.
+    pub place_after_m: f64,
+    /// A loop whose ends are this far apart along the path (m) bounds the drift from then
+    /// on (default: 30); shorter ones (to the submap just finished) do not reset it.
+    pub long_loop_span_m: f64,
+    /// Place recognition's retrieval and acceptance (default: 3 candidates within
+    /// descriptor distance 0.4, score ≥ 0.65). Its `descriptor` and `index` configure the
+    /// atlas's one place index, which every search shares.
+    pub place: PlaceParams,
+    /// A place-recognition loop also needs this confidence (the gap to the best rival place,
+    /// see `mapmerge_place::VerifiedLoop`) (default: 0.1): look-alike places are refused.
+    pub place_min_confidence: f64,
+    /// Window of the verification around the descriptor's guess (default: ±2 m, ±20°).
+    pub place_window: SearchWindow,
+    /// A place-recognition loop may move the keyframe's estimate by at most
+    /// `a + b·d` (m) and `c + e·d` (rad), `d` the path since the candidate keyframe or since
+    /// the last long loop, whichever is shorter (m)
+    /// (default: 1 m + 10 %, 5° + 0.1°/m): Mahalanobis-style gating by the drift a
+    /// scan-matching front-end accumulates, which refuses look-alike places far away.
+    pub place_gate: (f64, f64, f64, f64),
+    /// The graph is optimised after a loop when at least this many keyframes passed since
+    /// the last optimisation (default: 10), and once at the end.
+    pub optimize_every_keyframes: usize,
+    /// The optimisation after loops (default: Levenberg–Marquardt, DCS with Φ = χ²₃(0.99),
+    /// at most 20 iterations).
+    pub optimizer: OptimizerParams,
+    /// A loop that corrects the keyframe's estimate by more than this (m, rad) needs a
+    /// second loop implying the same correction (default: 0.3 m, 3°) ...
+    pub confirm_above: (f64, f64),
+    /// ... within this many keyframes (default: 5) ...
+    pub confirm_within_keyframes: usize,
+    /// ... agreeing within this (m, rad) (default: 0.3 m, 2°).
+    pub confirm_agreement: (f64, f64),
+    /// Smallest standard deviations of a loop edge (m, rad) (default: 10 cm, 2°). Loop edges
+    /// come in dozens per revisit and each leans on a rigid submap whose shape carries the
+    /// tracker's drift at building time; floored this loosely they close loops without
+    /// bending the graph (simulated office ATE 10.6 → 4.4 cm, infinite corridor 5.0 → 0.96 m).
+    pub min_edge_sigma: (f64, f64),
+}
+
+impl Default for LoopClosureParams {
+    fn default() -> Self {
+        let place = PlaceParams {
+            candidates_per_query: 3,
+            max_descriptor_distance: 0.4,
+            min_score: 0.65,
+            ..PlaceParams::default()
+        };
+        let tracker = TrackerParams::default();
+        Self {
+            enabled: true,
+            matcher: tracker.matcher,
+            refine_first: tracker.refine_first,
+            min_score: 0.6,
+            max_distance_m: 5.0,
+            max_submaps_per_keyframe: 2,
+            window_linear: (0.5, 0.05, 7.0),
+            window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
+            refine_below_drift_m: 5.0,
+            place_after_m: 5.0,
+            long_loop_span_m: 30.0,
+            place,
+            place_min_confidence: 0.1,
+            place_window: SearchWindow::new(2.0, 20f64.to_radians()),
+            place_gate: (1.0, 0.1, 5f64.to_radians(), 0.1f64.to_radians()),
+            optimize_every_keyframes: 10,
+            optimizer: OptimizerParams {
+                robust: RobustKernel::Dcs {
+                    phi: chi2_quantile_99(3),
+                },
+                max_iterations: 20,
+                ..OptimizerParams::default()
+            },
+            confirm_above: (0.3, 3f64.to_radians()),
+            confirm_within_keyframes: 5,
+            confirm_agreement: (0.3, 2f64.to_radians()),
+            min_edge_sigma: (0.1, 2f64.to_radians()),
+        }
+    }
+}
+
+impl LoopClosureParams {
+    /// The local search window after travelling `distance_m` without a loop; `None` once
+    /// the drift may exceed the largest window, where a search would find only look-alikes
+    /// of the place (place recognition, gated by the drift, takes over).
+    pub fn local_window(&self, distance_m: f64) -> Option<SearchWindow> {
+        let grow = |(min, per_m, _): (f64, f64, f64)| min + per_m * distance_m.max(0.0);
+        let linear_m = grow(self.window_linear);
+        (linear_m <= self.window_linear.2).then(|| {
+            SearchWindow::new(
+                linear_m,
+                grow(self.window_angular).min(self.window_angular.2),
+            )
+        })
+    }
+}
+
+/// How a loop edge inside an epoch was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LoopSource {
+    /// Search of a nearby finished submap around the current estimate.
+    Local,
+    /// Place recognition (descriptor retrieval + verification), no pose guess.
+    Place,
+}
+
+/// An accepted loop edge inside an epoch: from the matched submap's keyframe nearest to the
+/// match, to a keyframe.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct LoopRecord {
+    /// The submap's keyframe nearest to the match.
+    pub from: NodeId,
+    /// The keyframe node.
+    pub to: NodeId,
+    /// The keyframe's pose in `from`'s frame (`from_from_to`).
+    pub measurement: Se2,
+    /// How it was found.
+    pub source: LoopSource,
+    /// The match score.
+    pub score: f64,
+    /// The match covariance (right tangent of `measurement`).
+    pub covariance: Matrix3<f64>,
+}
+
+/// Counters of the constraint builder over the atlas's life.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct ConstraintInfo {
+    /// Loop searches against nearby submaps, and loops they found.
+    pub local_searches: usize,
+    /// See `local_searches`.
+    pub local_loops: usize,
+    /// Place-recognition queries inside the epoch, and loops they found.
+    pub place_queries: usize,
+    /// See `place_queries`.
+    pub place_loops: usize,
+    /// Place-recognition matches refused because they would move the estimate further than
+    /// its drift can explain.
+    pub place_gated: usize,
+    /// Optimisations after loops.
+    pub optimizations: usize,
+    /// Place-recognition queries against the inactive graphs, and the matches they found.
+    pub merge_queries: usize,
+    /// See `merge_queries`.
+    pub merge_matches: usize,
+    /// Wall time (s) of the local search, place recognition inside the epoch, optimisation
+    /// after loops, and the search of the inactive graphs.
+    pub local_loops_seconds: f64,
+    /// See `local_loops_seconds`.
+    pub place_seconds: f64,
+    /// See `local_loops_seconds`.
+    pub optimization_seconds: f64,
+    /// See `local_loops_seconds`.
+    pub merge_search_seconds: f64,
+}
+
+/// What one keyframe's constraint search found (see the module docs).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ConstraintSearch {
+    /// Loop edges added inside the current epoch.
+    pub epoch_loops: usize,
+    /// Loop edges added into merged data.
+    pub merged_loops: usize,
+    /// Matches of the newest keyframe in inactive graphs (not merged: the caller decides).
+    pub merge_candidates: Vec<MergeProposal>,
+}
+
+/// A keyframe in the place index.
+struct IndexedKeyframe {
+    keyframe: Keyframe,
+    /// The finished submap of the current epoch it was indexed with (`None` when indexed at
+    /// the end of its epoch or on import).
+    submap: Option<NodeId>,
+}
+
+/// The constraint builder's state (owned by the atlas).
+pub(crate) struct ConstraintBuilder {
+    matcher: ScanMatcher,
+    index: PlaceIndex<ScanContext>,
+    /// Indexed keyframes by insertion ordinal.
+    indexed: Vec<IndexedKeyframe>,
+    ordinal_of: HashMap<KeyframeId, usize>,
+    /// The current epoch's finished submaps, by anchor node (creation order).
+    submaps: BTreeMap<NodeId, Submap>,
+    /// Travel at the newest keyframe of the epoch (m).
+    pub(crate) travel_m: f64,
+    /// Travel (m) at the last loop to a submap older than the active ones.
+    travel_at_last_loop_m: f64,
+    /// Loops with large corrections awaiting confirmation, with the pose they imply.
+    pending_loops: Vec<(LoopRecord, Se2)>,
+    /// Keyframes of the current epoch, and those of them indexed with a finished submap.
+    pub(crate) epoch_keyframes: usize,
+    epoch_indexed: usize,
+    keyframes_since_optimization: usize,
+    loops_since_optimization: usize,
+    /// Loops inside the epoch the last search added.
+    loops_at_last_search: usize,
+    /// Keyframes since the last search of merged data and of the inactive graphs.
+    keyframes_since_merge_search: usize,
+    loops: Vec<LoopRecord>,
+    pub(crate) info: ConstraintInfo,
+}
+
+impl ConstraintBuilder {
+    pub(crate) fn new(params: &LoopClosureParams) -> Result<Self, AtlasError> {
+        Ok(Self {
+            matcher: ScanMatcher::new(params.matcher)
+                .map_err(|e| AtlasError::Config(e.to_string()))?,
+            index: PlaceIndex::new(params.place.index.clone()),
+            indexed: Vec::new(),
+            ordinal_of: HashMap::new(),
+            submaps: BTreeMap::new(),
+            travel_m: 0.0,
+            travel_at_last_loop_m: 0.0,
+            pending_loops: Vec::new(),
+            epoch_keyframes: 0,
+            epoch_indexed: 0,
+            keyframes_since_optimization: 0,
+            loops_since_optimization: 0,
+            loops_at_last_search: 0,
+            keyframes_since_merge_search: 0,
+            loops: Vec::new(),
+            info: ConstraintInfo::default(),
+        })
+    }
+
+    /// A new epoch: its submaps and drift bookkeeping start afresh (the index stays).
+    pub(crate) fn start_epoch(&mut self) {
+        self.submaps.clear();
+        self.travel_m = 0.0;
+        self.travel_at_last_loop_m = 0.0;
+        self.pending_loops.clear();
+        self.epoch_keyframes = 0;
+        self.epoch_indexed = 0;
+        self.keyframes_since_optimization = 0;
+        self.loops_since_optimization = 0;
+        self.loops_at_last_search = 0;
+        self.keyframes_since_merge_search = 0;
+    }
+
+    /// Describes and indexes keyframe `node` (once).
+    pub(crate) fn index_keyframe(
+        &mut self,
+        node: NodeId,
+        points: &std::sync::Arc<[mapmerge_scan::Point2]>,
+        submap: Option<NodeId>,
+        params: &LoopClosureParams,
+    ) {
+        let id = KeyframeId(node.0);
+        if self.ordinal_of.contains_key(&id) {
+            return;
+        }
+        let descriptor = ScanContext::new(points, &params.place.descriptor);
+        self.index.insert(id, descriptor);
+        self.ordinal_of.insert(id, self.indexed.len());
+        self.indexed.push(IndexedKeyframe {
+            keyframe: Keyframe::new(node.0, std::sync::Arc::clone(points)),
+            submap,
+        });
+        self.epoch_indexed += usize::from(submap.is_some());
+    }
+
+    /// Every loop edge added inside epochs, in order.
+    pub(crate) fn loops(&self) -> &[LoopRecord] {
+        &self.loops
+    }
+
+    /// True when `node` is in the place index.
+    pub(crate) fn is_indexed(&self, node: NodeId) -> bool {
+        self.ordinal_of.contains_key(&KeyframeId(node.0))
+    }
+}
+
+/// Verifies a place-recognition candidate keyframe against the submap it belongs to (a
+/// richer target than its single scan).
+struct SubmapVerifier<'a> {
+    matcher: &'a ScanMatcher,
+    submaps: &'a BTreeMap<NodeId, Submap>,
+    /// For a candidate keyframe: its submap and its pose in it.
+    locate: &'a (dyn Fn(KeyframeId) -> Option<(NodeId, Se2)> + Sync),
+    window: SearchWindow,
+}
+
+impl GeometricVerifier for SubmapVerifier<'_> {
+    fn verify(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<Verification> {
+        let (submap, submap_from_candidate) = (self.locate)(candidate.id)?;
+        let target = self.submaps.get(&submap)?.target();
+        let guess = submap_from_candidate.compose(guess_candidate_from_query);
+        let found =
+            self.matcher
+                .match_scan(target, &query.points_in_keyframe, &guess, &self.window)?;
+        Some(Verification {
+            candidate_from_query: submap_from_candidate.between(&found.target_from_query),
+            score: found.score,
+            covariance: found.covariance,
+        })
+    }
+}
+
+impl<B: BackupStore> Atlas<B> {
+    /// Every loop edge added inside epochs, in order.
+    pub fn loops(&self) -> &[LoopRecord] {
+        self.constraints.loops()
+    }
+
+    /// Counters of the constraint builder.
+    pub fn constraint_info(&self) -> ConstraintInfo {
+        self.constraints.info
+    }
+
+    /// Keeps a submap of the current epoch that the tracker finished as a loop-closure target
+    /// and indexes its keyframes (a keyframe in two submaps with the first to finish).
+    pub fn add_finished_submap(&mut self, submap: Submap) {
+        let loops = &self.params.loops;
+        for (member, _) in &submap.keyframes {
+            if let Some(points) = self.keyframes.get(*member) {
+                self.constraints
+                    .index_keyframe(*member, points, Some(submap.anchor), loops);
+            }
+        }
+        self.constraints.submaps.insert(submap.anchor, submap);
+    }
+
+    /// The constraint search for the new keyframe `node` (see the module docs): loops inside
+    /// the epoch every keyframe; every `recognition.every_keyframes` keyframes, loops into
+    /// merged data (while merged) and matches in the inactive graphs (once the epoch has
+    /// `recognition.min_epoch_keyframes`), verified by `verifier`.
+    pub fn search_constraints(
+        &mut self,
+        node: NodeId,
+        verifier: &dyn GeometricVerifier,
+    ) -> Result<ConstraintSearch, AtlasError> {
+        let mut found = ConstraintSearch::default();
+        self.constraints.keyframes_since_optimization += 1;
+        if self.params.loops.enabled {
+            found.epoch_loops = self.search_epoch_loops(node);
+        }
+        self.constraints.loops_at_last_search = found.epoch_loops;
+        let every = self.params.recognition.every_keyframes.max(1);
+        if self.is_undoable() && self.constraints.epoch_keyframes % every == 0 {
+            found.merged_loops = self.close_loops_into_merged(every, verifier)?;
+        }
+        self.constraints.keyframes_since_merge_search += 1;
+        if !self.inactive.is_empty()
+            && self.constraints.epoch_keyframes >= self.params.recognition.min_epoch_keyframes
+            && self.constraints.keyframes_since_merge_search >= every
+        {
+            self.constraints.keyframes_since_merge_search = 0;
+            let started = Instant::now();
+            found.merge_candidates = self.find_merges(verifier);
+            self.constraints.info.merge_queries += 1;
+            self.constraints.info.merge_matches += found.merge_candidates.len();
+            self.constraints.info.merge_search_seconds += started.elapsed().as_secs_f64();
+        }
+        Ok(found)
+    }
+
+    /// Optimises the active graph when the last search added loops inside the epoch and
+    /// enough keyframes passed since the last optimisation (`loops.optimize_every_keyframes`),
+    /// or with `force` whenever loops wait (call with `force` after the last scan). While merged the robot's vertex is
+    /// held (it must not jump); otherwise the gauge is the graph's first vertex.
+    pub fn optimize_if_due(&mut self, force: bool) -> Result<bool, AtlasError> {
+        let c = &self.constraints;
+        let due = if force {
+            c.loops_since_optimization > 0
+        } else {
+            c.loops_at_last_search > 0
+                && c.keyframes_since_optimization >= self.params.loops.optimize_every_keyframes
+        };
+        if !due {
+            return Ok(false);
+        }
+        let started = Instant::now();
+        let params = self.params.loops.optimizer.clone();
+        let result = if self.is_undoable() {
+            crate::atlas::optimize_holding(&mut self.active, self.robot, &params).map(|_| ())
+        } else {
+            // A failed optimisation keeps the graph's last good state (the solver's contract).
+            let _ = mapmerge_solve::optimize(&mut self.active, &params);
+            Ok(())
+        };
+        self.constraints.info.optimizations += 1;
+        self.constraints.info.optimization_seconds += started.elapsed().as_secs_f64();
+        self.constraints.keyframes_since_optimization = 0;
+        self.constraints.loops_since_optimization = 0;
+        self.update_map_from_local();
+        result.map(|()| true)
+    }
+
+    /// Loop search from keyframe `node` inside the current epoch; returns how many loop
+    /// edges were added.
+    fn search_epoch_loops(&mut self, node: NodeId) -> usize {
+        let Some(map_from_robot) = self.active.vertex(node).map(|v| v.pose) else {
+            return 0;
+        };
+        let Some(points) = self.keyframes.get(node).cloned() else {
+            return 0;
+        };
+        let loops_params = self.params.loops.clone();
+        // Nearby finished submaps, nearest first.
+        let mut nearby: Vec<(f64, NodeId)> = self
+            .constraints
+            .submaps
+            .iter()
+            .filter(|(_, submap)| submap.finished)
+            .filter_map(|(anchor, submap)| {
+                let distance = submap
+                    .keyframes
+                    .iter()
+                    .filter_map(|(member, _)| self.active.vertex(*member))
+                    .map(|v| (v.pose.translation() - map_from_robot.translation()).norm())
+                    .fold(f64::INFINITY, f64::min);
+                (distance <= loops_params.max_distance_m).then_some((distance, *anchor))
+            })
+            .collect();
+        nearby.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut added = 0;
+        let started = Instant::now();
+        for &(_, anchor) in nearby.iter().take(loops_params.max_submaps_per_keyframe) {
+            let Some(submap) = self.constraints.submaps.get(&anchor) else {
+                continue;
+            };
+            let Some(map_from_submap) = self.active.vertex(submap.anchor).map(|v| v.pose) else {
+                continue;
+            };
+            // Uncertainty: travel since the submap ended or since the last long loop.
+            let distance = submap
+                .keyframes
+                .last()
+                .map_or(0.0, |(member, _)| self.drift_since(*member));
+            let Some(window) = loops_params.local_window(distance) else {
+                continue;
+            };
+            let guess = map_from_submap.between(&map_from_robot);
+            self.constraints.info.local_searches += 1;
+            // Right after a long loop the estimate is good: ICP from it, trusted as the
+            // tracker trusts it, spares the search.
+            let matcher = &self.constraints.matcher;
+            let refined = matcher
+                .refine(submap.target(), &points, &guess)
+                .filter(|m| {
+                    distance <= loops_params.refine_below_drift_m
+                        && loops_params.refine_first.accepts(m, &guess)
+                });
+            let Some(found) =
+                refined.or_else(|| matcher.match_scan(submap.target(), &points, &guess, &window))
+            else {
+                continue;
+            };
+            // ICP's covariance shows a corridor's ambiguity; the correlative one cannot.
+            if found.score < loops_params.min_score || found.icp.is_none() {
+                continue;
+            }
+            let Some((member, member_from_robot)) =
+                submap.relative_to_nearest(&found.target_from_query)
+            else {
+                continue;
+            };
+            let record = LoopRecord {
+                from: member,
+                to: node,
+                measurement: member_from_robot,
+                source: LoopSource::Local,
+                score: found.score,
+                covariance: found.covariance,
+            };
+            added += self.propose_loop(record);
+        }
+        self.constraints.info.local_loops_seconds += started.elapsed().as_secs_f64();
+        if added > 0 {
+            return added;
+        }
+        // Place recognition after a long stretch without loops.
+        if self.constraints.travel_m - self.constraints.travel_at_last_loop_m
+            < loops_params.place_after_m
+            || self.constraints.epoch_indexed == 0
+        {
+            return 0;
+        }
+        let started = Instant::now();
+        let found = self.recognise_place(node, &points, map_from_robot);
+        self.constraints.info.place_seconds += started.elapsed().as_secs_f64();
+        found
+    }
+
+    /// Place recognition for keyframe `node` (points, current estimate) among the current
+    /// epoch's finished submaps: a gated loop edge or nothing; returns how many loop edges
+    /// were added.
+    fn recognise_place(
+        &mut self,
+        node: NodeId,
+        points: &std::sync::Arc<[mapmerge_scan::Point2]>,
+        map_from_robot: Se2,
+    ) -> usize {
+        let loops_params = self.params.loops.clone();
+        self.constraints.info.place_queries += 1;
+        let c = &self.constraints;
+        let c_submaps = &c.submaps;
+        let descriptor = ScanContext::new(points, &loops_params.place.descriptor);
+        let retrieved = c.index.query_filtered(
+            &descriptor,
+            loops_params.place.candidates_per_query,
+            |ordinal, _| {
+                c.indexed
+                    .get(ordinal)
+                    .and_then(|k| k.submap)
+                    .is_some_and(|s| c_submaps.contains_key(&s))
+            },
+        );
+        // Candidates the gate would refuse anyway are not verified: the query must lie within
+        // the verifier's window of the candidate, and the candidate within the gate.
+        let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
+        let candidates: Vec<PlaceCandidate> = retrieved
+            .iter()
+            .filter(|c| c.descriptor_distance <= loops_params.place.max_descriptor_distance)
+            .filter_map(|candidate| {
+                let ordinal = *c.ordinal_of.get(&candidate.keyframe)?;
+                let keyframe = &c.indexed.get(ordinal)?.keyframe;
+                let map_from_keyframe = self.active.vertex(NodeId(candidate.keyframe.0))?.pose;
+                let distance_m =
+                    (map_from_keyframe.translation() - map_from_robot.translation()).norm();
+                let drift_m = self.drift_since(NodeId(candidate.keyframe.0));
+                let reach_m = gate_m + gate_per_m * drift_m + loops_params.place_window.linear_m;
+                (distance_m <= reach_m).then_some(PlaceCandidate {
+                    ordinal,
+                    keyframe,
+                    yaw_rad: candidate.yaw_rad,
+                    map_from_keyframe: Some(map_from_keyframe),
+                })
+            })
+            .collect();
+        if candidates.is_empty() {
+            return 0;
+        }
+        let locate = |id: KeyframeId| {
+            let ordinal = *c.ordinal_of.get(&id)?;
+            let s = c.indexed.get(ordinal)?.submap?;
+            let pose = c.submaps.get(&s)?.submap_from_keyframe(NodeId(id.0))?;
+            Some((s, pose))
+        };
+        let verifier = SubmapVerifier {
+            matcher: &c.matcher,
+            submaps: &c.submaps,
+            locate: &locate,
+            window: loops_params.place_window,
+        };
+        let query = Keyframe::new(node.0, std::sync::Arc::clone(points));
+        let Some(found) = verify_candidates(&query, &candidates, &verifier, &loops_params.place)
+        else {
+            return 0;
+        };
+        if found.confidence < loops_params.place_min_confidence {
+            return 0;
+        }
+        let Some((s, submap_from_candidate)) = locate(found.b) else {
+            return 0;
+        };
+        let Some(map_from_submap) = c
+            .submaps
+            .get(&s)
+            .and_then(|submap| Some(self.active.vertex(submap.anchor)?.pose))
+        else {
+            return 0;
+        };
+        // Gate by the estimate's uncertainty: the loop may move the keyframe only as far as
+        // the drift since the last loop can explain.
+        let measurement = submap_from_candidate.compose(&found.b_from_a);
+        let correction = map_from_robot.between(&map_from_submap.compose(&measurement));
+        let drift_m = self.drift_since(NodeId(found.b.0));
+        if correction.translation().norm() > gate_m + gate_per_m * drift_m
+            || correction.theta_rad.abs() > gate_rad + gate_rad_per_m * drift_m
+        {
+            self.constraints.info.place_gated += 1;
+            return 0;
+        }
+        let Some((member, member_from_robot)) = c
+            .submaps
+            .get(&s)
+            .and_then(|submap| submap.relative_to_nearest(&measurement))
+        else {
+            return 0;
+        };
+        let record = LoopRecord {
+            from: member,
+            to: node,
+            measurement: member_from_robot,
+            source: LoopSource::Place,
+            score: found.score,
+            covariance: found.covariance,
+        };
+        self.propose_loop(record)
+    }
+
+    /// Travel (m) up to keyframe `node` within its epoch.
+    fn travel_at(&self, node: NodeId) -> f64 {
+        self.keyframes
+            .record(node)
+            .map_or(self.constraints.travel_m, |k| k.travel_m)
+    }
+
+    /// How far the robot may have drifted from where it was at keyframe `node`: the path
+    /// since then, or since the last loop that spanned a long path, whichever is shorter.
+    fn drift_since(&self, node: NodeId) -> f64 {
+        let c = &self.constraints;
+        (c.travel_m - self.travel_at(node))
+            .min(c.travel_m - c.travel_at_last_loop_m)
+            .max(0.0)
+    }
+
+    /// Proposes a loop edge. One that moves the keyframe's estimate by little is added at
+    /// once; a large correction must be confirmed by another loop from a different submap
+    /// or a later keyframe that implies the same correction (temporal consistency, as
+    /// look-alike places rarely agree twice), until then it waits. Returns the loop edges
+    /// added.
+    fn propose_loop(&mut self, record: LoopRecord) -> usize {
+        let (Some(map_from_member), Some(map_from_robot)) = (
+            self.active.vertex(record.from).map(|v| v.pose),
+            self.active.vertex(record.to).map(|v| v.pose),
+        ) else {
+            return 0;
+        };
+        let implied = map_from_member.compose(&record.measurement);
+        let params = &self.params.loops;
+        let (small_m, small_rad) = params.confirm_above;
+        let correction = map_from_robot.between(&implied);
+        if correction.translation().norm() <= small_m && correction.theta_rad.abs() <= small_rad {
+            self.add_loop(record);
+            return 1;
+        }
+        // The map-frame correction this loop asks for, applied to the other's estimate.
+        let map_correction = implied.compose(&map_from_robot.inverse());
+        let oldest = record
+            .to
+            .0
+            .saturating_sub(params.confirm_within_keyframes as u64);
+        self.constraints
+            .pending_loops
+            .retain(|(pending, _)| pending.to.0 >= oldest);
+        let (agree_m, agree_rad) = params.confirm_agreement;
+        let submap_of = |node: NodeId| self.keyframes.record(node).and_then(|k| k.submap);
+        let agreeing: Vec<usize> = self
+            .constraints
+            .pending_loops
+            .iter()
+            .enumerate()
+            .filter(|(_, (pending, pending_implied))| {
+                let distinct =
+                    pending.to != record.to || submap_of(pending.from) != submap_of(record.from);
+                let Some(estimate) = self.active.vertex(pending.to).map(|v| v.pose) else {
+                    return false;
+                };
+                let difference = map_correction.compose(&estimate).between(pending_implied);
+                distinct
+                    && difference.translation().norm() <= agree_m
+                    && difference.theta_rad.abs() <= agree_rad
+            })
+            .map(|(index, _)| index)
+            .collect();
+        if agreeing.is_empty() {
+            self.constraints.pending_loops.push((record, implied));
+            return 0;
+        }
+        let mut added = 0;
+        for index in agreeing.into_iter().rev() {
+            let (pending, _) = self.constraints.pending_loops.remove(index);
+            self.add_loop(pending);
+            added += 1;
+        }
+        self.add_loop(record);
+        added + 1
+    }
+
+    fn add_loop(&mut self, record: LoopRecord) {
+        // A loop across a long path bounds the drift from then on; short ones (to the
+        // submap just finished) say little about it.
+        if self.constraints.travel_m - self.travel_at(record.from)
+            >= self.params.loops.long_loop_span_m
+        {
+            self.constraints.travel_at_last_loop_m = self.constraints.travel_m;
+        }
+        match record.source {
+            LoopSource::Local => self.constraints.info.local_loops += 1,
+            LoopSource::Place => self.constraints.info.place_loops += 1,
+        }
+        let information = edge_information(&record.covariance, self.params.loops.min_edge_sigma);
+        // Both ends are vertices of the active graph (checked by the caller).
+        let _ = self.active.add_edge(Edge {
+            from: record.from,
+            to: record.to,
+            measurement: record.measurement,
+            information,
+            kind: EdgeKind::Loop,
+        });
+        self.constraints.loops.push(record);
+        self.constraints.loops_since_optimization += 1;
+    }
+
+    /// Place recognition of the newest current-epoch keyframe in every inactive graph
+    /// (Sec. III-A) through the one place index, filtered to each graph's keyframes; the
+    /// candidates are verified as local maps (see [`crate::KeyframeParams`]) by `verifier`
+    /// and rated against rival places of the same graph. One proposal per matched graph,
+    /// most loops (then best score) first.
+    pub fn find_merges(&self, verifier: &dyn GeometricVerifier) -> Vec<MergeProposal> {
+        let p = &self.params.recognition;
+        let Some(query_node) = self.robot.filter(|n| self.is_current_epoch(*n)) else {
+            return Vec::new();
+        };
+        let Some(points) = self.keyframes.get(query_node) else {
+            return Vec::new();
+        };
+        let c = &self.constraints;
+        let descriptor = ScanContext::new(points, &self.params.loops.place.descriptor);
+        let query = local_map_keyframes(
+            &self.active,
+            &self.keyframes,
+            &self.params.keyframes,
+            &[query_node],
+        );
+        let Some(query) = query.get(&query_node) else {
+            return Vec::new();
+        };
+        let Some(pose_a) = self.active.vertex(query_node).map(|v| v.pose) else {
+            return Vec::new();
+        };
+        let mut proposals = Vec::new();
+        for (map, graph) in &self.inactive {
+            let retrieved =
+                c.index
+                    .query_filtered(&descriptor, p.place.candidates_per_query, |_, id| {
+                        graph.contains_vertex(NodeId(id.0))
+                    });
+            let nodes: Vec<(NodeId, f64, usize)> = retrieved
+                .iter()
+                .filter(|r| r.descriptor_distance <= p.place.max_descriptor_distance)
+                .filter_map(|r| {
+                    Some((
+                        NodeId(r.keyframe.0),
+                        r.yaw_rad,
+                        *c.ordinal_of.get(&r.keyframe)?,
+                    ))
+                })
+                .collect();
+            if nodes.is_empty() {
+                continue;
+            }
+            let wanted: Vec<NodeId> = nodes.iter().map(|(n, _, _)| *n).collect();
+            let local_maps =
+                local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, &wanted);
+            let candidates: Vec<PlaceCandidate> = nodes
+                .iter()
+                .filter_map(|(node, yaw_rad, ordinal)| {
+                    Some(PlaceCandidate {
+                        ordinal: *ordinal,
+                        keyframe: local_maps.get(node)?,
+                        yaw_rad: *yaw_rad,
+                        map_from_keyframe: Some(graph.vertex(*node)?.pose),
+                    })
+                })
+                .collect();
+            let Some(found) = verify_candidates(query, &candidates, &Dyn(verifier), &p.place)
+            else {
+                continue;
+            };
+            if found.confidence < p.min_confidence {
+                continue;
+            }
+            let b = NodeId(found.b.0);
+            let Some(pose_b) = graph.vertex(b).map(|v| v.pose) else {
+                continue;
+            };
+            let active_from_inactive = pose_a
+                .compose(&found.b_from_a.inverse())
+                .compose(&pose_b.inverse());
+            let edge = LoopEdge {
+                active: query_node,
+                inactive: b,
+                inactive_from_active: found.b_from_a,
+                information: information_from_covariance(
+                    &found.covariance,
+                    self.params.merge.loop_min_sigma,
+                ),
+            };
+            proposals.push(MergeProposal {
+                map: *map,
+                active_from_inactive,
+                loops: vec![edge],
+                score: found.score,
+                confidence: found.confidence,
+                covariance: found.covariance,
+            });
+        }
+        proposals.sort_by(|x, y| {
+            y.loops
+                .len()
+                .cmp(&x.loops.len())
+                .then(y.score.total_cmp(&x.score))
+        });
+        proposals
+    }
+
+    /// Indexes every keyframe of the active graph not yet in the place index (an ending
+    /// epoch's unfinished submaps, an imported graph).
+    pub(crate) fn index_active_graph(&mut self) {
+        let nodes: Vec<NodeId> = self.active.vertices().map(|(id, _)| id).collect();
+        for node in nodes {
+            if self.constraints.is_indexed(node) {
+                continue;
+            }
+            if let Some(points) = self.keyframes.get(node) {
+                self.constraints
+                    .index_keyframe(node, points, None, &self.params.loops);
+            }
+        }
+    }
+}
+
+/// A `&dyn GeometricVerifier` as a sized verifier (the place crate's functions are generic).
+struct Dyn<'a>(&'a dyn GeometricVerifier);
+
+impl GeometricVerifier for Dyn<'_> {
+    fn verify(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<Verification> {
+        self.0.verify(query, candidate, guess_candidate_from_query)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn local_window_grows_with_drift_and_stops_beyond_its_largest() {
+        let params = LoopClosureParams::default();
+        let (min_m, per_m, max_m) = params.window_linear;
+        let near = params.local_window(0.0).map(|w| w.linear_m);
+        assert_eq!(near, Some(min_m));
+        let far = params.local_window(50.0).map(|w| w.linear_m);
+        assert_eq!(far, Some(min_m + per_m * 50.0));
+        assert!(params.local_window((max_m - min_m) / per_m + 1.0).is_none());
+        // The heading window is clamped, not a reason to stop.
+        let window = params.local_window(100.0).map(|w| w.angular_rad);
+        assert_eq!(window, Some(params.window_angular.2));
+    }
+}

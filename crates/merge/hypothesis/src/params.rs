@@ -1,0 +1,163 @@
+//! Parameters of the hypothesis filter (Banerjee et al., Sec. 3.2.1 and 5.2).
+
+use serde::{Deserialize, Deserializer, Serialize};
+
+use crate::HypothesisError;
+
+/// When a hypothesis holds enough evidence (Sec. 3.2.1: "a threshold on the number of
+/// observations contained in the hypothesis, and the number of views that were observed").
+///
+/// Counts are weighted: a non-ambiguous observation counts 1, an ambiguous one
+/// [`HypothesisFilterParams::ambiguous_weight`]; a view counts with the largest weight of its
+/// observations. A partial object in a config file keeps the other fields of the criteria it
+/// overrides (`full: { min_observations: 8 }` keeps the full criteria's views and spread).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AcceptanceCriteria {
+    /// Weighted observations needed.
+    pub min_observations: usize,
+    /// Weighted distinct views (observed keyframes) needed.
+    pub min_distinct_views: usize,
+    /// Our addition beyond the paper: observations of two different views must lie at least
+    /// this far apart in robot travel (m), so that evidence gathered from one spot does not
+    /// count as independent. Travel is the measure, not the distance between robot poses.
+    pub min_view_spread_m: f64,
+}
+
+impl AcceptanceCriteria {
+    /// The permissive criteria of a conditional merge (Sec. 5.2): 2 observations, 2 views,
+    /// no spread.
+    pub fn conditional() -> Self {
+        Self {
+            min_observations: 2,
+            min_distinct_views: 2,
+            min_view_spread_m: 0.0,
+        }
+    }
+
+    /// The strict criteria of a full merge or a recovery: 5 observations, 4 views, 2 m.
+    pub fn full() -> Self {
+        Self {
+            min_observations: 5,
+            min_distinct_views: 4,
+            min_view_spread_m: 2.0,
+        }
+    }
+
+    fn validate(&self, name: &'static str) -> Result<(), HypothesisError> {
+        if self.min_view_spread_m.is_finite() && self.min_view_spread_m >= 0.0 {
+            Ok(())
+        } else {
+            Err(HypothesisError::InvalidParams {
+                name,
+                reason: "min_view_spread_m must be finite and >= 0",
+            })
+        }
+    }
+}
+
+/// The default is [`AcceptanceCriteria::conditional`].
+impl Default for AcceptanceCriteria {
+    fn default() -> Self {
+        Self::conditional()
+    }
+}
+
+/// Fields of [`AcceptanceCriteria`] a config file may leave out.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct PartialCriteria {
+    min_observations: Option<usize>,
+    min_distinct_views: Option<usize>,
+    min_view_spread_m: Option<f64>,
+}
+
+impl PartialCriteria {
+    fn over(self, base: AcceptanceCriteria) -> AcceptanceCriteria {
+        AcceptanceCriteria {
+            min_observations: self.min_observations.unwrap_or(base.min_observations),
+            min_distinct_views: self.min_distinct_views.unwrap_or(base.min_distinct_views),
+            min_view_spread_m: self.min_view_spread_m.unwrap_or(base.min_view_spread_m),
+        }
+    }
+}
+
+fn conditional_criteria<'de, D: Deserializer<'de>>(d: D) -> Result<AcceptanceCriteria, D::Error> {
+    Ok(PartialCriteria::deserialize(d)?.over(AcceptanceCriteria::conditional()))
+}
+
+fn full_criteria<'de, D: Deserializer<'de>>(d: D) -> Result<AcceptanceCriteria, D::Error> {
+    Ok(PartialCriteria::deserialize(d)?.over(AcceptanceCriteria::full()))
+}
+
+/// Parameters of [`crate::HypothesisFilter`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct HypothesisFilterParams {
+    /// Criteria of a conditional merge (Sec. 5.2), merge hypotheses only (default:
+    /// [`AcceptanceCriteria::conditional`], 2 observations of 2 views). Permissive: the robot
+    /// behaves as localised sooner, at the risk of a merge the detectors must undo.
+    #[serde(deserialize_with = "conditional_criteria")]
+    pub conditional: AcceptanceCriteria,
+    /// Criteria of a full merge or a recovery, which cannot be undone (default:
+    /// [`AcceptanceCriteria::full`], 5 observations of 4 views spread over 2 m). Stricter
+    /// means fewer wrong merges and a longer wait.
+    #[serde(deserialize_with = "full_criteria")]
+    pub full: AcceptanceCriteria,
+    /// An observation updates the hypothesis of the same target with the smallest squared
+    /// Mahalanobis distance (Eq. 6) below this; otherwise it starts a new one (default:
+    /// 11.345 = χ²₃(0.99)).
+    pub gate_mahalanobis_sq: f64,
+    /// A hypothesis without an observation for this much robot travel expires (m)
+    /// (default: 10).
+    pub expire_after_m: f64,
+    /// … or for this long (s), when observations and predictions carry times (default: none).
+    pub expire_after_s: Option<f64>,
+    /// Weight of an observation of an ambiguous view (Sec. 5.3) in the acceptance counts; it
+    /// still updates the EKF (default: 0, ambiguous views do not count).
+    pub ambiguous_weight: f64,
+    /// At most this many live hypotheses; beyond it the one observed longest ago (in travel)
+    /// is dropped and reported as expired (default: 64).
+    pub max_hypotheses: usize,
+}
+
+impl Default for HypothesisFilterParams {
+    fn default() -> Self {
+        Self {
+            conditional: AcceptanceCriteria::conditional(),
+            full: AcceptanceCriteria::full(),
+            gate_mahalanobis_sq: 11.345,
+            expire_after_m: 10.0,
+            expire_after_s: None,
+            ambiguous_weight: 0.0,
+            max_hypotheses: 64,
+        }
+    }
+}
+
+impl HypothesisFilterParams {
+    /// Checks every field's range.
+    pub fn validate(&self) -> Result<(), HypothesisError> {
+        let invalid = |name, reason| Err(HypothesisError::InvalidParams { name, reason });
+        // False for NaN too.
+        let positive = |value: f64| value > 0.0;
+        self.conditional.validate("conditional")?;
+        self.full.validate("full")?;
+        if !positive(self.gate_mahalanobis_sq) {
+            return invalid("gate_mahalanobis_sq", "must be > 0");
+        }
+        if !positive(self.expire_after_m) {
+            return invalid("expire_after_m", "must be > 0");
+        }
+        if self.expire_after_s.is_some_and(|s| !positive(s)) {
+            return invalid("expire_after_s", "must be > 0");
+        }
+        if !(0.0..=1.0).contains(&self.ambiguous_weight) {
+            return invalid("ambiguous_weight", "must be in [0, 1]");
+        }
+        if self.max_hypotheses == 0 {
+            return invalid("max_hypotheses", "must be >= 1");
+        }
+        Ok(())
+    }
+}
