@@ -12,7 +12,7 @@
 //! detector's window — the newest current-epoch scans — drawn thicker in change detection's
 //! classes: red change, green agree, grey no information; merge edges magenta).
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -21,7 +21,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 use mapmerge_atlas::{AtlasEvent, EpochEndReason};
-use mapmerge_engine::{Engine, EngineParams};
+use mapmerge_engine::{Decision, Engine, EngineParams, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{GridGeometry, Point2};
 use mapmerge_io::{AnyGraph, GraphFormat};
@@ -63,6 +63,10 @@ pub struct AtlasArgs {
     /// defaults).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Judge every merge against the logs' own poses (the public *corrected* logs: their
+    /// poses are the reference; merge edges must lie within 0.5 m and 10°).
+    #[arg(long, conflicts_with = "sim")]
+    pub judge_with_log_poses: bool,
     /// Skip the pictures (faster).
     #[arg(long)]
     pub no_pictures: bool,
@@ -84,23 +88,39 @@ struct Session {
     truth: Option<Vec<Se2>>,
 }
 
-/// A merge as reported.
+/// A merge as reported: one per merge decision (conditional, full, rejected or undone).
 #[derive(Clone, Debug, Serialize)]
 struct MergeReport {
-    merge: u64,
+    /// The atlas's merge id, once merged fully.
+    merge: Option<u64>,
+    /// The hypothesis it came from (none for a forced merge).
+    hypothesis: Option<u64>,
+    /// Scan and travel when it was first decided (conditional, else full).
     scan: usize,
     travel_m: f64,
+    /// The epoch that merged, and the inactive graph with its epochs.
+    epoch: u32,
     map: u32,
     epochs: Vec<u32>,
+    /// Merge edges (observations and overlap loops) and, when full, the overlap edges the
+    /// full merge found.
     loop_edges: usize,
     overlap_edges: usize,
-    /// Judged by the merge edges against the ground truth (simulation): `true` when most are
-    /// within 0.5 m and 10° of the truth.
+    /// `conditional`, `full`, `rejected` (a conditional merge dropped) or `undone`.
+    state: mapmerge_engine::MergeState,
+    conditional_at_scan: Option<usize>,
+    full_at_scan: Option<usize>,
+    /// Travel from conditional to full (m).
+    full_after_m: Option<f64>,
+    /// Why it was rejected or undone.
+    reason: Option<String>,
+    /// Judged by the merge edges against the ground truth (simulation, or the logs' poses
+    /// with `--judge-with-log-poses`): `true` when most are within 0.5 m and 10° of it.
     correct: Option<bool>,
-    /// When it was undone: scan, and robot travel from the merge to the undo (m).
+    /// When it was rejected or undone: scan, and robot travel from the first decision (m).
     undone_at_scan: Option<usize>,
     undone_after_m: Option<f64>,
-    /// When its epoch ended first (the merge became final): travel after the merge (m).
+    /// When its epoch ended (a full merge became final): travel after the merge (m).
     final_after_m: Option<f64>,
 }
 
@@ -119,14 +139,24 @@ struct Report {
     epochs: usize,
     merges: Vec<MergeReport>,
     unmerges: Vec<UnmergeReport>,
-    /// Simulation: wrong merges, those undone within 10 m of travel, correct ones undone.
+    hypotheses: mapmerge_engine::HypothesisSummary,
+    ambiguous_keyframes: usize,
+    /// Where the time went: the tracker's and the constraint builder's counters.
+    tracker: mapmerge_slam::TrackerInfo,
+    constraints: mapmerge_atlas::ConstraintInfo,
+    /// Simulation: wrong merges (any state), those rejected or undone within 10 m of travel,
+    /// correct ones, those undone (full) and those rejected (conditional), epochs after the
+    /// first that end with a kept correct merge.
     wrong_merges: Option<usize>,
     wrong_undone_within_10m: Option<usize>,
     correct_merges: Option<usize>,
     correct_undone: Option<usize>,
+    correct_rejected: Option<usize>,
+    epochs_merged_correctly: Option<usize>,
     pictures: Vec<PathBuf>,
     events: PathBuf,
     seconds: f64,
+    ms_per_scan: f64,
 }
 
 /// Merge edges are judged true within this (m, rad).
@@ -168,11 +198,21 @@ fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
             .map(|&k| k - offset)
             .collect();
         offset += n;
+        let truth = args.judge_with_log_poses.then(|| {
+            let mut previous = Se2::identity();
+            log.scans
+                .iter()
+                .map(|s| {
+                    previous = s.odom_from_robot.unwrap_or(previous);
+                    previous
+                })
+                .collect()
+        });
         sessions.push(Session {
             name: path.display().to_string(),
             log,
             kidnaps,
-            truth: None,
+            truth,
         });
     }
     if let Some(k) = args.kidnap_at.iter().find(|&&k| k >= offset) {
@@ -203,8 +243,8 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let total: usize = sessions.iter().map(|s| s.log.scans.len()).sum();
     let visible = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let bar = crate::progress_bar(total, "scans", "", visible);
-    // Ground truth by vertex stamp (simulation: stamps are unique across sessions).
-    let mut truth_at_stamp: BTreeMap<u64, Se2> = BTreeMap::new();
+    // The reference pose of every keyframe (simulation: ground truth; logs: their poses).
+    let mut truth_of_node: BTreeMap<NodeId, Se2> = BTreeMap::new();
     let mut pictures = Vec::new();
     let mut picture_count = 0usize;
     for (s, session) in sessions.iter().enumerate() {
@@ -223,34 +263,43 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .or(previous_odometry)
                 .unwrap_or_else(Se2::identity);
             previous_odometry = Some(odometry);
-            if let Some(truth) = session.truth.as_ref().and_then(|t| t.get(k)) {
-                truth_at_stamp.insert(record.stamp_secs.to_bits(), *truth);
-            }
-            let fresh: Vec<AtlasEvent> = engine
+            let report = engine
                 .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
-                .map_err(|e| anyhow::anyhow!("{}: scan {k}: {e}", session.name))?
+                .map_err(|e| anyhow::anyhow!("{}: scan {k}: {e}", session.name))?;
+            if let (Some(node), Some(truth)) = (
+                report.keyframe,
+                session.truth.as_ref().and_then(|t| t.get(k)),
+            ) {
+                truth_of_node.insert(node, *truth);
+            }
+            let fresh: Vec<&'static str> = report
                 .events
                 .iter()
-                .map(|e| e.event.clone())
+                .filter_map(|e| match &e.event {
+                    EventKind::Atlas(AtlasEvent::Merged(_)) => Some("merge"),
+                    EventKind::Atlas(AtlasEvent::Unmerged(_)) => Some("unmerge"),
+                    EventKind::Decision(Decision::ConditionalMerge { .. }) => Some("conditional"),
+                    _ => None,
+                })
                 .collect();
             if args.no_pictures {
                 continue;
             }
-            for event in fresh {
-                let kind = match event {
-                    AtlasEvent::Merged(_) => "merge",
-                    AtlasEvent::Unmerged(_) => "unmerge",
-                    _ => continue,
-                };
+            for kind in fresh {
                 let stem = format!("{picture_count:03}-{kind}");
                 picture_count += 1;
                 if let Some(before) = engine.before_last_change() {
                     let path = pictures_dir.join(format!("{stem}-before.png"));
-                    draw_graph(before, &engine, &path)?;
+                    draw_graph(before, &engine, &[], &path)?;
                     pictures.push(path);
                 }
                 let path = pictures_dir.join(format!("{stem}-after.png"));
-                draw_graph(engine.atlas().active(), &engine, &path)?;
+                draw_graph(
+                    engine.map_graph(),
+                    &engine,
+                    &engine.conditional_edges(),
+                    &path,
+                )?;
                 pictures.push(path);
             }
         }
@@ -268,18 +317,25 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     }
     out.flush()?;
     write_atlas(&engine, &args.output.join("atlas"))?;
-    let (merges, unmerges) = summarise(&engine, &truth_at_stamp);
-    let judged = args.sim.is_some();
+    let (merges, unmerges) = summarise(&engine, &truth_of_node);
+    let judged = !truth_of_node.is_empty();
     let wrong: Vec<&MergeReport> = merges.iter().filter(|m| m.correct == Some(false)).collect();
     let correct: Vec<&MergeReport> = merges.iter().filter(|m| m.correct == Some(true)).collect();
+    let epochs = engine
+        .events()
+        .iter()
+        .filter(|e| matches!(e.atlas(), Some(AtlasEvent::EpochStarted { .. })))
+        .count();
+    let kept_correct: BTreeSet<u32> = correct
+        .iter()
+        .filter(|m| m.state == MergeState::Full)
+        .map(|m| m.epoch)
+        .collect();
+    let seconds = started.elapsed().as_secs_f64();
     let report = Report {
         sessions: sessions.len(),
         scans: engine.scans(),
-        epochs: engine
-            .events()
-            .iter()
-            .filter(|e| matches!(e.event, AtlasEvent::EpochStarted { .. }))
-            .count(),
+        epochs,
         wrong_merges: judged.then_some(wrong.len()),
         wrong_undone_within_10m: judged.then(|| {
             wrong
@@ -291,14 +347,26 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         correct_undone: judged.then(|| {
             correct
                 .iter()
-                .filter(|m| m.undone_at_scan.is_some())
+                .filter(|m| m.state == MergeState::Undone)
                 .count()
         }),
+        correct_rejected: judged.then(|| {
+            correct
+                .iter()
+                .filter(|m| m.state == MergeState::Rejected)
+                .count()
+        }),
+        epochs_merged_correctly: judged.then_some(kept_correct.len()),
+        hypotheses: engine.hypothesis_summary(),
+        ambiguous_keyframes: engine.ambiguous_keyframes(),
+        tracker: engine.tracker_info(),
+        constraints: engine.constraint_info(),
         merges,
         unmerges,
         pictures,
         events: events_path,
-        seconds: started.elapsed().as_secs_f64(),
+        seconds,
+        ms_per_scan: 1e3 * seconds / engine.scans().max(1) as f64,
     };
     if args.json {
         print_json(&report)?;
@@ -310,7 +378,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
 
 fn print_text(report: &Report) {
     println!(
-        "{} sessions, {} scans, {} epochs; {} merges, {} unmerges in {:.1} s",
+        "{} sessions, {} scans, {} epochs; {} merge decisions, {} unmerges in {:.1} s",
         report.sessions,
         report.scans,
         report.epochs,
@@ -324,14 +392,30 @@ fn print_text(report: &Report) {
             Some(false) => " (WRONG)",
             None => "",
         };
-        let fate = match (m.undone_after_m, m.final_after_m) {
-            (Some(d), _) => format!("undone after {d:.1} m"),
-            (None, Some(d)) => format!("kept; final when its epoch ended {d:.1} m later"),
-            (None, None) => "kept".to_owned(),
+        let how = match (m.conditional_at_scan, m.full_at_scan) {
+            (Some(_), Some(_)) => format!(
+                "conditional, full {:.1} m later",
+                m.full_after_m.unwrap_or_default()
+            ),
+            (Some(_), None) => "conditional".to_owned(),
+            _ => "full".to_owned(),
+        };
+        let fate = match (m.state, m.undone_after_m, m.final_after_m) {
+            (MergeState::Rejected, Some(d), _) => format!(
+                "rejected after {d:.1} m ({})",
+                m.reason.as_deref().unwrap_or("")
+            ),
+            (MergeState::Undone, Some(d), _) => format!(
+                "undone after {d:.1} m ({})",
+                m.reason.as_deref().unwrap_or("")
+            ),
+            (MergeState::Conditional, _, _) => "still conditional when its epoch ended".to_owned(),
+            (_, _, Some(d)) => format!("kept; final when its epoch ended {d:.1} m later"),
+            _ => "kept".to_owned(),
         };
         println!(
-            "  merge #{} at scan {} ({:.0} m): map {} (epochs {:?}) by {} loops{verdict}; {fate}",
-            m.merge, m.scan, m.travel_m, m.map, m.epochs, m.loop_edges
+            "  merge at scan {} ({:.0} m): epoch {} into map {} (epochs {:?}), {how}, by {} edges{verdict}; {fate}",
+            m.scan, m.travel_m, m.epoch, m.map, m.epochs, m.loop_edges
         );
     }
     for u in &report.unmerges {
@@ -340,14 +424,23 @@ fn print_text(report: &Report) {
             u.scan, u.travel_m, u.merges, u.reason
         );
     }
-    if let (Some(w), Some(u), Some(c), Some(cu)) = (
+    let h = &report.hypotheses;
+    println!(
+        "  hypotheses: {} ({} merge, {} recovery), {} conditional, {} full, {} conditional rejected, {} expired; {} ambiguous keyframes",
+        h.created, h.merge, h.recovery, h.conditional, h.full, h.rejected_conditional, h.expired,
+        report.ambiguous_keyframes
+    );
+    if let (Some(w), Some(u), Some(c), Some(cu), Some(cr), Some(e)) = (
         report.wrong_merges,
         report.wrong_undone_within_10m,
         report.correct_merges,
         report.correct_undone,
+        report.correct_rejected,
+        report.epochs_merged_correctly,
     ) {
         println!(
-            "  against the ground truth: {u} of {w} wrong merges undone within {UNDO_WITHIN_M} m; {cu} of {c} correct merges undone"
+            "  against the ground truth: {u} of {w} wrong merges rejected or undone within {UNDO_WITHIN_M} m; {cu} of {c} correct merges undone, {cr} rejected; {e} of {} later epochs end merged correctly",
+            report.epochs.saturating_sub(1)
         );
     }
     if let Some(first) = report.pictures.first() {
@@ -362,99 +455,112 @@ fn print_text(report: &Report) {
     }
 }
 
-/// Merges and unmerges from the events; merges judged by their merge edges when the truth is
-/// known.
+/// Merges from the engine's merge log, unmerges from the events; merges judged by their
+/// edges when the truth is known.
 fn summarise(
     engine: &Engine,
-    truth_at_stamp: &BTreeMap<u64, Se2>,
+    truth_of_node: &BTreeMap<NodeId, Se2>,
 ) -> (Vec<MergeReport>, Vec<UnmergeReport>) {
     let mut merges: Vec<MergeReport> = Vec::new();
-    let mut unmerges = Vec::new();
-    for e in engine.events() {
-        match &e.event {
-            AtlasEvent::Merged(m) => merges.push(MergeReport {
-                merge: m.merge.0,
+    for record in engine.merge_log() {
+        let merged = engine.events().iter().find_map(|e| match e.atlas() {
+            Some(AtlasEvent::Merged(m)) if Some(m.merge.0) == record.merge => Some(m),
+            _ => None,
+        });
+        let scan = record
+            .conditional_at_scan
+            .or(record.full_at_scan)
+            .unwrap_or_default();
+        let travel_m = record
+            .conditional_travel_m
+            .or(record.full_travel_m)
+            .unwrap_or_default();
+        // A full merge kept becomes final when its epoch ends.
+        let final_after_m = (record.state == MergeState::Full)
+            .then(|| {
+                engine.events().iter().find_map(|e| match e.atlas() {
+                    Some(AtlasEvent::EpochEnded { epoch, .. }) if epoch.0 == record.epoch => {
+                        Some(e.travel_m - record.full_travel_m.unwrap_or(travel_m))
+                    }
+                    _ => None,
+                })
+            })
+            .flatten();
+        merges.push(MergeReport {
+            merge: record.merge,
+            hypothesis: record.hypothesis,
+            scan,
+            travel_m,
+            epoch: record.epoch,
+            map: record.map,
+            epochs: merged
+                .map(|m| m.merged_epochs.iter().map(|x| x.0).collect())
+                .unwrap_or_default(),
+            loop_edges: merged.map_or(record.edges.len(), |m| m.loop_edges),
+            overlap_edges: merged.map_or(0, |m| m.overlap_edges),
+            state: record.state,
+            conditional_at_scan: record.conditional_at_scan,
+            full_at_scan: record.full_at_scan,
+            full_after_m: record.full_after_m(),
+            reason: record.reason.clone(),
+            correct: judge(truth_of_node, &record.edges),
+            undone_at_scan: record.ended_at_scan,
+            undone_after_m: record.ended_after_m(),
+            final_after_m,
+        });
+    }
+    let unmerges = engine
+        .events()
+        .iter()
+        .filter_map(|e| match e.atlas() {
+            Some(AtlasEvent::Unmerged(u)) => Some(UnmergeReport {
                 scan: e.scan,
                 travel_m: e.travel_m,
-                map: m.map.0,
-                epochs: m.merged_epochs.iter().map(|x| x.0).collect(),
-                loop_edges: m.loop_edges,
-                overlap_edges: m.overlap_edges,
-                correct: None,
-                undone_at_scan: None,
-                undone_after_m: None,
-                final_after_m: None,
+                merges: u.merges.iter().map(|m| m.0).collect(),
+                reason: match &u.reason {
+                    mapmerge_atlas::UnmergeReason::InvalidMerge {
+                        detector,
+                        invalidity,
+                    } => format!("{detector} invalidity {invalidity:.2}"),
+                    mapmerge_atlas::UnmergeReason::Requested { note } => note.clone(),
+                },
             }),
-            AtlasEvent::Unmerged(u) => {
-                for id in &u.merges {
-                    if let Some(m) = merges.iter_mut().find(|m| m.merge == id.0) {
-                        m.undone_at_scan = Some(e.scan);
-                        m.undone_after_m = Some(e.travel_m - m.travel_m);
-                    }
-                }
-                unmerges.push(UnmergeReport {
-                    scan: e.scan,
-                    travel_m: e.travel_m,
-                    merges: u.merges.iter().map(|m| m.0).collect(),
-                    reason: match &u.reason {
-                        mapmerge_atlas::UnmergeReason::InvalidMerge {
-                            detector,
-                            invalidity,
-                        } => format!("{detector} invalidity {invalidity:.2}"),
-                        mapmerge_atlas::UnmergeReason::Requested { note } => note.clone(),
-                    },
-                });
-            }
-            AtlasEvent::EpochEnded { .. } => {
-                for m in merges
-                    .iter_mut()
-                    .filter(|m| m.undone_at_scan.is_none() && m.final_after_m.is_none())
-                {
-                    m.final_after_m = Some(e.travel_m - m.travel_m);
-                }
-            }
-            _ => {}
-        }
-    }
-    if !truth_at_stamp.is_empty() {
-        judge_merges(engine, truth_at_stamp, &mut merges);
-    }
+            _ => None,
+        })
+        .collect();
     (merges, unmerges)
 }
 
-/// A merge is correct when most of its merge edges (recorded by the engine when it merged,
-/// since an undo removes them) are within `TRUE_WITHIN` of the ground truth.
-fn judge_merges(engine: &Engine, truth_at_stamp: &BTreeMap<u64, Se2>, merges: &mut [MergeReport]) {
-    let atlas = engine.atlas();
-    let truth_of = |node: NodeId| -> Option<Se2> {
-        std::iter::once(atlas.active())
-            .chain(atlas.inactive_maps().map(|(_, g)| g))
-            .find_map(|g| g.vertex(node))
-            .and_then(|v| v.meta.stamp_secs)
-            .and_then(|stamp| truth_at_stamp.get(&stamp.to_bits()).copied())
-    };
-    for (m, recorded) in merges.iter_mut().zip(engine.merge_edges()) {
-        let verdicts: Vec<bool> = recorded
-            .iter()
-            .filter_map(|(from, to, measurement)| {
-                let (a, b) = (truth_of(*from)?, truth_of(*to)?);
-                let error = a.between(&b).between(measurement);
-                Some(
-                    error.translation().norm() <= TRUE_WITHIN.0
-                        && error.theta_rad.abs() <= TRUE_WITHIN.1,
-                )
-            })
-            .collect();
-        if !verdicts.is_empty() {
-            let good = verdicts.iter().filter(|&&ok| ok).count();
-            m.correct = Some(2 * good > verdicts.len());
-        }
-    }
+/// A merge is correct when most of its merge edges (recorded by the engine when it decided,
+/// since an undo removes them) are within `TRUE_WITHIN` of the ground truth; `None` without
+/// a truth.
+fn judge(truth_of_node: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Option<bool> {
+    let truth_of = |node: NodeId| truth_of_node.get(&node).copied();
+    let verdicts: Vec<bool> = edges
+        .iter()
+        .filter_map(|(from, to, measurement)| {
+            let (a, b) = (truth_of(*from)?, truth_of(*to)?);
+            let error = a.between(&b).between(measurement);
+            Some(
+                error.translation().norm() <= TRUE_WITHIN.0
+                    && error.theta_rad.abs() <= TRUE_WITHIN.1,
+            )
+        })
+        .collect();
+    (!verdicts.is_empty()).then(|| {
+        let good = verdicts.iter().filter(|&&ok| ok).count();
+        2 * good > verdicts.len()
+    })
 }
 
 /// Draws a graph's scans coloured by epoch; the newest current-epoch scans (the detector's
 /// window) as larger dots.
-fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Result<()> {
+fn draw_graph(
+    graph: &PoseGraph2,
+    engine: &Engine,
+    conditional: &[(NodeId, NodeId)],
+    path: &Path,
+) -> anyhow::Result<()> {
     let scans = engine.atlas().keyframes();
     let mut points: Vec<(Point2, Rgb, bool)> = Vec::new();
     let current = engine.atlas().current_epoch().0;
@@ -515,19 +621,23 @@ fn draw_graph(graph: &PoseGraph2, engine: &Engine, path: &Path) -> anyhow::Resul
         let radius = if window.contains(&id) { 3.0 } else { 1.5 };
         picture.draw_disc(&vertex.pose.translation(), radius, colour);
     }
+    // Merge edges magenta; a conditional merge's (in G') orange.
     for (_, edge) in graph.edges().filter(|(_, e)| e.kind == EdgeKind::Merge) {
         if let (Some(a), Some(b)) = (graph.vertex(edge.from), graph.vertex(edge.to)) {
-            picture.draw_line(
-                &a.pose.translation(),
-                &b.pose.translation(),
-                Rgb::MAGENTA,
-                2.0,
-            );
+            let colour = if conditional.contains(&(edge.from, edge.to)) {
+                CONDITIONAL_ORANGE
+            } else {
+                Rgb::MAGENTA
+            };
+            picture.draw_line(&a.pose.translation(), &b.pose.translation(), colour, 2.0);
         }
     }
     picture.save_png(path)?;
     Ok(())
 }
+
+/// The colour of a conditional merge's edges.
+const CONDITIONAL_ORANGE: Rgb = Rgb([255, 140, 0]);
 
 /// An epoch's colour: the session palette without its red and green, which mark change
 /// detection's classes.
@@ -589,7 +699,7 @@ fn write_atlas(engine: &Engine, dir: &Path) -> anyhow::Result<()> {
             &AnyGraph::Planar(graph.clone()),
             GraphFormat::G2o,
         )?;
-        draw_graph(graph, engine, &dir.join(format!("{name}.png")))?;
+        draw_graph(graph, engine, &[], &dir.join(format!("{name}.png")))?;
     }
     Ok(())
 }

@@ -59,15 +59,43 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
             _ => {}
         }
     }
-    // Every merge is judged against the simulator's truth, and pictured.
+    // Every merge decision is judged against the simulator's truth, has a state, and is
+    // pictured (before and after each conditional merge, full merge and unmerge).
     for m in report["merges"].as_array().unwrap() {
         assert!(m["correct"].is_boolean(), "{m}");
+        let state = m["state"].as_str().unwrap();
+        assert!(
+            ["conditional", "full", "rejected", "undone"].contains(&state),
+            "{m}"
+        );
+        if state == "rejected" || state == "undone" {
+            assert!(
+                m["reason"].is_string() && m["undone_after_m"].is_number(),
+                "{m}"
+            );
+        }
     }
+    let conditional = events
+        .iter()
+        .filter(|e| e["event"] == "conditional_merge")
+        .count();
     let pictures = report["pictures"].as_array().unwrap();
     assert_eq!(
         pictures.len(),
-        2 * merged.len() + 2 * report["unmerges"].as_array().unwrap().len()
+        2 * (merged.len() + conditional + report["unmerges"].as_array().unwrap().len())
     );
+    for key in [
+        "created",
+        "merge",
+        "recovery",
+        "conditional",
+        "full",
+        "rejected_conditional",
+        "expired",
+    ] {
+        assert!(report["hypotheses"][key].is_u64(), "{report}");
+    }
+    assert!(report["ambiguous_keyframes"].is_u64());
     assert!(dir.join("atlas/active.g2o").is_file());
 }
 

@@ -17,19 +17,31 @@
 //! A kidnap, restart or tracking failure ends the epoch ([`Engine::end_epoch`]). Single-log
 //! SLAM is the same loop with one epoch ([`run_slam`]).
 
+mod decisions;
+
 use std::sync::Arc;
 
 use mapmerge_atlas::{
     default_verifier, Atlas, AtlasError, AtlasEvent, AtlasParams, ConstraintInfo, ConstraintSearch,
-    EpochEndReason, LoopRecord, MapId, MergeProposal, MergeRequest, UnmergeReason,
+    EpochEndReason, LoopEdge, LoopRecord, MapId, MergeReason, MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_hypothesis::{
+    AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, Observation,
+    RejectReason, Target,
+};
 use mapmerge_place::ScanMatchVerifier;
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
 use mapmerge_verify::{DetectorScan, InvalidMergeDetector, MergedMap};
+use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
+
+use decisions::Conditional;
+pub use decisions::{
+    Decision, DecisionParams, EventKind, HypothesisSummary, MergeRecord, MergeState, ObservedEdge,
+};
 
 /// What can go wrong.
 #[derive(Debug, thiserror::Error)]
@@ -44,6 +56,9 @@ pub enum EngineError {
     /// The verifier could not be built.
     #[error("place verification: {0}")]
     Verifier(String),
+    /// The hypothesis filter refused an input (non-finite or not positive definite).
+    #[error("hypothesis filter: {0}")]
+    Hypothesis(#[from] HypothesisError),
     /// A graph could not be imported.
     #[error("import: {0}")]
     Import(String),
@@ -63,6 +78,9 @@ pub struct EngineParams {
     pub tracker: TrackerParams,
     /// The atlas (loop closing, recognition, merging, optimisation).
     pub atlas: AtlasParams,
+    /// Merge decisions on accumulated evidence (hypotheses, conditional merges, ambiguous
+    /// views).
+    pub decisions: DecisionParams,
     /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
     /// for no verification, as in an evaluation that runs its own detectors; default
     /// `combined`).
@@ -80,6 +98,7 @@ impl Default for EngineParams {
         Self {
             tracker: TrackerParams::default(),
             atlas: AtlasParams::default(),
+            decisions: DecisionParams::default(),
             detector: "combined".into(),
             unmerge_threshold: 0.5,
             refused_within: (1.0, 10f64.to_radians()),
@@ -87,7 +106,8 @@ impl Default for EngineParams {
     }
 }
 
-/// An atlas event with where and when it happened.
+/// An event with where and when it happened: an atlas mutation, a hypothesis change or a
+/// decision, one JSON object each (`events.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EngineEvent {
     /// Scans fed to the engine so far (the event happened after scan `scan - 1`).
@@ -96,7 +116,17 @@ pub struct EngineEvent {
     pub travel_m: f64,
     /// The event.
     #[serde(flatten)]
-    pub event: AtlasEvent,
+    pub event: EventKind,
+}
+
+impl EngineEvent {
+    /// The atlas event, if it is one.
+    pub fn atlas(&self) -> Option<&AtlasEvent> {
+        match &self.event {
+            EventKind::Atlas(event) => Some(event),
+            _ => None,
+        }
+    }
 }
 
 /// What one scan did.
@@ -129,11 +159,18 @@ pub struct Engine {
     max_invalidity: f64,
     /// The active graph just before the last merge or unmerge (for pictures).
     before_last_change: Option<PoseGraph2>,
-    /// Every merge's merge edges `(from, to, measurement)` as made, in merge order (an undo
-    /// removes them from the graph).
-    merge_edges: Vec<Vec<(NodeId, NodeId, Se2)>>,
+    /// Every merge decision as it went, in order.
+    merge_log: Vec<MergeRecord>,
     /// Counters of the tracker of the previous epochs.
     tracker_info_before_epoch: TrackerInfo,
+    /// Merge and recovery hypotheses (Banerjee et al., Sec. 3.2.1).
+    filter: HypothesisFilter<ObservedEdge>,
+    /// Ambiguous views (Sec. 5.3).
+    ambiguity: AmbiguityTracker,
+    /// The conditional merge and its graph copy G' (Sec. 5.2).
+    conditional: Option<Conditional>,
+    /// The tracker's pose of the previous keyframe (the EKF's motion update).
+    previous_keyframe_local: Option<Se2>,
 }
 
 impl Engine {
@@ -152,7 +189,13 @@ impl Engine {
             })?),
         };
         let verifier = default_verifier().map_err(|e| EngineError::Verifier(e.to_string()))?;
+        let filter = HypothesisFilter::new(params.decisions.filter.clone())?;
+        let ambiguity = AmbiguityTracker::new(params.decisions.ambiguity.clone())?;
         let mut engine = Self {
+            filter,
+            ambiguity,
+            conditional: None,
+            previous_keyframe_local: None,
             tracker: LocalTracker::new(params.tracker.clone())?,
             atlas: Atlas::new(params.atlas.clone())?,
             params,
@@ -165,7 +208,7 @@ impl Engine {
             atlas_events_seen: 0,
             max_invalidity: 0.0,
             before_last_change: None,
-            merge_edges: Vec::new(),
+            merge_log: Vec::new(),
             tracker_info_before_epoch: TrackerInfo::default(),
         };
         engine.collect_events();
@@ -222,9 +265,54 @@ impl Engine {
         self.before_last_change.as_ref()
     }
 
-    /// Every merge's merge edges `(from, to, measurement)` as made, in merge order.
-    pub fn merge_edges(&self) -> &[Vec<(NodeId, NodeId, Se2)>] {
-        &self.merge_edges
+    /// Every merge decision as it went, in order (conditional, full, rejected, undone).
+    pub fn merge_log(&self) -> &[MergeRecord] {
+        &self.merge_log
+    }
+
+    /// Counters of the constraint builder (loop search, recognition, optimisation).
+    pub fn constraint_info(&self) -> ConstraintInfo {
+        self.atlas.constraint_info()
+    }
+
+    /// Counters of the merge and recovery hypotheses.
+    pub fn hypothesis_summary(&self) -> HypothesisSummary {
+        let s = self.filter.stats();
+        HypothesisSummary {
+            created: s.created,
+            merge: s.merge,
+            recovery: s.recovery,
+            conditional: s.conditional,
+            full: s.full,
+            rejected_conditional: s.rejected_conditional,
+            expired: s.expired,
+        }
+    }
+
+    /// Keyframes marked ambiguous (Sec. 5.3).
+    pub fn ambiguous_keyframes(&self) -> usize {
+        self.ambiguity.ambiguous_views().len()
+    }
+
+    /// The graph read-only queries use (Sec. 5.2): G' while a merge is conditional, else the
+    /// atlas's active graph.
+    pub fn map_graph(&self) -> &PoseGraph2 {
+        self.conditional
+            .as_ref()
+            .map_or(self.atlas.active(), |c| &c.graph)
+    }
+
+    /// The conditional merge's edges `(from, to)`, if one is conditional.
+    pub fn conditional_edges(&self) -> Vec<(NodeId, NodeId)> {
+        self.conditional.as_ref().map_or_else(Vec::new, |c| {
+            c.edges.iter().map(|e| (e.inactive, e.active)).collect()
+        })
+    }
+
+    /// The robot's pose as read-only queries see it (in G' while a merge is conditional).
+    pub fn robot_pose(&self) -> Option<Se2> {
+        let robot = self.atlas.robot_node()?;
+        Some(self.map_graph().vertex(robot)?.pose)
     }
 
     /// The atlas node of the robot's newest keyframe.
@@ -232,15 +320,28 @@ impl Engine {
         self.atlas.robot_node()
     }
 
-    /// Ends the epoch (kidnap, restart, tracking failure): the active graph becomes inactive,
-    /// the tracker starts afresh. Returns the new events.
+    /// Ends the epoch (kidnap, restart, tracking failure): hypotheses are dropped (a
+    /// conditional merge with them), the active graph becomes inactive, the tracker starts
+    /// afresh. Returns the new events.
     pub fn end_epoch(&mut self, reason: EpochEndReason) -> Result<&[EngineEvent], EngineError> {
         let before = self.events.len();
+        self.collect_events();
+        let cleared = self.filter.clear();
+        self.log_filter_events(cleared);
+        if let Some(conditional) = self.conditional.take() {
+            // Neither confirmed nor refuted: it stays "conditional" in the log.
+            self.log_decision(Decision::ConditionalDropped {
+                hypothesis: conditional.hypothesis.0,
+                map: conditional.map,
+                reason: "epoch ended".into(),
+            });
+        }
         self.atlas.optimize_if_due(true)?;
         self.atlas.end_epoch(reason);
         self.tracker_info_before_epoch = self.tracker_info();
         self.travel_before_epoch_m += self.tracker.travel_m();
         self.tracker = LocalTracker::new(self.params.tracker.clone())?;
+        self.previous_keyframe_local = None;
         self.refused.clear();
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
@@ -273,16 +374,19 @@ impl Engine {
                 events: self.events.get(before..).unwrap_or_default(),
             });
         };
+        let local_from_robot = insertion.local_from_robot;
         // 2. Insert the keyframe.
+        let loops_before = self.atlas.loops().len();
         let node = self.atlas.insert_keyframe(insertion, stamp_secs)?;
         // 3. Search constraints.
         let found = self.atlas.search_constraints(node, &self.verifier)?;
-        // 4. Update the merge hypotheses.
-        let merged = self.update_hypotheses(found)?;
+        self.collect_events();
+        // 4. Update the hypotheses; merge conditionally or fully.
+        let decided = self.update_hypotheses(local_from_robot, loops_before, found)?;
         // 5. Optimise.
         self.atlas.optimize_if_due(false)?;
-        // 6. Verify and 7. undo (a merge made now is checked from the next keyframe on).
-        if !merged && self.atlas.is_undoable() {
+        // 6. Verify and 7. undo (a merge decided now is checked from the next keyframe on).
+        if !decided {
             self.verify_and_undo()?;
         }
         self.collect_events();
@@ -293,47 +397,531 @@ impl Engine {
         })
     }
 
-    /// Step 4: the best match in an inactive graph not refused before is merged. Returns
-    /// whether a merge happened.
-    fn update_hypotheses(&mut self, found: ConstraintSearch) -> Result<bool, EngineError> {
-        let (m, rad) = self.params.refused_within;
-        let refused = |p: &MergeProposal| {
-            self.refused.iter().any(|(map, t)| {
-                *map == p.map
-                    && (t.translation() - p.active_from_inactive.translation()).norm() <= m
-                    && wrap_angle_rad(t.theta_rad - p.active_from_inactive.theta_rad).abs() <= rad
-            })
-        };
-        let Some(proposal) = found.merge_candidates.into_iter().find(|p| !refused(p)) else {
+    /// Step 4: the motion update, every observation into the hypothesis filter (merge
+    /// candidates of inactive graphs, contradictions of the own graph), the ambiguity
+    /// tracker, then conditional and full merges. Returns whether a merge was decided on.
+    fn update_hypotheses(
+        &mut self,
+        local_from_robot: Se2,
+        loops_before: usize,
+        found: ConstraintSearch,
+    ) -> Result<bool, EngineError> {
+        let travel_m = self.travel_m();
+        let decisions = self.params.decisions.clone();
+        self.refresh_conditional_graph();
+        if let Some(previous) = self.previous_keyframe_local {
+            let increment = previous.between(&local_from_robot);
+            let events = self.filter.predict(
+                &increment,
+                &decisions.motion_covariance(&increment),
+                travel_m,
+                None,
+            )?;
+            self.log_filter_events(events);
+        }
+        self.previous_keyframe_local = Some(local_from_robot);
+        // Accepted observations of views (Sec. 5.3's accepted tracker).
+        let accepted: Vec<NodeId> = self
+            .atlas
+            .loops()
+            .get(loops_before..)
+            .unwrap_or_default()
+            .iter()
+            .map(|l| l.from)
+            .chain(found.merged_loops.iter().map(|l| l.inactive))
+            .chain(found.confirmations.iter().map(|l| l.from))
+            .collect();
+        for view in accepted {
+            self.ambiguity.on_accepted(view.0, view.0, travel_m);
+        }
+        let mut accepted_hypotheses = Vec::new();
+        // Contradictions of the own graph: rejected observations, recovery evidence.
+        for record in &found.contradictions {
+            self.ambiguity.on_rejected(record.from.0, travel_m);
+            if !decisions.recover {
+                continue;
+            }
+            let Some(map_from_view) = self.atlas.active().vertex(record.from).map(|v| v.pose)
+            else {
+                continue;
+            };
+            let robot_from_active = map_from_view.compose(&record.measurement).inverse();
+            let observation = Observation {
+                target: Target::Recovery,
+                view: record.from.0,
+                robot: record.to.0,
+                robot_from_target: robot_from_active,
+                covariance: decisions.observation_covariance(&record.covariance),
+                ambiguous: self.ambiguity.is_ambiguous(record.from.0),
+                edge: ObservedEdge::Recovery(*record),
+            };
+            let outcome = self.filter.observe(observation, travel_m, None)?;
+            self.log_filter_events(outcome.events);
+            accepted_hypotheses.extend(outcome.accepted);
+        }
+        // Matches in inactive graphs: merge evidence; while a merge is conditional, the new
+        // keyframe verified where G' puts it (the robot behaves as localised, Sec. 5.2).
+        let mut merge_matches: Vec<(MapId, LoopEdge, Matrix3<f64>)> = found
+            .merge_candidates
+            .iter()
+            .filter_map(|p| Some((p.map, *p.loops.first()?, p.covariance)))
+            .collect();
+        if let Some(conditional) = &self.conditional {
+            if self.keyframes_in_epoch() % decisions.confirm_every_keyframes.max(1) == 0 {
+                let node = self.atlas.robot_node();
+                let confirmed = node.map_or_else(Vec::new, |node| {
+                    self.atlas.confirm_in_preview(
+                        &conditional.graph,
+                        conditional.map,
+                        node,
+                        &self.verifier,
+                    )
+                });
+                merge_matches.extend(confirmed.into_iter().map(|edge| {
+                    let covariance = edge
+                        .information
+                        .try_inverse()
+                        .unwrap_or_else(Matrix3::zeros);
+                    (conditional.map, edge, covariance)
+                }));
+            }
+        }
+        for (map, edge, covariance) in merge_matches {
+            let Some(map_from_view) = self
+                .atlas
+                .inactive(map)
+                .and_then(|g| g.vertex(edge.inactive))
+                .map(|v| v.pose)
+            else {
+                continue;
+            };
+            let robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
+            let observation = Observation {
+                target: Target::Merge { map: map.0 },
+                view: edge.inactive.0,
+                robot: edge.active.0,
+                robot_from_target: robot_from_inactive,
+                covariance: decisions.observation_covariance(&covariance),
+                ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
+                edge: ObservedEdge::Merge(edge),
+            };
+            let outcome = self.filter.observe(observation, travel_m, None)?;
+            self.log_filter_events(outcome.events);
+            accepted_hypotheses.extend(outcome.accepted);
+        }
+        let newly = self.ambiguity.update(travel_m);
+        if !newly.is_empty() {
+            self.filter.discount_views(&newly.iter().copied().collect());
+            self.log_decision(Decision::AmbiguousViews { views: newly });
+        }
+        // Full acceptances first (one takes over its own conditional merge), then G' follows
+        // the filter's conditional hypothesis.
+        let mut decided = false;
+        for hypothesis in accepted_hypotheses {
+            decided |= self.accept_fully(hypothesis)?;
+        }
+        decided |= self.sync_conditional()?;
+        Ok(decided)
+    }
+
+    /// Keeps the conditional merge in step with the filter's conditional hypothesis: drops
+    /// G' when the filter no longer holds it (superseded, expired, rejected), makes G' for a
+    /// new one. Returns whether a conditional merge started.
+    fn sync_conditional(&mut self) -> Result<bool, EngineError> {
+        let wanted = self.filter.conditional().map(|h| h.id());
+        if let Some(current) = self.conditional.as_mut() {
+            if Some(current.hypothesis) == wanted {
+                // G' gets the hypothesis's newer edges too.
+                if let Some(hypothesis) = self.filter.conditional() {
+                    for edge in merge_edges_of(hypothesis) {
+                        if !current
+                            .edges
+                            .iter()
+                            .any(|e| e.active == edge.active && e.inactive == edge.inactive)
+                        {
+                            current.edges.push(edge);
+                        }
+                    }
+                }
+                return Ok(false);
+            }
+            self.drop_conditional("superseded or expired".into());
+        }
+        let Some(hypothesis) = self.filter.conditional() else {
             return Ok(false);
         };
-        self.apply_merge(proposal.into_request())?;
+        let id = hypothesis.id();
+        let Target::Merge { map } = hypothesis.target() else {
+            return Ok(false);
+        };
+        let map = MapId(map);
+        let edges: Vec<LoopEdge> = merge_edges_of(hypothesis);
+        let counts = hypothesis.counts(self.params.decisions.filter.ambiguous_weight);
+        let Some(active_from_inactive) = self.estimate_of(hypothesis) else {
+            return Ok(false);
+        };
+        if self.is_refused(map, &active_from_inactive) {
+            let event = self.filter.reject(
+                id,
+                RejectReason::Caller {
+                    note: "an undone or rejected merge of this epoch".into(),
+                },
+            );
+            self.log_filter_events(event.into_iter().collect());
+            return Ok(false);
+        }
+        let request = MergeRequest {
+            map,
+            active_from_inactive: Some(active_from_inactive),
+            loops: edges,
+            reason: MergeReason::Forced {
+                note: format!("conditional merge of hypothesis {}", id.0),
+            },
+        };
+        let preview = match self.atlas.preview_merge(&request, Some(&self.verifier)) {
+            Ok(preview) => preview,
+            // A merge the atlas refuses (e.g. vanished vertices) is no merge at all.
+            Err(error) => {
+                let event = self.filter.reject(
+                    id,
+                    RejectReason::Caller {
+                        note: format!("conditional merge refused: {error}"),
+                    },
+                );
+                self.log_filter_events(event.into_iter().collect());
+                return Ok(false);
+            }
+        };
+        // G''s merge edges: the observations' and the overlap loops.
+        let edges: Vec<LoopEdge> = preview
+            .graph
+            .edges()
+            .filter(|(_, e)| {
+                let active = self.atlas.active();
+                e.kind == EdgeKind::Merge
+                    && active.contains_vertex(e.to)
+                    && !active.contains_vertex(e.from)
+            })
+            .map(|(_, e)| LoopEdge {
+                active: e.to,
+                inactive: e.from,
+                inactive_from_active: e.measurement,
+                information: e.information,
+            })
+            .collect();
+        let transform = mapmerge_atlas::pose_array(&preview.active_from_inactive);
+        self.merge_log.push(MergeRecord {
+            hypothesis: Some(id.0),
+            epoch: self.atlas.current_epoch().0,
+            map: map.0,
+            state: MergeState::Conditional,
+            conditional_at_scan: Some(self.scans),
+            conditional_travel_m: Some(self.travel_m()),
+            full_at_scan: None,
+            full_travel_m: None,
+            merge: None,
+            ended_at_scan: None,
+            ended_travel_m: None,
+            reason: None,
+            observations: counts.observations,
+            views: counts.weighted_views.round() as usize,
+            active_from_inactive: transform,
+            edges: edges
+                .iter()
+                .map(|e| (e.inactive, e.active, e.inactive_from_active))
+                .collect(),
+        });
+        self.log_decision(Decision::ConditionalMerge {
+            hypothesis: id.0,
+            map,
+            edges: edges.len(),
+            active_from_inactive: transform,
+        });
+        self.before_last_change = Some(self.atlas.active().clone());
+        self.conditional = Some(Conditional {
+            hypothesis: id,
+            map,
+            record: self.merge_log.len() - 1,
+            edges,
+            graph: preview.graph,
+        });
+        self.restart_detector();
         Ok(true)
     }
 
-    /// The merged map as the detectors see it: the active graph's current-epoch and
-    /// other-epoch keyframes at their poses, with their points.
-    pub fn merged_map_scans(&self) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
-        merged_map_scans(&self.atlas)
+    /// Makes G' anew from the atlas's graphs and the conditional merge's edges ("every time
+    /// G is modified, we copy it into G' and add the edges from h_c", Sec. 5.2); drops the
+    /// conditional merge when that fails.
+    fn refresh_conditional_graph(&mut self) {
+        let Some(conditional) = &self.conditional else {
+            return;
+        };
+        let request = MergeRequest {
+            map: conditional.map,
+            active_from_inactive: None,
+            loops: conditional.edges.clone(),
+            reason: MergeReason::Forced { note: "G'".into() },
+        };
+        match self.atlas.preview_merge(&request, None) {
+            Ok(preview) => {
+                if let Some(c) = self.conditional.as_mut() {
+                    c.graph = preview.graph;
+                }
+            }
+            Err(error) => {
+                let id = conditional.hypothesis;
+                let event = self.filter.reject(
+                    id,
+                    RejectReason::Caller {
+                        note: format!("G' failed: {error}"),
+                    },
+                );
+                self.log_filter_events(event.into_iter().collect());
+                self.drop_conditional(format!("G' failed: {error}"));
+            }
+        }
     }
 
-    /// Steps 6 and 7: runs the detector after a new keyframe; undoes every merge when it
-    /// fires, and refuses those merges for the rest of the epoch.
+    /// Drops the conditional merge (G' discarded) with its reason.
+    fn drop_conditional(&mut self, reason: String) {
+        let Some(conditional) = self.conditional.take() else {
+            return;
+        };
+        let (scan, travel_m) = (self.scans, self.travel_m());
+        if let Some(record) = self.merge_log.get_mut(conditional.record) {
+            record.state = MergeState::Rejected;
+            record.ended_at_scan = Some(scan);
+            record.ended_travel_m = Some(travel_m);
+            record.reason = Some(reason.clone());
+        }
+        self.log_decision(Decision::ConditionalDropped {
+            hypothesis: conditional.hypothesis.0,
+            map: conditional.map,
+            reason,
+        });
+        self.restart_detector();
+    }
+
+    /// A fully accepted hypothesis: a merge goes into the atlas (undoable), a recovery adds
+    /// its loop edges. Returns whether a merge was made.
+    fn accept_fully(&mut self, hypothesis: Hypothesis<ObservedEdge>) -> Result<bool, EngineError> {
+        let id = hypothesis.id();
+        match hypothesis.target() {
+            Target::Recovery => {
+                let records: Vec<LoopRecord> = hypothesis
+                    .edges()
+                    .filter_map(|e| match e {
+                        ObservedEdge::Recovery(r) => Some(*r),
+                        ObservedEdge::Merge(_) => None,
+                    })
+                    .collect();
+                let added = self.atlas.add_recovered_loops(&records)?;
+                self.log_decision(Decision::Recovery {
+                    hypothesis: id.0,
+                    edges: added,
+                });
+                Ok(false)
+            }
+            Target::Merge { map } => {
+                let map = MapId(map);
+                let Some(active_from_inactive) = self.estimate_of(&hypothesis) else {
+                    return Ok(false);
+                };
+                if self.atlas.inactive(map).is_none() || self.is_refused(map, &active_from_inactive)
+                {
+                    if self
+                        .conditional
+                        .as_ref()
+                        .is_some_and(|c| c.hypothesis == id)
+                    {
+                        self.drop_conditional("refused at full acceptance".into());
+                    }
+                    return Ok(false);
+                }
+                // Its edges: those G' had (observations and overlap loops) and any newer.
+                let conditional = self.conditional.take().filter(|c| c.hypothesis == id);
+                let mut edges = conditional
+                    .as_ref()
+                    .map_or_else(Vec::new, |c| c.edges.clone());
+                for edge in merge_edges_of(&hypothesis) {
+                    if !edges
+                        .iter()
+                        .any(|e| e.active == edge.active && e.inactive == edge.inactive)
+                    {
+                        edges.push(edge);
+                    }
+                }
+                let counts = hypothesis.counts(self.params.decisions.filter.ambiguous_weight);
+                let score = hypothesis.observations().len() as f64;
+                let request = MergeRequest {
+                    map,
+                    active_from_inactive: Some(active_from_inactive),
+                    loops: edges,
+                    reason: MergeReason::PlaceRecognition {
+                        loops: counts.observations,
+                        score,
+                        confidence: counts.weighted_views,
+                    },
+                };
+                let before = self.atlas.active().clone();
+                let first_edge = before.next_edge_id();
+                let event = self.atlas.merge(request, Some(&self.verifier))?;
+                self.before_last_change = Some(before);
+                let merge_edges: Vec<(NodeId, NodeId, Se2)> = self
+                    .atlas
+                    .active()
+                    .edges()
+                    .filter(|(eid, e)| eid.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
+                    .map(|(_, e)| (e.from, e.to, e.measurement))
+                    .collect();
+                let (scan, travel_m) = (self.scans, self.travel_m());
+                let record = MergeRecord {
+                    hypothesis: Some(id.0),
+                    epoch: self.atlas.current_epoch().0,
+                    map: map.0,
+                    state: MergeState::Full,
+                    conditional_at_scan: None,
+                    conditional_travel_m: None,
+                    full_at_scan: Some(scan),
+                    full_travel_m: Some(travel_m),
+                    merge: Some(event.merge.0),
+                    ended_at_scan: None,
+                    ended_travel_m: None,
+                    reason: None,
+                    observations: counts.observations,
+                    views: counts.weighted_views.round() as usize,
+                    active_from_inactive: event.active_from_inactive,
+                    edges: merge_edges,
+                };
+                match conditional.and_then(|c| self.merge_log.get_mut(c.record)) {
+                    Some(existing) => {
+                        existing.state = MergeState::Full;
+                        existing.full_at_scan = record.full_at_scan;
+                        existing.full_travel_m = record.full_travel_m;
+                        existing.merge = record.merge;
+                        existing.observations = record.observations;
+                        existing.views = record.views;
+                        existing.active_from_inactive = record.active_from_inactive;
+                        existing.edges = record.edges;
+                    }
+                    None => self.merge_log.push(record),
+                }
+                self.log_decision(Decision::FullMerge {
+                    hypothesis: id.0,
+                    merge: event.merge,
+                });
+                self.restart_detector();
+                Ok(true)
+            }
+        }
+    }
+
+    /// True while a full merge of this epoch can be undone and the newest is within its
+    /// probation (`decisions.probation_m` of travel since it was made).
+    fn on_probation(&self) -> bool {
+        if !self.atlas.is_undoable() {
+            return false;
+        }
+        let travel_m = self.travel_m();
+        let epoch = self.atlas.current_epoch().0;
+        self.merge_log
+            .iter()
+            .filter(|r| r.epoch == epoch && r.state == MergeState::Full)
+            .filter_map(|r| r.full_travel_m)
+            .any(|made_m| travel_m - made_m <= self.params.decisions.probation_m)
+    }
+
+    /// Keyframes of the current epoch so far.
+    fn keyframes_in_epoch(&self) -> usize {
+        self.tracker.info().keyframes
+    }
+
+    /// `active_from_inactive` of a merge hypothesis from its EKF state: the robot's pose in
+    /// the active graph composed with `robot_from_target`.
+    fn estimate_of(&self, hypothesis: &Hypothesis<ObservedEdge>) -> Option<Se2> {
+        let robot = self.atlas.robot_node()?;
+        let active_from_robot = self.atlas.active().vertex(robot)?.pose;
+        let estimate = active_from_robot.compose(hypothesis.robot_from_target());
+        estimate.is_finite().then_some(estimate)
+    }
+
+    /// True when a merge of `map` at `active_from_inactive` was undone or rejected in this
+    /// epoch.
+    fn is_refused(&self, map: MapId, active_from_inactive: &Se2) -> bool {
+        let (m, rad) = self.params.refused_within;
+        self.refused.iter().any(|(refused_map, t)| {
+            *refused_map == map
+                && (t.translation() - active_from_inactive.translation()).norm() <= m
+                && wrap_angle_rad(t.theta_rad - active_from_inactive.theta_rad).abs() <= rad
+        })
+    }
+
+    /// The merged map as the detectors see it: the current-epoch and other-epoch keyframes
+    /// of [`Engine::map_graph`] at their poses, with their points.
+    pub fn merged_map_scans(&self) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+        merged_map_scans(&self.atlas, self.map_graph())
+    }
+
+    /// Starts the detector over on the map it now judges (G' or the merged graph).
+    fn restart_detector(&mut self) {
+        self.max_invalidity = 0.0;
+        let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
+        if let Some(detector) = self.detector.as_mut() {
+            if !other.is_empty() {
+                detector.on_merge(&MergedMap {
+                    current: &current,
+                    other: &other,
+                });
+            }
+        }
+    }
+
+    /// Steps 6 and 7. While a merge is conditional, the detector judges G': above `decisions.conditional_reject_threshold` the
+    /// conditional merge is rejected. Otherwise, while full merges can be undone, the
+    /// detector judges the active graph: above `unmerge_threshold` every merge is undone.
+    /// Rejected and undone merges are refused for the rest of the epoch.
     fn verify_and_undo(&mut self) -> Result<(), EngineError> {
+        if self.conditional.is_none() && !self.on_probation() {
+            return Ok(());
+        }
+        let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
         };
-        let (current, other) = merged_map_scans(&self.atlas);
-        let map = MergedMap {
+        let invalidity = detector.on_vertex(&MergedMap {
             current: &current,
             other: &other,
-        };
-        let invalidity = detector.on_vertex(&map);
+        });
         self.max_invalidity = self.max_invalidity.max(invalidity);
+        let name = detector.name().to_owned();
+        if let Some(conditional) = &self.conditional {
+            if invalidity > self.params.decisions.conditional_reject_threshold {
+                let (id, map) = (conditional.hypothesis, conditional.map);
+                if let Some(estimate) = self.merge_log.get(conditional.record).map(|r| {
+                    Se2::new(
+                        r.active_from_inactive[0],
+                        r.active_from_inactive[1],
+                        r.active_from_inactive[2],
+                    )
+                }) {
+                    self.refused.push((map, estimate));
+                }
+                let event = self.filter.reject(
+                    id,
+                    RejectReason::Detector {
+                        name: name.clone(),
+                        invalidity,
+                    },
+                );
+                self.log_filter_events(event.into_iter().collect());
+                self.drop_conditional(format!("{name} invalidity {invalidity:.2}"));
+            }
+            return Ok(());
+        }
         if invalidity > self.params.unmerge_threshold {
             self.before_last_change = Some(self.atlas.active().clone());
             let undone = self.atlas.unmerge_all(UnmergeReason::InvalidMerge {
-                detector: detector.name().to_owned(),
+                detector: name.clone(),
                 invalidity,
             })?;
             if let Some(undone) = undone {
@@ -344,6 +932,17 @@ impl Engine {
                         .zip(&undone.undone_transforms)
                         .map(|(map, t)| (*map, Se2::new(t[0], t[1], t[2]))),
                 );
+                let (scan, travel_m) = (self.scans, self.travel_m());
+                for record in self.merge_log.iter_mut().filter(|r| {
+                    r.state == MergeState::Full
+                        && r.merge
+                            .is_some_and(|m| undone.merges.iter().any(|u| u.0 == m))
+                }) {
+                    record.state = MergeState::Undone;
+                    record.ended_at_scan = Some(scan);
+                    record.ended_travel_m = Some(travel_m);
+                    record.reason = Some(format!("{name} invalidity {invalidity:.2}"));
+                }
             }
         }
         Ok(())
@@ -358,7 +957,39 @@ impl Engine {
         active_from_inactive: Se2,
         note: impl Into<String>,
     ) -> Result<(), EngineError> {
-        self.apply_merge(MergeRequest::forced(map, active_from_inactive, note))?;
+        let before = self.atlas.active().clone();
+        let first_edge = before.next_edge_id();
+        let event = self.atlas.merge(
+            MergeRequest::forced(map, active_from_inactive, note),
+            Some(&self.verifier),
+        )?;
+        self.before_last_change = Some(before);
+        let edges = self
+            .atlas
+            .active()
+            .edges()
+            .filter(|(id, e)| id.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
+            .map(|(_, e)| (e.from, e.to, e.measurement))
+            .collect();
+        self.merge_log.push(MergeRecord {
+            hypothesis: None,
+            epoch: self.atlas.current_epoch().0,
+            map: map.0,
+            state: MergeState::Full,
+            conditional_at_scan: None,
+            conditional_travel_m: None,
+            full_at_scan: Some(self.scans),
+            full_travel_m: Some(self.travel_m()),
+            merge: Some(event.merge.0),
+            ended_at_scan: None,
+            ended_travel_m: None,
+            reason: None,
+            observations: 0,
+            views: 0,
+            active_from_inactive: event.active_from_inactive,
+            edges,
+        });
+        self.restart_detector();
         self.collect_events();
         Ok(())
     }
@@ -383,35 +1014,32 @@ impl Engine {
             .get(before..)
             .unwrap_or_default()
             .iter()
-            .find_map(|e| match &e.event {
-                AtlasEvent::EpochEnded { map, .. } => *map,
+            .find_map(|e| match e.atlas() {
+                Some(AtlasEvent::EpochEnded { map, .. }) => *map,
                 _ => None,
             })
             .ok_or_else(|| EngineError::Import("the imported graph is empty".into()))
     }
 
-    fn apply_merge(&mut self, request: MergeRequest) -> Result<(), EngineError> {
-        let before = self.atlas.active().clone();
-        let first_edge = self.atlas.active().next_edge_id();
-        self.atlas.merge(request, Some(&self.verifier))?;
-        self.before_last_change = Some(before);
-        self.merge_edges.push(
-            self.atlas
-                .active()
-                .edges()
-                .filter(|(id, e)| id.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
-                .map(|(_, e)| (e.from, e.to, e.measurement))
-                .collect(),
-        );
-        if let Some(detector) = self.detector.as_mut() {
-            let (current, other) = merged_map_scans(&self.atlas);
-            detector.on_merge(&MergedMap {
-                current: &current,
-                other: &other,
-            });
-        }
-        self.max_invalidity = 0.0;
-        Ok(())
+    fn log_filter_events(&mut self, events: Vec<FilterEvent>) {
+        self.collect_events();
+        let travel_m = self.travel_m();
+        self.events
+            .extend(events.into_iter().map(|event| EngineEvent {
+                scan: self.scans,
+                travel_m,
+                event: EventKind::Hypothesis(event),
+            }));
+    }
+
+    fn log_decision(&mut self, decision: Decision) {
+        self.collect_events();
+        let travel_m = self.travel_m();
+        self.events.push(EngineEvent {
+            scan: self.scans,
+            travel_m,
+            event: EventKind::Decision(decision),
+        });
     }
 
     fn collect_events(&mut self) {
@@ -425,17 +1053,30 @@ impl Engine {
             self.events.push(EngineEvent {
                 scan: self.scans,
                 travel_m,
-                event: event.clone(),
+                event: EventKind::Atlas(event.clone()),
             });
         }
         self.atlas_events_seen = self.atlas.events().len();
     }
 }
 
-/// The merged map as the detectors see it (see [`Engine::merged_map_scans`]).
-fn merged_map_scans(atlas: &Atlas) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+/// The merge edges a merge hypothesis's observations carry.
+fn merge_edges_of(hypothesis: &Hypothesis<ObservedEdge>) -> Vec<LoopEdge> {
+    hypothesis
+        .edges()
+        .filter_map(|e| match e {
+            ObservedEdge::Merge(edge) => Some(*edge),
+            ObservedEdge::Recovery(_) => None,
+        })
+        .collect()
+}
+
+/// The merged map as the detectors see it (see [`Engine::merged_map_scans`]): `graph`'s
+/// keyframes with the atlas's points.
+fn merged_map_scans(atlas: &Atlas, graph: &PoseGraph2) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+    let current_epoch = atlas.current_epoch().0;
     let (mut current, mut other) = (Vec::new(), Vec::new());
-    for (node, vertex) in atlas.active().vertices() {
+    for (node, vertex) in graph.vertices() {
         let Some(points) = atlas.keyframes().get(node) else {
             continue;
         };
@@ -445,7 +1086,7 @@ fn merged_map_scans(atlas: &Atlas) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
             map_from_robot: vertex.pose,
             points_in_robot: Arc::clone(points),
         };
-        if atlas.is_current_epoch(node) {
+        if vertex.meta.session.0 == current_epoch {
             current.push(scan);
         } else {
             other.push(scan);

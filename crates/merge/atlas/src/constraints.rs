@@ -222,12 +222,21 @@ pub struct ConstraintInfo {
 /// What one keyframe's constraint search found (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ConstraintSearch {
-    /// Loop edges added inside the current epoch.
+    /// Loop edges added inside the current epoch (the newest of [`Atlas::loops`]).
     pub epoch_loops: usize,
     /// Loop edges added into merged data.
-    pub merged_loops: usize,
-    /// Matches of the newest keyframe in inactive graphs (not merged: the caller decides).
+    pub merged_loops: Vec<LoopEdge>,
+    /// Matches of the newest keyframe in inactive graphs (not merged: the caller decides),
+    /// one per graph.
     pub merge_candidates: Vec<MergeProposal>,
+    /// Place-recognition matches inside the active graph that contradict the current
+    /// estimate (not added): inside the epoch, those the drift gate refused; while merged,
+    /// matches in the merged data beyond the overlap gate. Each as the loop edge it would
+    /// be (`from` the matched keyframe, `to` the query).
+    pub contradictions: Vec<LoopRecord>,
+    /// While merged, place-recognition matches in the merged data that agree with the
+    /// estimate (the views of accepted observations).
+    pub confirmations: Vec<LoopRecord>,
 }
 
 /// A keyframe in the place index.
@@ -263,6 +272,8 @@ pub(crate) struct ConstraintBuilder {
     /// Keyframes since the last search of merged data and of the inactive graphs.
     keyframes_since_merge_search: usize,
     loops: Vec<LoopRecord>,
+    /// Matches the drift gate refused since the last search returned them.
+    gated: Vec<LoopRecord>,
     pub(crate) info: ConstraintInfo,
 }
 
@@ -285,6 +296,7 @@ impl ConstraintBuilder {
             loops_at_last_search: 0,
             keyframes_since_merge_search: 0,
             loops: Vec::new(),
+            gated: Vec::new(),
             info: ConstraintInfo::default(),
         })
     }
@@ -406,20 +418,31 @@ impl<B: BackupStore> Atlas<B> {
             found.epoch_loops = self.search_epoch_loops(node);
         }
         self.constraints.loops_at_last_search = found.epoch_loops;
+        found.contradictions = std::mem::take(&mut self.constraints.gated);
         let every = self.params.recognition.every_keyframes.max(1);
         if self.is_undoable() && self.constraints.epoch_keyframes % every == 0 {
             found.merged_loops = self.close_loops_into_merged(every, verifier)?;
         }
         self.constraints.keyframes_since_merge_search += 1;
-        if !self.inactive.is_empty()
-            && self.constraints.epoch_keyframes >= self.params.recognition.min_epoch_keyframes
+        if self.constraints.epoch_keyframes >= self.params.recognition.min_epoch_keyframes
             && self.constraints.keyframes_since_merge_search >= every
         {
             self.constraints.keyframes_since_merge_search = 0;
             let started = Instant::now();
-            found.merge_candidates = self.find_merges(verifier);
-            self.constraints.info.merge_queries += 1;
-            self.constraints.info.merge_matches += found.merge_candidates.len();
+            if !self.inactive.is_empty() {
+                found.merge_candidates = self.find_merges(verifier);
+                self.constraints.info.merge_queries += 1;
+                self.constraints.info.merge_matches += found.merge_candidates.len();
+            }
+            if self.is_undoable() {
+                if let Some((record, agrees)) = self.recognise_in_merged_data(verifier) {
+                    if agrees {
+                        found.confirmations.push(record);
+                    } else {
+                        found.contradictions.push(record);
+                    }
+                }
+            }
             self.constraints.info.merge_search_seconds += started.elapsed().as_secs_f64();
         }
         Ok(found)
@@ -637,12 +660,6 @@ impl<B: BackupStore> Atlas<B> {
         let measurement = submap_from_candidate.compose(&found.b_from_a);
         let correction = map_from_robot.between(&map_from_submap.compose(&measurement));
         let drift_m = self.drift_since(NodeId(found.b.0));
-        if correction.translation().norm() > gate_m + gate_per_m * drift_m
-            || correction.theta_rad.abs() > gate_rad + gate_rad_per_m * drift_m
-        {
-            self.constraints.info.place_gated += 1;
-            return 0;
-        }
         let Some((member, member_from_robot)) = c
             .submaps
             .get(&s)
@@ -658,7 +675,31 @@ impl<B: BackupStore> Atlas<B> {
             score: found.score,
             covariance: found.covariance,
         };
+        if correction.translation().norm() > gate_m + gate_per_m * drift_m
+            || correction.theta_rad.abs() > gate_rad + gate_rad_per_m * drift_m
+        {
+            self.constraints.info.place_gated += 1;
+            self.constraints.gated.push(record);
+            return 0;
+        }
         self.propose_loop(record)
+    }
+
+    /// Adds the loop edges of an accepted recovery hypothesis (matches the drift gate had
+    /// refused, Banerjee et al. Sec. 3.2.1) and re-optimises. Records whose vertices left the
+    /// active graph are skipped. Returns the edges added.
+    pub fn add_recovered_loops(&mut self, records: &[LoopRecord]) -> Result<usize, AtlasError> {
+        let mut added = 0;
+        for record in records {
+            if self.active.contains_vertex(record.from) && self.active.contains_vertex(record.to) {
+                self.add_loop(*record);
+                added += 1;
+            }
+        }
+        if added > 0 {
+            self.optimize_if_due(true)?;
+        }
+        Ok(added)
     }
 
     /// Travel (m) up to keyframe `node` within its epoch.
@@ -769,80 +810,26 @@ impl<B: BackupStore> Atlas<B> {
     /// (Sec. III-A) through the one place index, filtered to each graph's keyframes; the
     /// candidates are verified as local maps (see [`crate::KeyframeParams`]) by `verifier`
     /// and rated against rival places of the same graph. One proposal per matched graph,
-    /// most loops (then best score) first.
+    /// best score first.
     pub fn find_merges(&self, verifier: &dyn GeometricVerifier) -> Vec<MergeProposal> {
-        let p = &self.params.recognition;
-        let Some(query_node) = self.robot.filter(|n| self.is_current_epoch(*n)) else {
-            return Vec::new();
-        };
-        let Some(points) = self.keyframes.get(query_node) else {
-            return Vec::new();
-        };
-        let c = &self.constraints;
-        let descriptor = ScanContext::new(points, &self.params.loops.place.descriptor);
-        let query = local_map_keyframes(
-            &self.active,
-            &self.keyframes,
-            &self.params.keyframes,
-            &[query_node],
-        );
-        let Some(query) = query.get(&query_node) else {
-            return Vec::new();
-        };
-        let Some(pose_a) = self.active.vertex(query_node).map(|v| v.pose) else {
+        let Some(query) = self.newest_query() else {
             return Vec::new();
         };
         let mut proposals = Vec::new();
         for (map, graph) in &self.inactive {
-            let retrieved =
-                c.index
-                    .query_filtered(&descriptor, p.place.candidates_per_query, |_, id| {
-                        graph.contains_vertex(NodeId(id.0))
-                    });
-            let nodes: Vec<(NodeId, f64, usize)> = retrieved
-                .iter()
-                .filter(|r| r.descriptor_distance <= p.place.max_descriptor_distance)
-                .filter_map(|r| {
-                    Some((
-                        NodeId(r.keyframe.0),
-                        r.yaw_rad,
-                        *c.ordinal_of.get(&r.keyframe)?,
-                    ))
-                })
-                .collect();
-            if nodes.is_empty() {
-                continue;
-            }
-            let wanted: Vec<NodeId> = nodes.iter().map(|(n, _, _)| *n).collect();
-            let local_maps =
-                local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, &wanted);
-            let candidates: Vec<PlaceCandidate> = nodes
-                .iter()
-                .filter_map(|(node, yaw_rad, ordinal)| {
-                    Some(PlaceCandidate {
-                        ordinal: *ordinal,
-                        keyframe: local_maps.get(node)?,
-                        yaw_rad: *yaw_rad,
-                        map_from_keyframe: Some(graph.vertex(*node)?.pose),
-                    })
-                })
-                .collect();
-            let Some(found) = verify_candidates(query, &candidates, &Dyn(verifier), &p.place)
-            else {
+            let Some(found) = self.recognise(&query, graph, |_| true, verifier) else {
                 continue;
             };
-            if found.confidence < p.min_confidence {
-                continue;
-            }
             let b = NodeId(found.b.0);
             let Some(pose_b) = graph.vertex(b).map(|v| v.pose) else {
                 continue;
             };
-            let active_from_inactive = pose_a
+            let active_from_inactive = query
+                .pose
                 .compose(&found.b_from_a.inverse())
                 .compose(&pose_b.inverse());
             let edge = LoopEdge {
-                active: query_node,
+                active: query.node,
                 inactive: b,
                 inactive_from_active: found.b_from_a,
                 information: information_from_covariance(
@@ -859,13 +846,110 @@ impl<B: BackupStore> Atlas<B> {
                 covariance: found.covariance,
             });
         }
-        proposals.sort_by(|x, y| {
-            y.loops
-                .len()
-                .cmp(&x.loops.len())
-                .then(y.score.total_cmp(&x.score))
-        });
+        proposals.sort_by(|x, y| y.score.total_cmp(&x.score));
         proposals
+    }
+
+    /// While merged: place recognition of the newest keyframe in the merged data (the other
+    /// epochs' keyframes of the active graph), as for a merge; the match as a loop record
+    /// and whether it agrees with the estimate within the overlap gate.
+    fn recognise_in_merged_data(
+        &self,
+        verifier: &dyn GeometricVerifier,
+    ) -> Option<(LoopRecord, bool)> {
+        let query = self.newest_query()?;
+        let found = self.recognise(
+            &query,
+            &self.active,
+            |node| !self.is_current_epoch(node),
+            verifier,
+        )?;
+        let view = NodeId(found.b.0);
+        let map_from_view = self.active.vertex(view)?.pose;
+        let correction = query.pose.between(&map_from_view.compose(&found.b_from_a));
+        let gate = &self.params.merge.overlap;
+        let agrees = correction.translation().norm() <= gate.gate_m
+            && correction.theta_rad.abs() <= gate.gate_rad;
+        let record = LoopRecord {
+            from: view,
+            to: query.node,
+            measurement: found.b_from_a,
+            source: LoopSource::Place,
+            score: found.score,
+            covariance: found.covariance,
+        };
+        Some((record, agrees))
+    }
+
+    /// The newest current-epoch keyframe as a place-recognition query.
+    fn newest_query(&self) -> Option<PlaceQuery> {
+        let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
+        let points = self.keyframes.get(node)?;
+        let descriptor = ScanContext::new(points, &self.params.loops.place.descriptor);
+        let local_maps = local_map_keyframes(
+            &self.active,
+            &self.keyframes,
+            &self.params.keyframes,
+            &[node],
+        );
+        let keyframe = local_maps.into_values().next()?;
+        let pose = self.active.vertex(node)?.pose;
+        Some(PlaceQuery {
+            node,
+            pose,
+            descriptor,
+            keyframe,
+        })
+    }
+
+    /// Retrieves `query`'s candidates among the keyframes of `graph` that `keep` allows from
+    /// the place index, verifies them as local maps and accepts the best above
+    /// `recognition.place.min_score` and `recognition.min_confidence`.
+    fn recognise(
+        &self,
+        query: &PlaceQuery,
+        graph: &mapmerge_posegraph::PoseGraph2,
+        keep: impl Fn(NodeId) -> bool,
+        verifier: &dyn GeometricVerifier,
+    ) -> Option<mapmerge_place::VerifiedLoop> {
+        let p = &self.params.recognition;
+        let c = &self.constraints;
+        let retrieved =
+            c.index
+                .query_filtered(&query.descriptor, p.place.candidates_per_query, |_, id| {
+                    let node = NodeId(id.0);
+                    graph.contains_vertex(node) && keep(node)
+                });
+        let nodes: Vec<(NodeId, f64, usize)> = retrieved
+            .iter()
+            .filter(|r| r.descriptor_distance <= p.place.max_descriptor_distance)
+            .filter_map(|r| {
+                Some((
+                    NodeId(r.keyframe.0),
+                    r.yaw_rad,
+                    *c.ordinal_of.get(&r.keyframe)?,
+                ))
+            })
+            .collect();
+        if nodes.is_empty() {
+            return None;
+        }
+        let wanted: Vec<NodeId> = nodes.iter().map(|(n, _, _)| *n).collect();
+        let local_maps =
+            local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, &wanted);
+        let candidates: Vec<PlaceCandidate> = nodes
+            .iter()
+            .filter_map(|(node, yaw_rad, ordinal)| {
+                Some(PlaceCandidate {
+                    ordinal: *ordinal,
+                    keyframe: local_maps.get(node)?,
+                    yaw_rad: *yaw_rad,
+                    map_from_keyframe: Some(graph.vertex(*node)?.pose),
+                })
+            })
+            .collect();
+        verify_candidates(&query.keyframe, &candidates, &Dyn(verifier), &p.place)
+            .filter(|found| found.confidence >= p.min_confidence)
     }
 
     /// Indexes every keyframe of the active graph not yet in the place index (an ending
@@ -882,6 +966,17 @@ impl<B: BackupStore> Atlas<B> {
             }
         }
     }
+}
+
+/// The newest keyframe as a place-recognition query.
+struct PlaceQuery {
+    node: NodeId,
+    /// Its pose in the active graph.
+    pose: Se2,
+    /// Its descriptor (the place index's kind).
+    descriptor: ScanContext,
+    /// Its local map, for verification.
+    keyframe: Keyframe,
 }
 
 /// A `&dyn GeometricVerifier` as a sized verifier (the place crate's functions are generic).

@@ -65,5 +65,5 @@ pub use events::{
 };
 pub use ids::{EpochId, MapId, MergeId};
 pub use keyframes::{KeyframeRecord, KeyframeStore};
-pub use merge::{LoopEdge, MergeParams, MergeRequest, OverlapParams};
+pub use merge::{LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
 pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};

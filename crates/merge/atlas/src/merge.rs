@@ -114,6 +114,21 @@ impl LoopEdge {
     }
 }
 
+/// The active graph a merge would make ([`Atlas::preview_merge`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MergePreview {
+    /// The merged graph, re-optimised with the robot held.
+    pub graph: PoseGraph2,
+    /// Where the inactive graph went.
+    pub active_from_inactive: Se2,
+    /// Loop edges that join the graphs (given, or the one a transform alone gets).
+    pub loop_edges: usize,
+    /// Further loop edges found in the overlap.
+    pub overlap_edges: usize,
+    /// Chi2 of the active graph before, and of the merged graph after re-optimisation.
+    pub chi2: [f64; 2],
+}
+
 /// What to merge and how: the inactive graph, where it goes, the loop edges that join it.
 /// Built by place recognition ([`crate::MergeProposal::into_request`]) or by a caller that
 /// forces a merge ([`MergeRequest::forced`], the evaluation's "merge at a given time with a
@@ -149,11 +164,9 @@ pub(crate) use mapmerge_geometry::planar_information_from_covariance as informat
 impl<B: BackupStore> Atlas<B> {
     /// Merges inactive graph `request.map` into the active graph (Sec. III-A):
     /// 1. back up the inactive graph as it is (graph structure only; scans stay shared);
-    /// 2. move it into the active graph's frame by `active_from_inactive` (the robot's pose
-    ///    must not jump), its vertices no longer fixed: the active frame is the gauge;
-    /// 3. union both graphs plus the loop edges (kind `Merge`);
-    /// 4. with a `verifier`, search further loop closures in the overlap;
-    /// 5. re-optimise with the robot's vertex held.
+    /// 2.–5. as [`Atlas::preview_merge`]: move it into the active frame, union with the
+    ///    loop edges, overlap loops, re-optimise with the robot held;
+    /// then commit the merged graph as the active one.
     ///
     /// Merges stack: each later one is undone with the earlier ones by
     /// [`Atlas::unmerge_all`]. On error the atlas is unchanged.
@@ -162,6 +175,52 @@ impl<B: BackupStore> Atlas<B> {
         request: MergeRequest,
         verifier: Option<&dyn GeometricVerifier>,
     ) -> Result<MergeEvent, AtlasError> {
+        let preview = self.preview_merge(&request, verifier)?;
+        let map = request.map;
+        let inactive = self.inactive.get(&map).ok_or(AtlasError::MissingMap(map))?;
+        // 1. Back up before anything changes (the only fallible step left), then commit.
+        let merged_epochs: Vec<EpochId> = epochs_of(inactive).into_iter().collect();
+        let merged_vertices = inactive.num_vertices();
+        let merge = MergeId(self.next_merge);
+        self.backups.store(merge, inactive)?;
+        self.next_merge += 1;
+        self.inactive.remove(&map);
+        self.active = preview.graph;
+        let active_from_inactive = pose_array(&preview.active_from_inactive);
+        self.merges.push(AppliedMerge {
+            merge,
+            map,
+            active_from_inactive,
+        });
+        let event = MergeEvent {
+            merge,
+            active_epoch: self.epoch,
+            map,
+            merged_epochs,
+            merged_vertices,
+            loop_edges: preview.loop_edges,
+            overlap_edges: preview.overlap_edges,
+            active_from_inactive,
+            reason: request.reason,
+            chi2: preview.chi2,
+        };
+        self.events.push(AtlasEvent::Merged(event.clone()));
+        Ok(event)
+    }
+
+    /// The active graph as [`Atlas::merge`] would make it, without changing the atlas (a
+    /// conditional merge's graph copy G', Banerjee et al., Sec. 5.2):
+    /// 2. the inactive graph moved into the active graph's frame by `active_from_inactive`
+    ///    (the robot's pose must not jump), its vertices no longer fixed;
+    /// 3. both graphs united with the loop edges (kind `Merge`; a transform alone gets one
+    ///    consistent edge);
+    /// 4. with a `verifier`, further loop closures searched in the overlap;
+    /// 5. re-optimised with the robot's vertex held.
+    pub fn preview_merge(
+        &self,
+        request: &MergeRequest,
+        verifier: Option<&dyn GeometricVerifier>,
+    ) -> Result<MergePreview, AtlasError> {
         let map = request.map;
         let robot = self.robot.ok_or(AtlasError::EmptyActive(self.epoch))?;
         let inactive = self.inactive.get(&map).ok_or(AtlasError::MissingMap(map))?;
@@ -237,33 +296,13 @@ impl<B: BackupStore> Atlas<B> {
         optimize_holding(&mut merged, Some(robot), &self.params.optimizer)?;
         let chi2_after = merged.chi2();
 
-        // 1. Back up before anything changes (the only fallible step left), then commit.
-        let merged_epochs: Vec<EpochId> = epochs_of(inactive).into_iter().collect();
-        let merged_vertices = inactive.num_vertices();
-        let merge = MergeId(self.next_merge);
-        self.backups.store(merge, inactive)?;
-        self.next_merge += 1;
-        self.inactive.remove(&map);
-        self.active = merged;
-        self.merges.push(AppliedMerge {
-            merge,
-            map,
-            active_from_inactive: pose_array(&active_from_inactive),
-        });
-        let event = MergeEvent {
-            merge,
-            active_epoch: self.epoch,
-            map,
-            merged_epochs,
-            merged_vertices,
+        Ok(MergePreview {
+            graph: merged,
+            active_from_inactive,
             loop_edges: connecting.len(),
             overlap_edges: overlap.len(),
-            active_from_inactive: pose_array(&active_from_inactive),
-            reason: request.reason,
             chi2: [chi2_before, chi2_after],
-        };
-        self.events.push(AtlasEvent::Merged(event.clone()));
-        Ok(event)
+        })
     }
 
     /// The edge a forced merge without loops gets: from the merged vertex nearest to the
@@ -376,15 +415,15 @@ impl<B: BackupStore> Atlas<B> {
     /// `overlap.stride`-th) are verified against the nearest other-epoch vertex of the active
     /// graph from the current estimate, and matches within the overlap gate become loop edges
     /// (kind `Merge`, so an unmerge removes them); then the active graph is re-optimised with
-    /// the robot held. Without this the front-end's drift away from the merge point reads as
+    /// the robot held. Without this the tracker's drift away from the merge point reads as
     /// contradictions to the invalid-merge detectors. Returns the edges added.
     pub fn close_loops_into_merged(
         &mut self,
         newest: usize,
         verifier: &dyn GeometricVerifier,
-    ) -> Result<usize, AtlasError> {
+    ) -> Result<Vec<LoopEdge>, AtlasError> {
         if self.merges.is_empty() {
-            return Ok(0);
+            return Ok(Vec::new());
         }
         let current: Vec<NodeId> = self
             .active
@@ -404,13 +443,32 @@ impl<B: BackupStore> Atlas<B> {
         let others = self.active.subgraph(&other);
         let loops = self.overlap_loops(&self.active, tried, &others, &BTreeSet::new(), verifier);
         if loops.is_empty() {
-            return Ok(0);
+            return Ok(loops);
         }
         for l in &loops {
             self.active.add_edge(l.edge())?;
         }
         self.optimize_active()?;
-        Ok(loops.len())
+        Ok(loops)
+    }
+
+    /// While a merge of inactive graph `map` is conditional: the keyframe `node` verified
+    /// against the nearest vertices of `map` in the conditionally merged graph `preview`
+    /// (G', from [`Atlas::preview_merge`]), as the overlap search does after a merge. Matches
+    /// within the overlap gate are loop edges that confirm the merge; none are added.
+    pub fn confirm_in_preview(
+        &self,
+        preview: &PoseGraph2,
+        map: MapId,
+        node: NodeId,
+        verifier: &dyn GeometricVerifier,
+    ) -> Vec<LoopEdge> {
+        let Some(inactive) = self.inactive.get(&map) else {
+            return Vec::new();
+        };
+        let ids: BTreeSet<NodeId> = inactive.vertices().map(|(id, _)| id).collect();
+        let moved = preview.subgraph(&ids);
+        self.overlap_loops(preview, &[node], &moved, &BTreeSet::new(), verifier)
     }
 
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):

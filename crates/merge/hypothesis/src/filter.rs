@@ -423,7 +423,13 @@ impl<E> HypothesisFilter<E> {
             return (false, None);
         };
         let counts = h.counts(weight);
-        if counts.meets(&self.params.full) {
+        let is_recovery = h.target == Target::Recovery;
+        let strict = if is_recovery {
+            &self.params.recovery
+        } else {
+            &self.params.full
+        };
+        if counts.meets(strict) {
             let Some(mut accepted) = self.live.remove(&id) else {
                 return (false, None);
             };
@@ -436,8 +442,14 @@ impl<E> HypothesisFilter<E> {
                 counts,
                 previous,
             });
-            // "When we accept a hypothesis, we delete all the other competing hypotheses."
-            let others: Vec<HypothesisId> = self.live.keys().copied().collect();
+            // "When we accept a hypothesis, we delete all the other competing hypotheses": a
+            // merge competes with every hypothesis, a recovery with the other recoveries.
+            let others: Vec<HypothesisId> = self
+                .live
+                .values()
+                .filter(|h| !is_recovery || h.target == Target::Recovery)
+                .map(|h| h.id)
+                .collect();
             for other in others {
                 if self.live.get(&other).map(|h| h.state) == Some(HypothesisState::Conditional) {
                     self.remove_rejected(other, RejectReason::Superseded { by: id }, events);

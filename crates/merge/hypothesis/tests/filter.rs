@@ -322,10 +322,12 @@ fn equal_views_and_more_observations_supersede() {
 #[test]
 fn recovery_hypotheses_skip_the_conditional_state() {
     let mut f = filter();
-    let outcomes = observe_views(&mut f, Target::Recovery, at(), &[1, 2, 3, 4, 5], 0.0, 0.6);
+    // The recovery criteria (10 observations of 8 views over 5 m), stricter than a merge's.
+    let views: Vec<u64> = (1..=10).collect();
+    let outcomes = observe_views(&mut f, Target::Recovery, at(), &views, 0.0, 0.6);
     let states: Vec<_> = outcomes.iter().map(|o| o.state).collect();
-    assert_eq!(&states[..4], &[HypothesisState::Tentative; 4]);
-    assert_eq!(states[4], HypothesisState::Full);
+    assert_eq!(&states[..9], &[HypothesisState::Tentative; 9]);
+    assert_eq!(states[9], HypothesisState::Full);
     assert!(outcomes.iter().all(|o| !o.conditional_started));
     assert_eq!(f.stats().conditional, 0);
 }

@@ -1,0 +1,258 @@
+//! Step 4 of the loop, and the judging half of steps 6–7: merges decided on accumulated
+//! evidence (Banerjee et al., "Lifelong Mapping in the Wild", Sec. 3.2.1, 5.2, 5.3).
+//!
+//! Every place-recognition match in an inactive graph is an observation of a *merge*
+//! hypothesis; every match in the robot's own graph that contradicts its estimate is an
+//! observation of a *recovery* hypothesis (`mapmerge-hypothesis`: one EKF per hypothesis).
+//! A merge hypothesis meeting the permissive criteria is merged *conditionally*: a copy G' of
+//! the active graph with the inactive one merged in ([`mapmerge_atlas::Atlas::preview_merge`])
+//! serves the read-only queries and the invalid-merge detector, while every write still goes
+//! to the atlas's graphs; G' is made anew from them after every keyframe. One meeting the
+//! strict criteria is merged fully (into the atlas, undoable by Holoch's backups). A
+//! conditional merge the detector contradicts, that a competitor wins over or that expires
+//! is dropped. Views that keep matching at the wrong place while the robot is sure of its
+//! pose are ambiguous (Sec. 5.3) and count for nothing.
+
+use mapmerge_atlas::{LoopEdge, LoopRecord, MapId, MergeId};
+use mapmerge_geometry::Se2;
+use mapmerge_hypothesis::{AmbiguityParams, FilterEvent, HypothesisFilterParams, HypothesisId};
+use mapmerge_posegraph::{NodeId, PoseGraph2};
+use nalgebra::{Matrix3, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Parameters of the merge decisions.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DecisionParams {
+    /// The hypothesis filter: gating, conditional (permissive) and full (strict) acceptance,
+    /// expiry (see `mapmerge_hypothesis::HypothesisFilterParams`).
+    pub filter: HypothesisFilterParams,
+    /// The ambiguous-view tracker (see `mapmerge_hypothesis::AmbiguityParams`).
+    pub ambiguity: AmbiguityParams,
+    /// Noise of the tracker's motion between keyframes, the EKF's motion update (Eq. 5):
+    /// standard deviations of translation `a + b·d` (m) and heading `c + e·|Δθ| + f·d`
+    /// (rad) as `(a, b, c, e, f)` (default: 1 cm + 3 %, 0.5° + 3 % + 0.5°/m: scan matching
+    /// drifts a few per cent).
+    pub motion_noise: (f64, f64, f64, f64, f64),
+    /// Smallest standard deviations of an observation (m, rad) (default: 10 cm, 2°, the
+    /// merge edges' floor): a scan matcher's covariance is over-confident across sessions.
+    pub observation_min_sigma_m_rad: (f64, f64),
+    /// A conditional merge is dropped when the detector's invalidity on G' exceeds this
+    /// (default: 0.5).
+    pub conditional_reject_threshold: f64,
+    /// Accepted recovery hypotheses add their loop edges to the graph (default: true).
+    pub recover: bool,
+    /// A full merge is checked by the detector for this much travel after it was made (m)
+    /// (default: 10, the distance within which a wrong merge must be undone); then it is
+    /// settled, as Holoch et al. settle merges when the epoch ends. Tuned on the simulator
+    /// (seeds 1–10 of office-aliased): the combined detector's false alarms on correct
+    /// merges come 15–35 m after the merge, its true ones within 10 m.
+    pub probation_m: f64,
+    /// While a merge is conditional, every this many keyframes the newest one is verified
+    /// where G' puts it; matches are observations of the conditional hypothesis (default:
+    /// 2).
+    pub confirm_every_keyframes: usize,
+}
+
+impl Default for DecisionParams {
+    fn default() -> Self {
+        Self {
+            filter: HypothesisFilterParams::default(),
+            ambiguity: AmbiguityParams::default(),
+            motion_noise: (0.01, 0.03, 0.5f64.to_radians(), 0.03, 0.5f64.to_radians()),
+            observation_min_sigma_m_rad: (0.1, 2f64.to_radians()),
+            conditional_reject_threshold: 0.5,
+            recover: true,
+            confirm_every_keyframes: 2,
+            probation_m: 10.0,
+        }
+    }
+}
+
+impl DecisionParams {
+    /// Covariance (right tangent) of the tracker's motion `increment` between keyframes.
+    pub(crate) fn motion_covariance(&self, increment: &Se2) -> Matrix3<f64> {
+        let (a, b, c, e, f) = self.motion_noise;
+        let d = increment.translation().norm();
+        let translation = a + b * d;
+        let heading = c + e * increment.theta_rad.abs() + f * d;
+        Matrix3::from_diagonal(&Vector3::new(
+            translation * translation,
+            translation * translation,
+            heading * heading,
+        ))
+    }
+
+    /// An observation's covariance: the matcher's, widened by the floor.
+    pub(crate) fn observation_covariance(&self, matched: &Matrix3<f64>) -> Matrix3<f64> {
+        let (m, rad) = self.observation_min_sigma_m_rad;
+        let floor = Matrix3::from_diagonal(&Vector3::new(m * m, m * m, rad * rad));
+        if matched.iter().all(|v| v.is_finite()) {
+            matched + floor
+        } else {
+            floor
+        }
+    }
+}
+
+/// What an observation would add to the graph once its hypothesis is accepted.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ObservedEdge {
+    /// A merge edge into an inactive graph.
+    Merge(LoopEdge),
+    /// A loop edge inside the active graph that the estimate contradicted.
+    Recovery(LoopRecord),
+}
+
+/// Where a merge stands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MergeState {
+    /// Conditionally merged (G' only), still (or when its epoch ended).
+    Conditional,
+    /// Merged into the atlas and kept.
+    Full,
+    /// A conditional merge that was dropped.
+    Rejected,
+    /// A full merge that was undone.
+    Undone,
+}
+
+/// One merge decision as it went: conditional, full, rejected or undone.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MergeRecord {
+    /// The hypothesis (none for a forced merge).
+    pub hypothesis: Option<u64>,
+    /// The epoch that merged (the active one).
+    pub epoch: u32,
+    /// The inactive graph.
+    pub map: u32,
+    /// Where it stands.
+    pub state: MergeState,
+    /// Scan and travel (m) when it became conditional.
+    pub conditional_at_scan: Option<usize>,
+    /// See `conditional_at_scan`.
+    pub conditional_travel_m: Option<f64>,
+    /// Scan and travel (m) when it was merged fully.
+    pub full_at_scan: Option<usize>,
+    /// See `full_at_scan`.
+    pub full_travel_m: Option<f64>,
+    /// The atlas's merge, once full.
+    pub merge: Option<u64>,
+    /// Scan and travel (m) when it was rejected or undone.
+    pub ended_at_scan: Option<usize>,
+    /// See `ended_at_scan`.
+    pub ended_travel_m: Option<f64>,
+    /// Why it was rejected or undone.
+    pub reason: Option<String>,
+    /// Observations and distinct views of its hypothesis when last decided on.
+    pub observations: usize,
+    /// See `observations`.
+    pub views: usize,
+    /// `active_from_inactive` when last decided on, `[x_m, y_m, yaw_rad]`.
+    pub active_from_inactive: [f64; 3],
+    /// Its merge edges `(from, to, from_from_to)` as made (inactive vertex to active one;
+    /// overlap edges included), for judging against a ground truth.
+    pub edges: Vec<(NodeId, NodeId, Se2)>,
+}
+
+impl MergeRecord {
+    /// Travel from the first decision (conditional, else full) to the end (m).
+    pub fn ended_after_m(&self) -> Option<f64> {
+        let start = self.conditional_travel_m.or(self.full_travel_m)?;
+        self.ended_travel_m.map(|end| end - start)
+    }
+
+    /// Travel from conditional to full (m).
+    pub fn full_after_m(&self) -> Option<f64> {
+        Some(self.full_travel_m? - self.conditional_travel_m?)
+    }
+}
+
+/// A decision of the engine, logged with the atlas's and the filter's events.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "event", rename_all = "snake_case")]
+pub enum Decision {
+    /// A merge hypothesis became the conditional merge (G' made).
+    ConditionalMerge {
+        /// The hypothesis.
+        hypothesis: u64,
+        /// The inactive graph.
+        map: MapId,
+        /// Its edges in G' (observations and overlap loops).
+        edges: usize,
+        /// `[x_m, y_m, yaw_rad]`.
+        active_from_inactive: [f64; 3],
+    },
+    /// The conditional merge was dropped (G' discarded).
+    ConditionalDropped {
+        /// The hypothesis.
+        hypothesis: u64,
+        /// The inactive graph.
+        map: MapId,
+        /// Why.
+        reason: String,
+    },
+    /// A full merge was made from a hypothesis (the atlas's `merged` event follows).
+    FullMerge {
+        /// The hypothesis.
+        hypothesis: u64,
+        /// The atlas's merge.
+        merge: MergeId,
+    },
+    /// A recovery hypothesis was accepted: its loop edges joined the graph.
+    Recovery {
+        /// The hypothesis.
+        hypothesis: u64,
+        /// Loop edges added.
+        edges: usize,
+    },
+    /// Views became ambiguous (Sec. 5.3).
+    AmbiguousViews {
+        /// Their keyframe nodes.
+        views: Vec<u64>,
+    },
+}
+
+/// The event kinds of [`crate::EngineEvent`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum EventKind {
+    /// A mutation of the atlas.
+    Atlas(mapmerge_atlas::AtlasEvent),
+    /// A change of a hypothesis.
+    Hypothesis(FilterEvent),
+    /// A decision of the engine.
+    Decision(Decision),
+}
+
+/// The conditional merge: its hypothesis and the graph copy G'.
+pub(crate) struct Conditional {
+    pub hypothesis: HypothesisId,
+    pub map: MapId,
+    /// Its record in the merge log.
+    pub record: usize,
+    /// The edges G' gets: the observations' and the overlap loops found when it started.
+    pub edges: Vec<LoopEdge>,
+    /// G': the active graph with the inactive one merged in.
+    pub graph: PoseGraph2,
+}
+
+/// Counters of the hypotheses over the engine's life (the report).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct HypothesisSummary {
+    /// Hypotheses created.
+    pub created: u64,
+    /// … merge hypotheses.
+    pub merge: u64,
+    /// … recovery hypotheses.
+    pub recovery: u64,
+    /// Conditional merges made.
+    pub conditional: u64,
+    /// Hypotheses accepted fully.
+    pub full: u64,
+    /// Conditional merges dropped without becoming full.
+    pub rejected_conditional: u64,
+    /// Hypotheses expired.
+    pub expired: u64,
+}

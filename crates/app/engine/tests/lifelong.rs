@@ -1,0 +1,270 @@
+//! The lifelong engine on the simulator: kidnaps start epochs, merges are decided on
+//! accumulated evidence (conditional in G' first, then full), wrong ones are rejected or
+//! undone with a reason, and an undo restores the merged map exactly while keeping
+//! everything mapped since.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::collections::{BTreeMap, BTreeSet};
+
+use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
+use mapmerge_engine::{Engine, EngineParams, EventKind, MergeState};
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_posegraph::{NodeId, PoseGraph2};
+use mapmerge_sim::{simulate, SimParams};
+
+/// Runs a simulated data set through the engine; checks the invariants after every scan and
+/// returns the engine and every keyframe's true pose.
+fn run(preset: &str, seed: u64, sessions: usize, duration: f64) -> (Engine, BTreeMap<NodeId, Se2>) {
+    let mut params = SimParams::default().with_preset_name(preset).unwrap();
+    params.sessions = sessions;
+    params.duration_secs = duration;
+    let dataset = simulate(&params, seed).unwrap();
+    let mut engine = Engine::new(EngineParams::default()).unwrap();
+    let mut truth_of = BTreeMap::new();
+    let mut undos = 0;
+    // Each merged graph as it was just before its merge.
+    let mut before_merge: BTreeMap<MapId, PoseGraph2> = BTreeMap::new();
+    for (s, session) in dataset.sessions.iter().enumerate() {
+        if s > 0 {
+            engine.end_epoch(EpochEndReason::Restart).unwrap();
+        }
+        let kidnaps: BTreeSet<usize> = session.kidnaps.iter().map(|k| k.scan_index).collect();
+        let mut odometry = Se2::identity();
+        for (k, record) in session.log.scans.iter().enumerate() {
+            if kidnaps.contains(&k) {
+                let events = engine.end_epoch(EpochEndReason::Kidnap).unwrap();
+                assert!(events.iter().any(|e| matches!(
+                    e.atlas(),
+                    Some(AtlasEvent::EpochEnded {
+                        reason: EpochEndReason::Kidnap,
+                        ..
+                    })
+                )));
+                assert_eq!(engine.atlas().active().num_vertices(), 0);
+            }
+            odometry = record.odom_from_robot.unwrap_or(odometry);
+            // What an undo must restore: the inactive graphs as they were before the scan.
+            let inactive_before: BTreeMap<MapId, PoseGraph2> = engine
+                .atlas()
+                .inactive_maps()
+                .map(|(id, g)| (id, g.clone()))
+                .collect();
+            let current_before: BTreeSet<NodeId> = current_vertices(&engine);
+            let report = engine
+                .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
+                .unwrap();
+            if let Some(node) = report.keyframe {
+                truth_of.insert(node, session.truth[k].1);
+            }
+            let events: Vec<EventKind> = report.events.iter().map(|e| e.event.clone()).collect();
+            for event in events {
+                match event {
+                    EventKind::Atlas(AtlasEvent::Merged(merge)) => {
+                        let graph = inactive_before.get(&merge.map).cloned().unwrap();
+                        before_merge.insert(merge.map, graph);
+                    }
+                    EventKind::Atlas(AtlasEvent::Unmerged(undo)) => {
+                        undos += 1;
+                        // Every merged graph comes back exactly; the current epoch keeps every
+                        // vertex, and the active graph holds nothing else.
+                        for map in &undo.restored_maps {
+                            let restored = engine.atlas().inactive(*map).unwrap();
+                            assert_eq!(Some(restored), before_merge.get(map), "{map}");
+                        }
+                        let current_after = current_vertices(&engine);
+                        assert!(current_before.is_subset(&current_after));
+                        assert_eq!(current_after.len(), engine.atlas().active().num_vertices());
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+    engine.finish().unwrap();
+    eprintln!(
+        "{preset} seed {seed}: {undos} undos, {:?}",
+        engine.hypothesis_summary()
+    );
+    (engine, truth_of)
+}
+
+/// The current epoch's vertices in the active graph.
+fn current_vertices(engine: &Engine) -> BTreeSet<NodeId> {
+    let epoch = engine.atlas().current_epoch();
+    engine
+        .atlas()
+        .active()
+        .vertices()
+        .filter(|(_, v)| EpochId::of(&v.meta) == epoch)
+        .map(|(id, _)| id)
+        .collect()
+}
+
+/// True when most of `edges` lie within 0.5 m and 10° of the truth.
+fn correct(truth_of: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Option<bool> {
+    let verdicts: Vec<bool> = edges
+        .iter()
+        .filter_map(|(from, to, z)| {
+            let error = truth_of.get(from)?.between(truth_of.get(to)?).between(z);
+            Some(error.translation().norm() <= 0.5 && error.theta_rad.abs() <= 10f64.to_radians())
+        })
+        .collect();
+    (!verdicts.is_empty()).then(|| 2 * verdicts.iter().filter(|v| **v).count() > verdicts.len())
+}
+
+#[test]
+fn evidence_decides_merges_and_wrong_ones_do_not_stay() {
+    let (engine, truth_of) = run("office-aliased", 7, 3, 120.0);
+    let log = engine.merge_log();
+    assert!(!log.is_empty());
+    // Conditional merges came first (G' only), then became full or were dropped.
+    assert!(log.iter().any(|r| r.conditional_at_scan.is_some()));
+    let mut kept_correct = 0;
+    for record in log {
+        let verdict = correct(&truth_of, &record.edges);
+        match record.state {
+            MergeState::Rejected | MergeState::Undone => {
+                assert!(record.reason.is_some(), "{record:?}");
+                assert!(record.ended_after_m().is_some());
+            }
+            MergeState::Full => {
+                assert_eq!(verdict, Some(true), "a wrong merge was kept: {record:?}");
+                kept_correct += 1;
+            }
+            MergeState::Conditional => {}
+        }
+        if verdict == Some(false) {
+            // A wrong merge is rejected or undone within 10 m of travel.
+            assert!(
+                record.ended_after_m().is_some_and(|d| d <= 10.0),
+                "{record:?}"
+            );
+        }
+    }
+    assert!(kept_correct >= 1);
+    // Every merge decision is in the event log.
+    let conditional_events = engine
+        .events()
+        .iter()
+        .filter(|e| {
+            matches!(
+                &e.event,
+                EventKind::Decision(mapmerge_engine::Decision::ConditionalMerge { .. })
+            )
+        })
+        .count();
+    assert_eq!(
+        conditional_events,
+        log.iter()
+            .filter(|r| r.conditional_at_scan.is_some())
+            .count()
+    );
+    let summary = engine.hypothesis_summary();
+    assert!(summary.merge > 0 && summary.conditional >= 1);
+}
+
+#[test]
+fn a_conditional_merge_lives_in_g_prime_only() {
+    let mut params = SimParams::default()
+        .with_preset_name("office-aliased")
+        .unwrap();
+    params.sessions = 2;
+    params.duration_secs = 120.0;
+    let dataset = simulate(&params, 3).unwrap();
+    let mut engine = Engine::new(EngineParams::default()).unwrap();
+    let mut seen_conditional = false;
+    for (s, session) in dataset.sessions.iter().enumerate() {
+        if s > 0 {
+            engine.end_epoch(EpochEndReason::Restart).unwrap();
+        }
+        let mut odometry = Se2::identity();
+        for record in &session.log.scans {
+            odometry = record.odom_from_robot.unwrap_or(odometry);
+            engine.add_scan(&odometry, &record.scan, None).unwrap();
+            let conditional = engine
+                .merge_log()
+                .iter()
+                .any(|r| r.state == MergeState::Conditional)
+                && !engine.conditional_edges().is_empty();
+            if conditional {
+                seen_conditional = true;
+                // Reads see the merged map; the atlas's graphs stay apart until it is full.
+                let map = engine
+                    .merge_log()
+                    .iter()
+                    .rev()
+                    .find(|r| r.state == MergeState::Conditional)
+                    .unwrap()
+                    .map;
+                assert!(engine.atlas().inactive(MapId(map)).is_some());
+                assert!(engine.map_graph().num_vertices() > engine.atlas().active().num_vertices());
+                let robot = engine.robot_node().unwrap();
+                assert!(engine.robot_pose().is_some());
+                assert!(engine.atlas().active().contains_vertex(robot));
+            }
+        }
+    }
+    assert!(seen_conditional, "no conditional merge on this seed");
+}
+
+#[test]
+fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
+    let mut params = SimParams::default().with_preset_name("office").unwrap();
+    params.sessions = 2;
+    params.duration_secs = 60.0;
+    params.kidnap.max_per_session = 0;
+    let dataset = simulate(&params, 5).unwrap();
+    let mut engine = Engine::new(EngineParams::default()).unwrap();
+    let feed = |engine: &mut Engine, scans: &[mapmerge_scan::ScanRecord]| {
+        let mut odometry = Se2::identity();
+        for record in scans {
+            odometry = record.odom_from_robot.unwrap_or(odometry);
+            engine.add_scan(&odometry, &record.scan, None).unwrap();
+        }
+    };
+    feed(&mut engine, &dataset.sessions[0].log.scans);
+    engine.end_epoch(EpochEndReason::Restart).unwrap();
+    let second = &dataset.sessions[1].log.scans;
+    feed(&mut engine, &second[..100]);
+    let before: PoseGraph2 = engine.atlas().inactive(MapId(0)).unwrap().clone();
+    let active_before = current_vertices(&engine);
+    // Each epoch's frame is its first scan's pose: the right merge from the truth, then
+    // 2.5 m and 30° off, which overlaps the map and contradicts what the robot sees.
+    let truth = |s: usize| dataset.sessions[s].truth[0].1;
+    let right = truth(1).inverse().compose(&truth(0));
+    let wrong = right.compose(&Se2::new(2.5, 1.0, 0.5));
+    engine
+        .force_merge(MapId(0), wrong, "wrong on purpose")
+        .unwrap();
+    assert!(engine.atlas().is_undoable());
+    let mut odometry = second[99].odom_from_robot.unwrap();
+    let mut undone = None;
+    for record in &second[100..] {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        let report = engine.add_scan(&odometry, &record.scan, None).unwrap();
+        if let Some(undo) = report.events.iter().find_map(|e| match e.atlas() {
+            Some(AtlasEvent::Unmerged(u)) => Some(u.clone()),
+            _ => None,
+        }) {
+            undone = Some(undo);
+            break;
+        }
+    }
+    let undo = undone.expect("the wrong merge is undone");
+    assert!(matches!(
+        undo.reason,
+        mapmerge_atlas::UnmergeReason::InvalidMerge { .. }
+    ));
+    assert_eq!(engine.atlas().inactive(MapId(0)), Some(&before));
+    let after = current_vertices(&engine);
+    assert!(active_before.is_subset(&after) && after.len() > active_before.len());
+    assert_eq!(after.len(), engine.atlas().active().num_vertices());
+    let record = engine.merge_log().last().unwrap();
+    assert_eq!(record.state, MergeState::Undone);
+    assert!(record
+        .reason
+        .as_deref()
+        .unwrap_or("")
+        .contains("invalidity"));
+}
