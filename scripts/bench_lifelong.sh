@@ -81,7 +81,7 @@ print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 tune = load("tune-office-aliased-*.json")
 if tune: row("tuning: office-aliased seeds 1–10", tune)
 for world in ["office", "office-aliased", "corridor-loop", "warehouse", "symmetric-hall"]:
-    held = load(f"held-{world}-*.json")
+    held = load(f"held-{world}-[0-9]*.json")
     if held: row(f"held out: {world} seeds 101–110", held)
 held_all = load("held-*.json")
 if held_all: row("**held out: all worlds**", held_all)

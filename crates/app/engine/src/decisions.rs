@@ -72,15 +72,7 @@ impl Default for DecisionParams {
 impl DecisionParams {
     /// Covariance (right tangent) of the tracker's motion `increment` between keyframes.
     pub(crate) fn motion_covariance(&self, increment: &Se2) -> Matrix3<f64> {
-        let (a, b, c, e, f) = self.motion_noise;
-        let d = increment.translation().norm();
-        let translation = a + b * d;
-        let heading = c + e * increment.theta_rad.abs() + f * d;
-        Matrix3::from_diagonal(&Vector3::new(
-            translation * translation,
-            translation * translation,
-            heading * heading,
-        ))
+        mapmerge_slam::odometry_covariance(increment, &self.motion_noise)
     }
 
     /// An observation's covariance: the matcher's, widened by the floor.
@@ -236,23 +228,4 @@ pub(crate) struct Conditional {
     pub edges: Vec<LoopEdge>,
     /// G': the active graph with the inactive one merged in.
     pub graph: PoseGraph2,
-}
-
-/// Counters of the hypotheses over the engine's life (the report).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub struct HypothesisSummary {
-    /// Hypotheses created.
-    pub created: u64,
-    /// … merge hypotheses.
-    pub merge: u64,
-    /// … recovery hypotheses.
-    pub recovery: u64,
-    /// Conditional merges made.
-    pub conditional: u64,
-    /// Hypotheses accepted fully.
-    pub full: u64,
-    /// Conditional merges dropped without becoming full.
-    pub rejected_conditional: u64,
-    /// Hypotheses expired.
-    pub expired: u64,
 }

@@ -39,9 +39,10 @@ use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
 use decisions::Conditional;
-pub use decisions::{
-    Decision, DecisionParams, EventKind, HypothesisSummary, MergeRecord, MergeState, ObservedEdge,
-};
+pub use decisions::{Decision, DecisionParams, EventKind, MergeRecord, MergeState, ObservedEdge};
+/// Counters of the merge and recovery hypotheses (`created`, `merge`, `recovery`,
+/// `conditional`, `full`, `rejected_conditional`, `expired`).
+pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;
 
 /// What can go wrong.
 #[derive(Debug, thiserror::Error)]
@@ -277,16 +278,7 @@ impl Engine {
 
     /// Counters of the merge and recovery hypotheses.
     pub fn hypothesis_summary(&self) -> HypothesisSummary {
-        let s = self.filter.stats();
-        HypothesisSummary {
-            created: s.created,
-            merge: s.merge,
-            recovery: s.recovery,
-            conditional: s.conditional,
-            full: s.full,
-            rejected_conditional: s.rejected_conditional,
-            expired: s.expired,
-        }
+        self.filter.stats()
     }
 
     /// Keyframes marked ambiguous (Sec. 5.3).
@@ -763,17 +755,7 @@ impl Engine {
                         confidence: counts.weighted_views,
                     },
                 };
-                let before = self.atlas.active().clone();
-                let first_edge = before.next_edge_id();
-                let event = self.atlas.merge(request, Some(&self.verifier))?;
-                self.before_last_change = Some(before);
-                let merge_edges: Vec<(NodeId, NodeId, Se2)> = self
-                    .atlas
-                    .active()
-                    .edges()
-                    .filter(|(eid, e)| eid.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
-                    .map(|(_, e)| (e.from, e.to, e.measurement))
-                    .collect();
+                let (event, merge_edges) = self.commit_merge(request)?;
                 let (scan, travel_m) = (self.scans, self.travel_m());
                 let record = MergeRecord {
                     hypothesis: Some(id.0),
@@ -957,20 +939,8 @@ impl Engine {
         active_from_inactive: Se2,
         note: impl Into<String>,
     ) -> Result<(), EngineError> {
-        let before = self.atlas.active().clone();
-        let first_edge = before.next_edge_id();
-        let event = self.atlas.merge(
-            MergeRequest::forced(map, active_from_inactive, note),
-            Some(&self.verifier),
-        )?;
-        self.before_last_change = Some(before);
-        let edges = self
-            .atlas
-            .active()
-            .edges()
-            .filter(|(id, e)| id.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
-            .map(|(_, e)| (e.from, e.to, e.measurement))
-            .collect();
+        let (event, edges) =
+            self.commit_merge(MergeRequest::forced(map, active_from_inactive, note))?;
         self.merge_log.push(MergeRecord {
             hypothesis: None,
             epoch: self.atlas.current_epoch().0,
@@ -992,6 +962,28 @@ impl Engine {
         self.restart_detector();
         self.collect_events();
         Ok(())
+    }
+
+    /// Merges into the atlas (with the overlap search); keeps the active graph as it was for
+    /// pictures. Returns the atlas's event and the merge edges `(from, to, measurement)`
+    /// the merge added (an undo removes them from the graph; the record keeps them).
+    #[allow(clippy::type_complexity)]
+    fn commit_merge(
+        &mut self,
+        request: MergeRequest,
+    ) -> Result<(mapmerge_atlas::MergeEvent, Vec<(NodeId, NodeId, Se2)>), EngineError> {
+        let before = self.atlas.active().clone();
+        let first_edge = before.next_edge_id();
+        let event = self.atlas.merge(request, Some(&self.verifier))?;
+        self.before_last_change = Some(before);
+        let edges = self
+            .atlas
+            .active()
+            .edges()
+            .filter(|(id, e)| id.0 >= first_edge.0 && e.kind == EdgeKind::Merge)
+            .map(|(_, e)| (e.from, e.to, e.measurement))
+            .collect();
+        Ok((event, edges))
     }
 
     /// Adds `graph` (e.g. an earlier session's graph, with `points(node)` as each vertex's

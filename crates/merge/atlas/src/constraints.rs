@@ -464,7 +464,7 @@ impl<B: BackupStore> Atlas<B> {
             return Ok(false);
         }
         let started = Instant::now();
-        let params = self.params.loops.optimizer.clone();
+        let params = self.params.loops.optimizer;
         let result = if self.is_undoable() {
             crate::atlas::optimize_holding(&mut self.active, self.robot, &params).map(|_| ())
         } else {

@@ -164,8 +164,9 @@ pub(crate) use mapmerge_geometry::planar_information_from_covariance as informat
 impl<B: BackupStore> Atlas<B> {
     /// Merges inactive graph `request.map` into the active graph (Sec. III-A):
     /// 1. back up the inactive graph as it is (graph structure only; scans stay shared);
-    /// 2.–5. as [`Atlas::preview_merge`]: move it into the active frame, union with the
+    /// 2. to 5. as [`Atlas::preview_merge`]: move it into the active frame, union with the
     ///    loop edges, overlap loops, re-optimise with the robot held;
+    ///
     /// then commit the merged graph as the active one.
     ///
     /// Merges stack: each later one is undone with the earlier ones by
