@@ -621,23 +621,23 @@ fn draw_graph(
         let radius = if window.contains(&id) { 3.0 } else { 1.5 };
         picture.draw_disc(&vertex.pose.translation(), radius, colour);
     }
-    // Merge edges magenta; a conditional merge's (in G') orange.
+    // Merge edges magenta; a conditional merge's (in G') black and thicker.
     for (_, edge) in graph.edges().filter(|(_, e)| e.kind == EdgeKind::Merge) {
         if let (Some(a), Some(b)) = (graph.vertex(edge.from), graph.vertex(edge.to)) {
-            let colour = if conditional.contains(&(edge.from, edge.to)) {
-                CONDITIONAL_ORANGE
+            let (colour, width) = if conditional.contains(&(edge.from, edge.to)) {
+                (CONDITIONAL_BLACK, 3.0)
             } else {
-                Rgb::MAGENTA
+                (Rgb::MAGENTA, 2.0)
             };
-            picture.draw_line(&a.pose.translation(), &b.pose.translation(), colour, 2.0);
+            picture.draw_line(&a.pose.translation(), &b.pose.translation(), colour, width);
         }
     }
     picture.save_png(path)?;
     Ok(())
 }
 
-/// The colour of a conditional merge's edges.
-const CONDITIONAL_ORANGE: Rgb = Rgb([255, 140, 0]);
+/// The colour of a conditional merge's edges (no epoch has it).
+const CONDITIONAL_BLACK: Rgb = Rgb([0, 0, 0]);
 
 /// An epoch's colour: the session palette without its red and green, which mark change
 /// detection's classes.
