@@ -229,3 +229,89 @@ pub(crate) struct Conditional {
     /// G': the active graph with the inactive one merged in.
     pub graph: PoseGraph2,
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use mapmerge_geometry::LieGroup;
+
+    #[test]
+    fn motion_noise_grows_with_motion_and_observations_are_floored() {
+        let params = DecisionParams::default();
+        let still = params.motion_covariance(&Se2::identity());
+        let moved = params.motion_covariance(&Se2::new(1.0, 0.0, 0.5));
+        for i in 0..3 {
+            assert!(moved[(i, i)] > still[(i, i)]);
+        }
+        let (m, rad) = params.observation_min_sigma_m_rad;
+        let floored = params.observation_covariance(&Matrix3::zeros());
+        assert!((floored[(0, 0)] - m * m).abs() < 1e-15);
+        assert!((floored[(2, 2)] - rad * rad).abs() < 1e-15);
+        let nan = params.observation_covariance(&Matrix3::from_element(f64::NAN));
+        assert_eq!(nan, floored);
+    }
+
+    #[test]
+    fn a_record_measures_from_its_first_decision() {
+        let mut record = MergeRecord {
+            hypothesis: Some(3),
+            epoch: 1,
+            map: 0,
+            state: MergeState::Conditional,
+            conditional_at_scan: Some(10),
+            conditional_travel_m: Some(5.0),
+            full_at_scan: None,
+            full_travel_m: None,
+            merge: None,
+            ended_at_scan: None,
+            ended_travel_m: None,
+            reason: None,
+            observations: 2,
+            views: 2,
+            active_from_inactive: [0.0; 3],
+            edges: Vec::new(),
+        };
+        assert_eq!(record.ended_after_m(), None);
+        assert_eq!(record.full_after_m(), None);
+        record.full_travel_m = Some(7.5);
+        record.ended_travel_m = Some(12.0);
+        assert_eq!(record.full_after_m(), Some(2.5));
+        assert_eq!(record.ended_after_m(), Some(7.0));
+        // A forced merge starts full.
+        record.conditional_travel_m = None;
+        assert_eq!(record.ended_after_m(), Some(4.5));
+    }
+
+    #[test]
+    fn decisions_round_trip_as_events_of_their_own_name() {
+        let decisions = [
+            Decision::ConditionalMerge {
+                hypothesis: 4,
+                map: MapId(1),
+                edges: 3,
+                active_from_inactive: [1.0, -2.0, 0.5],
+            },
+            Decision::ConditionalDropped {
+                hypothesis: 4,
+                map: MapId(1),
+                reason: "combined invalidity 0.61".into(),
+            },
+            Decision::FullMerge {
+                hypothesis: 5,
+                merge: MergeId(0),
+            },
+            Decision::Recovery {
+                hypothesis: 6,
+                edges: 9,
+            },
+            Decision::AmbiguousViews { views: vec![7, 8] },
+        ];
+        for decision in decisions {
+            let kind = EventKind::Decision(decision);
+            let text = serde_json::to_string(&kind).unwrap_or_default();
+            let back: EventKind =
+                serde_json::from_str(&text).unwrap_or_else(|e| panic!("{text}: {e}"));
+            assert_eq!(back, kind, "{text}");
+        }
+    }
+}

@@ -403,13 +403,15 @@ impl Engine {
         self.refresh_conditional_graph();
         if let Some(previous) = self.previous_keyframe_local {
             let increment = previous.between(&local_from_robot);
-            let events = self.filter.predict(
+            // A motion the filter refuses (non-finite) leaves the hypotheses as they were.
+            if let Ok(events) = self.filter.predict(
                 &increment,
                 &decisions.motion_covariance(&increment),
                 travel_m,
                 None,
-            )?;
-            self.log_filter_events(events);
+            ) {
+                self.log_filter_events(events);
+            }
         }
         self.previous_keyframe_local = Some(local_from_robot);
         // Accepted observations of views (Sec. 5.3's accepted tracker).
@@ -447,9 +449,7 @@ impl Engine {
                 ambiguous: self.ambiguity.is_ambiguous(record.from.0),
                 edge: ObservedEdge::Recovery(*record),
             };
-            let outcome = self.filter.observe(observation, travel_m, None)?;
-            self.log_filter_events(outcome.events);
-            accepted_hypotheses.extend(outcome.accepted);
+            accepted_hypotheses.extend(self.observe(observation, travel_m));
         }
         // Matches in inactive graphs: merge evidence; while a merge is conditional, the new
         // keyframe verified where G' puts it (the robot behaves as localised, Sec. 5.2).
@@ -497,9 +497,7 @@ impl Engine {
                 ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
                 edge: ObservedEdge::Merge(edge),
             };
-            let outcome = self.filter.observe(observation, travel_m, None)?;
-            self.log_filter_events(outcome.events);
-            accepted_hypotheses.extend(outcome.accepted);
+            accepted_hypotheses.extend(self.observe(observation, travel_m));
         }
         let newly = self.ambiguity.update(travel_m);
         if !newly.is_empty() {
@@ -514,6 +512,19 @@ impl Engine {
         }
         decided |= self.sync_conditional()?;
         Ok(decided)
+    }
+
+    /// One observation into the filter; its events are logged. An observation the filter
+    /// refuses (non-finite, a covariance that is not positive definite) is skipped: the
+    /// filter is unchanged then. Returns the hypothesis it made fully accepted, if any.
+    fn observe(
+        &mut self,
+        observation: Observation<ObservedEdge>,
+        travel_m: f64,
+    ) -> Option<Hypothesis<ObservedEdge>> {
+        let outcome = self.filter.observe(observation, travel_m, None).ok()?;
+        self.log_filter_events(outcome.events);
+        outcome.accepted
     }
 
     /// Keeps the conditional merge in step with the filter's conditional hypothesis: drops
