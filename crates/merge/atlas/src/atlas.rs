@@ -26,6 +26,9 @@ use crate::recognition::{KeyframeParams, RecognitionParams};
 pub struct AtlasParams {
     /// Loop closing inside the current epoch (see [`LoopClosureParams`]).
     pub loops: LoopClosureParams,
+    /// The place index describes each keyframe's local map (`keyframes`) instead of its own
+    /// scan (default: false: single scans, which keeps SLAM's place loops as they were).
+    pub index_local_maps: bool,
     /// Re-optimisation after a merge and after an unmerge (default: Levenberg–Marquardt, DCS
     /// with Φ = χ²₃(0.99) on every edge, at most 50 iterations): robust, so one bad loop edge
     /// of a merge bends the map less.
@@ -43,6 +46,7 @@ impl Default for AtlasParams {
     fn default() -> Self {
         Self {
             loops: LoopClosureParams::default(),
+            index_local_maps: false,
             optimizer: OptimizerParams {
                 robust: RobustKernel::Dcs {
                     phi: chi2_quantile_99(3),

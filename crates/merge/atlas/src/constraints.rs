@@ -315,19 +315,18 @@ impl ConstraintBuilder {
         self.keyframes_since_merge_search = 0;
     }
 
-    /// Describes and indexes keyframe `node` (once).
+    /// Indexes keyframe `node` (once) with its descriptor.
     pub(crate) fn index_keyframe(
         &mut self,
         node: NodeId,
         points: &std::sync::Arc<[mapmerge_scan::Point2]>,
+        descriptor: ScanContext,
         submap: Option<NodeId>,
-        params: &LoopClosureParams,
     ) {
         let id = KeyframeId(node.0);
         if self.ordinal_of.contains_key(&id) {
             return;
         }
-        let descriptor = ScanContext::new(points, &params.place.descriptor);
         self.index.insert(id, descriptor);
         self.ordinal_of.insert(id, self.indexed.len());
         self.indexed.push(IndexedKeyframe {
@@ -393,14 +392,42 @@ impl<B: BackupStore> Atlas<B> {
     /// Keeps a submap of the current epoch that the tracker finished as a loop-closure target
     /// and indexes its keyframes (a keyframe in two submaps with the first to finish).
     pub fn add_finished_submap(&mut self, submap: Submap) {
-        let loops = &self.params.loops;
-        for (member, _) in &submap.keyframes {
-            if let Some(points) = self.keyframes.get(*member) {
+        let members: Vec<NodeId> = submap.keyframes.iter().map(|(m, _)| *m).collect();
+        self.index_nodes(&members, Some(submap.anchor));
+        self.constraints.submaps.insert(submap.anchor, submap);
+    }
+
+    /// Indexes `nodes` of the active graph not yet in the place index, with `submap`.
+    fn index_nodes(&mut self, nodes: &[NodeId], submap: Option<NodeId>) {
+        let fresh: Vec<NodeId> = nodes
+            .iter()
+            .copied()
+            .filter(|n| !self.constraints.is_indexed(*n) && self.keyframes.get(*n).is_some())
+            .collect();
+        let descriptors = self.describe(&fresh);
+        for (node, descriptor) in descriptors {
+            if let Some(points) = self.keyframes.get(node).cloned() {
                 self.constraints
-                    .index_keyframe(*member, points, Some(submap.anchor), loops);
+                    .index_keyframe(node, &points, descriptor, submap);
             }
         }
-        self.constraints.submaps.insert(submap.anchor, submap);
+    }
+
+    /// The place index's descriptors of `nodes` of the active graph: of each keyframe's
+    /// points, or of its local map with `index_local_maps` (see [`crate::KeyframeParams`]).
+    fn describe(&self, nodes: &[NodeId]) -> Vec<(NodeId, ScanContext)> {
+        let params = &self.params.loops.place.descriptor;
+        if self.params.index_local_maps {
+            local_map_keyframes(&self.active, &self.keyframes, &self.params.keyframes, nodes)
+                .into_iter()
+                .map(|(node, k)| (node, ScanContext::new(&k.points_in_keyframe, params)))
+                .collect()
+        } else {
+            nodes
+                .iter()
+                .filter_map(|n| Some((*n, ScanContext::new(self.keyframes.get(*n)?, params))))
+                .collect()
+        }
     }
 
     /// The constraint search for the new keyframe `node` (see the module docs): loops inside
@@ -587,9 +614,11 @@ impl<B: BackupStore> Atlas<B> {
     ) -> usize {
         let loops_params = self.params.loops.clone();
         self.constraints.info.place_queries += 1;
+        let Some((_, descriptor)) = self.describe(&[node]).pop() else {
+            return 0;
+        };
         let c = &self.constraints;
         let c_submaps = &c.submaps;
-        let descriptor = ScanContext::new(points, &loops_params.place.descriptor);
         let retrieved = c.index.query_filtered(
             &descriptor,
             loops_params.place.candidates_per_query,
@@ -884,8 +913,7 @@ impl<B: BackupStore> Atlas<B> {
     /// The newest current-epoch keyframe as a place-recognition query.
     fn newest_query(&self) -> Option<PlaceQuery> {
         let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
-        let points = self.keyframes.get(node)?;
-        let descriptor = ScanContext::new(points, &self.params.loops.place.descriptor);
+        let (_, descriptor) = self.describe(&[node]).pop()?;
         let local_maps = local_map_keyframes(
             &self.active,
             &self.keyframes,
@@ -956,15 +984,7 @@ impl<B: BackupStore> Atlas<B> {
     /// epoch's unfinished submaps, an imported graph).
     pub(crate) fn index_active_graph(&mut self) {
         let nodes: Vec<NodeId> = self.active.vertices().map(|(id, _)| id).collect();
-        for node in nodes {
-            if self.constraints.is_indexed(node) {
-                continue;
-            }
-            if let Some(points) = self.keyframes.get(node) {
-                self.constraints
-                    .index_keyframe(node, points, None, &self.params.loops);
-            }
-        }
+        self.index_nodes(&nodes, None);
     }
 }
 

@@ -120,8 +120,20 @@ fn along(corners: &[(f64, f64)]) -> Vec<Se2> {
 
 #[test]
 fn recognition_merges_onto_the_true_transform_and_unmerge_restores() {
+    merges_onto_the_true_transform(AtlasParams::default());
+}
+
+#[test]
+fn recognition_with_local_maps_in_the_index_merges_as_well() {
+    merges_onto_the_true_transform(AtlasParams {
+        index_local_maps: true,
+        ..AtlasParams::default()
+    });
+}
+
+fn merges_onto_the_true_transform(params: AtlasParams) {
     let world = world();
-    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let mut atlas = Atlas::new(params).unwrap();
     // Epoch 0 tours the room in the world frame.
     add_epoch(
         &mut atlas,
