@@ -286,6 +286,15 @@ impl Engine {
         self.ambiguity.ambiguous_views().len()
     }
 
+    /// The keyframes marked ambiguous (Sec. 5.3), by node.
+    pub fn ambiguous_views(&self) -> Vec<NodeId> {
+        self.ambiguity
+            .ambiguous_views()
+            .iter()
+            .map(|v| NodeId(*v))
+            .collect()
+    }
+
     /// The graph read-only queries use (Sec. 5.2): G' while a merge is conditional, else the
     /// atlas's active graph.
     pub fn map_graph(&self) -> &PoseGraph2 {

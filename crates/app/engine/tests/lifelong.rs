@@ -268,3 +268,22 @@ fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
         .unwrap_or("")
         .contains("invalidity"));
 }
+
+#[test]
+fn the_symmetric_hall_makes_a_view_ambiguous() {
+    // The world built for Sec. 5.3: a hall block point-symmetric about (18, 10) m, where a
+    // view matches its turned twin; on this seed the tracker marks one (found by
+    // scripts/bench_lifelong.sh, not tuned on).
+    let (engine, truth_of) = run("symmetric-hall", 107, 3, 120.0);
+    let views = engine.ambiguous_views();
+    assert!(!views.is_empty(), "no ambiguous view");
+    // Where it is ambiguous: inside the symmetric hall (x 11–25 m, y 4.9–15.1 m).
+    for view in &views {
+        let p = truth_of[view].translation();
+        eprintln!("ambiguous view {view} at ({:.1}, {:.1})", p.x, p.y);
+        assert!(
+            (10.5..=25.5).contains(&p.x) && (4.4..=15.6).contains(&p.y),
+            "{view} at {p:?} is outside the hall"
+        );
+    }
+}
