@@ -22,8 +22,8 @@ mod decisions;
 use std::sync::Arc;
 
 use mapmerge_atlas::{
-    default_verifier, Atlas, AtlasError, AtlasEvent, AtlasParams, ConstraintInfo, ConstraintSearch,
-    EpochEndReason, LoopEdge, LoopRecord, MapId, MergeReason, MergeRequest, UnmergeReason,
+    Atlas, AtlasError, AtlasEvent, AtlasParams, ConstraintInfo, ConstraintSearch, EpochEndReason,
+    LoopEdge, LoopRecord, MapId, MergeReason, MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
@@ -189,7 +189,12 @@ impl Engine {
                 )
             })?),
         };
-        let verifier = default_verifier().map_err(|e| EngineError::Verifier(e.to_string()))?;
+        let verifier = params
+            .atlas
+            .recognition
+            .verifier
+            .verifier()
+            .map_err(|e| EngineError::Verifier(e.to_string()))?;
         let filter = HypothesisFilter::new(params.decisions.filter.clone())?;
         let ambiguity = AmbiguityTracker::new(params.decisions.ambiguity.clone())?;
         let mut engine = Self {

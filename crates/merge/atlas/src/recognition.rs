@@ -6,10 +6,12 @@
 use std::collections::BTreeMap;
 
 use mapmerge_geometry::{LieGroup, Se2};
-use mapmerge_place::{EvidenceParams, GeometricVerifier, Keyframe, PlaceParams, ScanMatchVerifier};
+use mapmerge_place::{
+    GeometricVerifier, Keyframe, PlaceParams, PlaceVerifierParams, ScanMatchVerifier,
+};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{transform_points, voxel_downsample, Point2};
-use mapmerge_scanmatch::{ScanMatchError, ScanMatchParams, SearchWindow};
+use mapmerge_scanmatch::ScanMatchError;
 use serde::{Deserialize, Serialize};
 
 use crate::atlas::Atlas;
@@ -63,6 +65,8 @@ pub struct RecognitionParams {
     /// ... once the current epoch has at least this many keyframes (default: 10): a local
     /// map needs some travel before it is distinctive.
     pub min_epoch_keyframes: usize,
+    /// The geometric verifier of the merge search (default: [`PlaceVerifierParams`]'s).
+    pub verifier: PlaceVerifierParams,
 }
 
 impl Default for RecognitionParams {
@@ -77,18 +81,15 @@ impl Default for RecognitionParams {
             min_confidence: 0.05,
             every_keyframes: 5,
             min_epoch_keyframes: 10,
+            verifier: PlaceVerifierParams::default(),
         }
     }
 }
 
-/// The verifier the atlas's defaults are tuned for: the correlative matcher with ICP in a
-/// ±2 m, ±15° window, scored by its evidence (`mapmerge-place`'s benchmark configuration).
+/// The verifier the atlas's defaults are tuned for ([`RecognitionParams::verifier`]'s
+/// default: the correlative matcher with ICP in a ±2 m, ±15° window, scored by its evidence).
 pub fn default_verifier() -> Result<ScanMatchVerifier, ScanMatchError> {
-    Ok(ScanMatchVerifier::new(
-        ScanMatchParams::default(),
-        SearchWindow::new(2.0, 15f64.to_radians()),
-    )?
-    .with_evidence(EvidenceParams::default()))
+    PlaceVerifierParams::default().verifier()
 }
 
 /// A verified match of the active graph in an inactive graph.

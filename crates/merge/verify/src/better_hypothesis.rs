@@ -14,11 +14,10 @@
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{
-    verify_candidates, EvidenceParams, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
-    PlaceParams, ScanContext, ScanMatchVerifier,
+    verify_candidates, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams,
+    PlaceVerifierParams, ScanContext, ScanMatchVerifier,
 };
 use mapmerge_scan::{voxel_downsample, Point2};
-use mapmerge_scanmatch::{ScanMatchParams, SearchWindow};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{unit, OtherSnapshot};
@@ -50,9 +49,11 @@ pub struct BetterHypothesisParams {
     pub disagreement_m: f64,
     /// … or turned by more than this (rad) (default: 10°).
     pub disagreement_rad: f64,
-    /// Agreeing matches assumed before any query (default: 1): one contradicting match gives
-    /// 0.5, two 0.67, …; agreeing matches pull the ratio down.
+    /// Agreeing matches assumed before any query (default: 2): one contradicting match gives
+    /// 0.33, two 0.5, …; agreeing matches pull the ratio down.
     pub prior_agreeing: f64,
+    /// The geometric verifier (default: the atlas's, [`PlaceVerifierParams::default`]).
+    pub verifier: PlaceVerifierParams,
 }
 
 impl Default for BetterHypothesisParams {
@@ -73,6 +74,7 @@ impl Default for BetterHypothesisParams {
             disagreement_m: 1.0,
             disagreement_rad: 10f64.to_radians(),
             prior_agreeing: 2.0,
+            verifier: PlaceVerifierParams::default(),
         }
     }
 }
@@ -153,15 +155,14 @@ fn local_map(scans: &[DetectorScan], i: usize, params: &BetterHypothesisParams) 
 }
 
 impl BetterHypothesisDetector {
-    /// A detector with `params` and the atlas's verifier (correlative matcher with ICP in a
-    /// ±2 m, ±15° window, scored by its evidence).
+    /// A detector with `params` (a verifier whose matcher parameters are invalid falls back
+    /// to the default one).
     pub fn new(params: BetterHypothesisParams) -> Self {
-        let verifier = ScanMatchVerifier::new(
-            ScanMatchParams::default(),
-            SearchWindow::new(2.0, 15f64.to_radians()),
-        )
-        .unwrap_or_default()
-        .with_evidence(EvidenceParams::default());
+        let verifier = params
+            .verifier
+            .verifier()
+            .or_else(|_| PlaceVerifierParams::default().verifier())
+            .unwrap_or_default();
         Self {
             index: PlaceIndex::new(params.place.index.clone()),
             params,

@@ -65,5 +65,5 @@ pub use loops::{
     VerifiedLoop,
 };
 pub use scan_context::{ScanContext, ScanContextParams};
-pub use scan_match_verifier::ScanMatchVerifier;
+pub use scan_match_verifier::{PlaceVerifierParams, ScanMatchVerifier};
 pub use verify::{GeometricVerifier, Verification};

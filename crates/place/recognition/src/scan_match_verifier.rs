@@ -3,10 +3,53 @@
 //! scored by the [`Evidence`] the alignment gives.
 
 use mapmerge_geometry::Se2;
-use mapmerge_scanmatch::{Match, ScanMatchParams, ScanMatchTarget, ScanMatcher, SearchWindow};
+use mapmerge_scanmatch::{
+    match_scan_above, Match, ScanMatchError, ScanMatchParams, ScanMatchTarget, ScanMatcher,
+    SearchWindow,
+};
+use serde::{Deserialize, Serialize};
 
 use crate::evidence::{evidence, Evidence, EvidenceParams};
 use crate::{GeometricVerifier, Keyframe, Verification};
+
+/// The verifier of place recognition without a pose prior (the atlas's merge search, the
+/// better-hypothesis detector): the correlative matcher with ICP within `window` around the
+/// descriptor's yaw guess, scored by its [`Evidence`] (`mapmerge-place`'s benchmark
+/// configuration, with a coarser search query).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PlaceVerifierParams {
+    /// The matcher (default: [`ScanMatchParams::default`] with a query thinned to one point
+    /// per 0.2 m cell, `correlative.query_voxel_m`, for the search and ICP; the evidence
+    /// still sees every point). A local map of a few metres keeps its shape at 0.2 m, and
+    /// the search costs in proportion to the query's points: 0.05 m took twice the time for
+    /// as many merges on the tuning seeds (docs/benchmarks.md §10).
+    pub matcher: ScanMatchParams,
+    /// Search window around the guess (default: ±2 m, ±15°: Scan Context's yaw is good to
+    /// a sector or two and its translation guess is zero).
+    pub window: SearchWindow,
+    /// The evidence that scores an alignment (default: [`EvidenceParams::default`]).
+    pub evidence: EvidenceParams,
+}
+
+impl Default for PlaceVerifierParams {
+    fn default() -> Self {
+        let mut matcher = ScanMatchParams::default();
+        matcher.correlative.query_voxel_m = 0.2;
+        Self {
+            matcher,
+            window: SearchWindow::new(2.0, 15f64.to_radians()),
+            evidence: EvidenceParams::default(),
+        }
+    }
+}
+
+impl PlaceVerifierParams {
+    /// The verifier (fails on invalid matcher parameters).
+    pub fn verifier(&self) -> Result<ScanMatchVerifier, ScanMatchError> {
+        Ok(ScanMatchVerifier::new(self.matcher, self.window)?.with_evidence(self.evidence))
+    }
+}
 
 /// Verifies candidates with [`ScanMatcher`]: the candidate's points become the match target and
 /// the query's points are searched within `window` around the guess. Scan Context's yaw is good
@@ -76,20 +119,26 @@ impl ScanMatchVerifier {
             guess_candidate_from_query.y_m,
             guess_candidate_from_query.theta_rad + std::f64::consts::PI,
         );
+        let params = self.evidence.unwrap_or_default();
         // A whole-circle search has already weighed the turned pose against the best one
-        // (it would find the same optimum again): no flip test then.
-        let flip_ratio = if self.window.angular_rad >= std::f64::consts::PI {
+        // (it would find the same optimum again): no flip test then. Only a turned fit
+        // above `flip_tolerance` of the best lowers the score, so the search for it prunes
+        // everything below (the same score, far fewer candidates); `flip_ratio` reads 0 for
+        // a turned fit below the floor. The ratio is of correlative scores, so no ICP.
+        let flip_ratio = if self.window.angular_rad >= std::f64::consts::PI || found.score <= 0.0 {
             0.0
         } else {
-            match self
-                .matcher
-                .match_scan(&target, &query.points_in_keyframe, &turned, &self.window)
-            {
-                Some(flipped) if found.score > 0.0 => flipped.score / found.score,
-                _ => 0.0,
-            }
+            let floor = (params.flip_tolerance * found.score)
+                .max(self.matcher.params().correlative.min_score);
+            match_scan_above(
+                target.correlative(),
+                &query.points_in_keyframe,
+                &turned,
+                &self.window,
+                floor,
+            )
+            .map_or(0.0, |flipped| flipped.score / found.score)
         };
-        let params = self.evidence.unwrap_or_default();
         let proof = evidence(
             &query.points_in_keyframe,
             &candidate.points_in_keyframe,
@@ -140,5 +189,97 @@ impl GeometricVerifier for ScanMatchVerifier {
             score: found.score,
             covariance: found.covariance,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+    use super::*;
+    use mapmerge_geometry::LieGroup;
+    use mapmerge_scan::Point2;
+
+    /// Points every 3 cm along the closed polygon `corners`.
+    fn walls(corners: &[Point2]) -> Vec<Point2> {
+        let mut points = Vec::new();
+        for (i, a) in corners.iter().enumerate() {
+            let b = corners[(i + 1) % corners.len()];
+            let n = ((b - a).norm() / 0.03).ceil() as usize;
+            points.extend((0..n).map(|j| a + (b - a) * (j as f64 / n as f64)));
+        }
+        points
+    }
+
+    /// The evidence with the flipped search run in full, as before the floor existed.
+    fn unpruned_score(
+        verifier: &ScanMatchVerifier,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess: &Se2,
+    ) -> f64 {
+        let (target, found) = verifier.search(query, candidate, guess).unwrap();
+        let turned = Se2::new(guess.x_m, guess.y_m, guess.theta_rad + std::f64::consts::PI);
+        let flip_ratio = verifier
+            .matcher
+            .match_scan(
+                &target,
+                &query.points_in_keyframe,
+                &turned,
+                &verifier.window,
+            )
+            .map_or(0.0, |flipped| flipped.score / found.score);
+        evidence(
+            &query.points_in_keyframe,
+            &candidate.points_in_keyframe,
+            &found.target_from_query,
+            flip_ratio,
+            &verifier.evidence.unwrap_or_default(),
+        )
+        .score
+    }
+
+    /// The flipped search prunes below `flip_tolerance` of the best fit: the score is the
+    /// full search's, in a rectangle (the turned query fits as well: penalised) and in an
+    /// irregular room (it does not: no penalty either way).
+    #[test]
+    fn the_pruned_flip_search_gives_the_full_searchs_score() {
+        let rectangle = walls(&[
+            Point2::new(-3.0, -2.0),
+            Point2::new(3.0, -2.0),
+            Point2::new(3.0, 2.0),
+            Point2::new(-3.0, 2.0),
+        ]);
+        let irregular = walls(&[
+            Point2::new(-3.0, -2.5),
+            Point2::new(5.0, -2.0),
+            Point2::new(4.0, 3.0),
+            Point2::new(-1.2, 3.0),
+            Point2::new(-3.5, 1.0),
+        ]);
+        let verifier = PlaceVerifierParams::default().verifier().unwrap();
+        let candidate_from_query = Se2::new(0.3, -0.2, 0.1);
+        let mut flips = Vec::new();
+        for room in [rectangle, irregular] {
+            let candidate = Keyframe::new(1, room.clone());
+            let query_from_candidate = candidate_from_query.inverse();
+            let query = Keyframe::new(
+                2,
+                room.iter()
+                    .map(|p| query_from_candidate.transform_point(p))
+                    .collect::<Vec<_>>(),
+            );
+            let guess = Se2::new(0.0, 0.0, 0.05);
+            let (verification, proof) = verifier
+                .verify_with_evidence(&query, &candidate, &guess)
+                .unwrap();
+            let full = unpruned_score(&verifier, &query, &candidate, &guess);
+            assert!(
+                (verification.score - full).abs() < 1e-12,
+                "{verification:?} vs {full}"
+            );
+            flips.push(proof.flip_ratio);
+        }
+        assert!(flips[0] > 0.5, "the rectangle fits turned: {flips:?}");
+        assert!(flips[1] <= 0.5, "the irregular room does not: {flips:?}");
     }
 }

@@ -380,10 +380,11 @@ impl Search {
         target: &MatchTarget,
         best: Option<(u64, (i64, i64, i64))>,
         candidates: usize,
+        min_score: f64,
     ) -> Option<CorrelativeMatch> {
         let (sum, key) = best?;
         // The integer threshold, exactly as the search prunes.
-        if sum < self.threshold(target.params.min_score) {
+        if sum < self.threshold(min_score) {
             return None;
         }
         let score = self.normalise(sum);
@@ -420,6 +421,25 @@ pub fn match_scan(
     query_points_in_robot: &[Point2],
     guess_target_from_robot: &Se2,
     window: &SearchWindow,
+) -> Option<CorrelativeMatch> {
+    match_scan_above(
+        target,
+        query_points_in_robot,
+        guess_target_from_robot,
+        window,
+        target.params.min_score,
+    )
+}
+
+/// As [`match_scan`] with `min_score` in place of the target's: the same optimum when it
+/// scores at least `min_score`, `None` otherwise. A caller that only cares about scores
+/// above some floor (a rival that matters only when nearly as good) prunes far more.
+pub fn match_scan_above(
+    target: &MatchTarget,
+    query_points_in_robot: &[Point2],
+    guess_target_from_robot: &Se2,
+    window: &SearchWindow,
+    min_score: f64,
 ) -> Option<CorrelativeMatch> {
     let search = Search::new(
         target,
@@ -460,7 +480,7 @@ pub fn match_scan(
         }
     }
     roots.sort_unstable_by(|l, r| r.0.cmp(&l.0).then(l.1.cmp(&r.1)));
-    let threshold = search.threshold(target.params.min_score);
+    let threshold = search.threshold(min_score);
     let mut best: Option<(u64, (i64, i64, i64))> = None;
     // Depth-first with an explicit stack; children are pushed worst first so the best is
     // popped first (Hess et al., Algorithm 3).
@@ -505,7 +525,7 @@ pub fn match_scan(
             stack.extend(children);
         }
     }
-    search.finish(target, best, candidates)
+    search.finish(target, best, candidates, min_score)
 }
 
 /// The finite query points, voxel-downsampled as `params` say; `None` when none is left.
@@ -575,5 +595,5 @@ pub fn match_scan_brute_force(
             }
         }
     }
-    search.finish(target, best, candidates)
+    search.finish(target, best, candidates, target.params.min_score)
 }

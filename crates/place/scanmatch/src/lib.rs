@@ -47,7 +47,7 @@ mod params;
 
 pub use correlation_grid::CorrelationGrid;
 pub use correlative::{
-    match_scan, match_scan_brute_force, score_at, CorrelativeMatch, MatchTarget,
+    match_scan, match_scan_above, match_scan_brute_force, score_at, CorrelativeMatch, MatchTarget,
 };
 pub use error::ScanMatchError;
 pub use icp::{refine_icp, IcpInfo, IcpTarget};

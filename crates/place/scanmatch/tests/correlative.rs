@@ -6,7 +6,8 @@
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::Point2;
 use mapmerge_scanmatch::{
-    match_scan, match_scan_brute_force, CorrelativeParams, MatchTarget, ScanMatcher, SearchWindow,
+    match_scan, match_scan_above, match_scan_brute_force, CorrelativeParams, MatchTarget,
+    ScanMatcher, SearchWindow,
 };
 use proptest::prelude::*;
 
@@ -194,6 +195,33 @@ proptest! {
                 prop_assert!(fast.candidates > 0);
             }
             (fast, slow) => prop_assert!(false, "fast {:?} slow {:?}", fast, slow),
+        }
+    }
+
+    /// With a floor of its own, the search finds the same optimum when that reaches the
+    /// floor and nothing otherwise, never with more candidates than the target's floor.
+    #[test]
+    fn a_higher_floor_keeps_the_optimum_above_it(
+        segments in prop::collection::vec((-2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64), 1..6),
+        offset in (-0.2..0.2f64, -0.2..0.2f64, -0.2..0.2f64),
+        depth in 0usize..6,
+        floor in 0.0..1.0f64,
+    ) {
+        let points = random_target(&segments);
+        let params = CorrelativeParams { branch_and_bound_depth: depth, min_score: 0.0, ..CorrelativeParams::default() };
+        let target = MatchTarget::new(&points, &params).unwrap();
+        let truth = Se2::new(offset.0, offset.1, offset.2);
+        let query = seen_from(&points, &truth);
+        let window = SearchWindow::new(0.3, 0.2);
+        let all = match_scan(&target, &query, &Se2::identity(), &window).unwrap();
+        let above = match_scan_above(&target, &query, &Se2::identity(), &window, floor);
+        if all.score >= floor {
+            let above = above.unwrap();
+            prop_assert_eq!(above.target_from_query, all.target_from_query);
+            prop_assert_eq!(above.score, all.score);
+            prop_assert!(above.candidates <= all.candidates);
+        } else {
+            prop_assert!(above.is_none(), "{:?} below {}", above, floor);
         }
     }
 }
