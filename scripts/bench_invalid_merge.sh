@@ -5,17 +5,23 @@
 # pairs; odometry noise `default`, seed S), then `mapmerge eval invalid-merge` per log, two logs
 # at a time, each on its own core (taskset + RAYON_NUM_THREADS=1): ROC AUC and mean ms per new
 # vertex per log and method. Usage: scripts/bench_invalid_merge.sh [--seed S] [--max-pairs N] [--methods a,b,…]
-# [--only NAME]... Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*).
+# [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P]
+# Issue 15's protocol: --valid-at merge-place --segment-length-m 30 --odometry-noise none|default
+# (valid merges exact at the merge place; rotation, shift and careless invalid cases; AUC per kind).
+# Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*); OUT_DIR=… elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-seed=0; max_pairs=15; methods=""; only=()
+seed=0; max_pairs=15; methods=""; only=(); valid_at=start-frames; length_args=(); noise=default
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --seed) seed="$2"; shift 2 ;;
     --max-pairs) max_pairs="$2"; shift 2 ;;
     --methods) methods="$2"; shift 2 ;;
     --only) only+=("$2"); shift 2 ;;
-    *) echo "usage: $0 [--seed S] [--max-pairs N] [--methods a,b] [--only NAME]..." >&2; exit 2 ;;
+    --valid-at) valid_at="$2"; shift 2 ;;
+    --segment-length-m) length_args=(--segment-length-m "$2"); shift 2 ;;
+    --odometry-noise) noise="$2"; shift 2 ;;
+    *) echo "usage: $0 [--seed S] [--max-pairs N] [--methods a,b] [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P]" >&2; exit 2 ;;
   esac
 done
 data="${MAPMERGE_DATA:-../shared/data}"
@@ -33,7 +39,8 @@ for log in "${logs[@]}"; do
   corrected="$data/carmen/$log-corrected.log.xz"
   echo "make-merge-cases $log …" >&2
   "$bin" eval make-merge-cases --log "$corrected" --corrected "$corrected" \
-    -o "$work/$log.cases.jsonl" --seed "$seed" --max-pairs "$max_pairs" --json >> "$made"
+    -o "$work/$log.cases.jsonl" --seed "$seed" --max-pairs "$max_pairs" --valid-at "$valid_at" \
+    --odometry-noise "$noise" "${length_args[@]}" --json >> "$made"
   cat "$work/$log.cases.jsonl" >> "$cases"
 done
 made_secs=$(( $(date +%s) - started ))
@@ -61,19 +68,30 @@ total_secs=$(( $(date +%s) - started ))
 {
   echo "# Invalid-merge detection on the public logs (Holoch et al., Table III)"
   echo
-  echo "Run $(date -u +%Y-%m-%dT%H:%M)Z by \`scripts/bench_invalid_merge.sh --seed $seed --max-pairs $max_pairs${methods:+ --methods $methods}\`"
+  echo "Run $(date -u +%Y-%m-%dT%H:%M)Z by \`scripts/bench_invalid_merge.sh --seed $seed --max-pairs $max_pairs${methods:+ --methods $methods} --valid-at $valid_at ${length_args[*]} --odometry-noise $noise\`"
   echo "($(nproc) cores; cases made in ${made_secs} s, ${total_secs} s in all). Per log:"
-  echo "\`mapmerge eval make-merge-cases --log L --corrected L -o L.cases.jsonl --seed $seed --max-pairs $max_pairs\`,"
+  echo "\`mapmerge eval make-merge-cases --log L --corrected L -o L.cases.jsonl --seed $seed --max-pairs $max_pairs --valid-at $valid_at ${length_args[*]} --odometry-noise $noise\`,"
   echo "then \`mapmerge eval invalid-merge --cases L.cases.jsonl -o L.results.jsonl --report L.table.md\` on one core."
-  echo "Segments of ~100 s (35 scans where stamps are broken), odometry noise \`default\`; per pair one"
-  echo "valid merge (the truth from the corrected poses) and up to two invalid ones (careless place"
-  echo "recognition, a look-alike with SM ≥ 0.9), each ≥ 1 m or 10° off where the robot is."
+  if [[ "$valid_at" == merge-place ]]; then
+    echo "Valid merges are the true relative pose at the merge place (the evaluator applies it to its"
+    echo "own estimates); per pair one valid and one invalid case of each kind: a 90/180/270° turn,"
+    echo "a 2–8 m shift, the best-scoring wrong pose within ±4 m at any heading (careless)."
+  else
+    echo "Segments of ~100 s (35 scans where stamps are broken); per pair one valid merge (the truth"
+    echo "between the start frames) and up to two invalid ones (careless place recognition, a"
+    echo "look-alike with SM ≥ 0.9), each ≥ 1 m or 10° off where the robot is."
+  fi
   echo
-  echo "| log | segments | overlapping pairs | pairs used | valid | invalid (place / look-alike) |"
+  echo "| log | segments | overlapping pairs | pairs used | valid | invalid (place / look-alike / rotation / shift / careless) |"
   echo "|---|---|---|---|---|---|"
-  while IFS= read -r line; do
-    echo "$line" | sed -E 's/.*"log":"[^"]*\/([^"/]*)-corrected\.log\.xz".*"segments":([0-9]+).*"pairs_overlapping":([0-9]+),"pairs_used":([0-9]+).*"valid":([0-9]+),"invalid_place":([0-9]+),"invalid_lookalike":([0-9]+).*/| \1 | \2 | \3 | \4 | \5 | \6 \/ \7 |/'
-  done < "$made"
+  python3 - "$made" <<'PY'
+import json, os, sys
+for line in open(sys.argv[1]):
+    r = json.loads(line)
+    name = os.path.basename(r["log"]).split("-corrected")[0]
+    kinds = " / ".join(str(r.get("invalid_" + k, 0)) for k in ("place", "lookalike", "rotation", "shift", "careless"))
+    print(f"| {name} | {r['segments']} | {r['pairs_overlapping']} | {r['pairs_used']} | {r['valid']} | {kinds} |")
+PY
   echo
   # One table: the first log's header, every log's rows, the first log's footnote.
   header_done=0

@@ -5,9 +5,12 @@
 //! One JSON object per line:
 //! `{"id", "log", "first": [i_start, i_end], "second": [i_start, i_end], "merge_at": i,
 //! "merge_transform": [x, y, yaw], "odometry_noise": PROFILE|null, "seed": S,
-//! "label": "valid"|"invalid"|null}`. Indices count the log's laser scans from 0 (file order,
-//! end inclusive). A relative `log` is read from the working directory, else next to the
-//! cases file. Unknown fields are ignored.
+//! "label": "valid"|"invalid"|null, "kind": K, "merge_place": {"first_scan": j, "relative":
+//! [x, y, yaw]}}`; `kind` (how the case was made: `valid`, `rotation`, `shift`, `careless`,
+//! `place`, `lookalike`; results are also reported per kind) and `merge_place` are optional.
+//! Indices count the log's laser scans from 0 (file order, end inclusive). A relative `log`
+//! is read from the working directory, else next to the cases file. Unknown fields are
+//! ignored.
 //!
 //! # Frames
 //! Each segment's frame is the robot pose at its first scan. `merge_transform` is
@@ -17,6 +20,18 @@
 //! The merged map lives in the *second* (current, active) segment's frame, so the robot's pose
 //! does not jump at the merge: a first-segment keyframe at `first_from_robot` is handed to
 //! the detectors at `second_from_robot = merge_transform⁻¹ ∘ first_from_robot`.
+//!
+//! Two definitions of a valid merge (`make-merge-cases --valid-at`):
+//! - `start-frames` (the default, Holoch's): `merge_transform` is the truth between the
+//!   segments' start frames. Each segment's own map drifts away from the corrected poses by
+//!   the time it reaches the overlap, so the "valid" merge is off where the robot is.
+//! - `merge-place`: the case carries `merge_place`, the true pose of the second segment's
+//!   scan `merge_at` in the frame of the first segment's scan `first_scan` (the one nearest
+//!   to it). The evaluator forces `first_from_second = first_from_scan ∘ relative ∘
+//!   second_from_merge_scan⁻¹` with its own estimates of both scans' poses (the first
+//!   segment's optimised graph, the engine's live pose of the merge scan), so a valid merge
+//!   is exact at the merge place whatever either map drifted elsewhere; `merge_transform`
+//!   then records what the merge is under the corrected poses.
 //!
 //! # make-merge-cases (needs the corrected poses; only it reads them)
 //! 1. Segments: consecutive pieces of about `--segment-secs` (100 s) of robot time, cut by the
@@ -46,6 +61,17 @@
 //!      segment's grid so far (counted on the second grid's cells), overlapping at least half
 //!      as much as the truth; the one with the most agreeing occupied cells of 200 seeded
 //!      tries.
+//!
+//!
+//!    With `--valid-at merge-place`, per pair instead: the valid case (the true relative pose
+//!    at the merge place) and one invalid case of each kind, each as a relative pose at the
+//!    merge place (seeded per pair): `rotation`, the truth turned by 90°, 180° or 270° about
+//!    the robot; `shift`, the robot moved 2–8 m in a random direction; `careless`, the
+//!    best-scoring wrong pose (≥ 1 m or 10° off) of the last 3 m of second-segment scans
+//!    against the whole first segment within ±4 m of the truth at any heading (the tracker's
+//!    correlative matcher, exact in each of 18 × 16 sub-windows of 20° × 2 m × 2 m; a wrong
+//!    optimum in the truth's own sub-window is not seen).
+//!    `--segment-length-m` cuts segments by travel along the corrected poses instead of time.
 //!
 //!    Every case's merged maps overlap by at least `--min-overlap` m² (whole segments).
 //!
@@ -83,6 +109,7 @@ use mapmerge_grid::{CellClass, ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanMatchVerifier};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
+use mapmerge_slam::ScanAnchors;
 use mapmerge_verify::{InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -153,12 +180,31 @@ pub struct MakeMergeCasesArgs {
     /// At most this many pairs (seeded random choice); default all.
     #[arg(long)]
     pub max_pairs: Option<usize>,
-    /// Invalid cases per pair (0–2: place recognition first, then a look-alike).
+    /// Invalid cases per pair with `--valid-at start-frames` (0–2: place recognition first,
+    /// then a look-alike).
     #[arg(long, default_value_t = 2)]
     pub invalid_per_pair: usize,
+    /// Where the valid merge is the truth: between the segments' start frames (as it
+    /// always was), or at the merge place (each case then carries `merge_place` and one
+    /// invalid case per pair of each kind: `rotation`, `shift`, `careless`).
+    #[arg(long, value_enum, default_value_t = ValidAt::StartFrames)]
+    pub valid_at: ValidAt,
+    /// Segment length in travel (m) from the corrected poses (overrides `--segment-secs`
+    /// and `--segment-scans`).
+    #[arg(long)]
+    pub segment_length_m: Option<f64>,
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Where a valid merge of `make-merge-cases` is the truth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ValidAt {
+    /// `merge_transform` is the true pose of the second segment's first scan in the first's.
+    StartFrames,
+    /// The true relative pose of the scans at the merge place (`merge_place`).
+    MergePlace,
 }
 
 /// Arguments of `mapmerge eval invalid-merge`.
@@ -225,6 +271,39 @@ pub struct MergeCase {
     pub seed: u64,
     /// Ground truth, when known.
     pub label: Option<Label>,
+    /// How the case was made (`valid`, `rotation`, `shift`, `careless`, `place`,
+    /// `lookalike`), for results per kind; absent in older files (then the id's last part).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kind: Option<String>,
+    /// The merge defined at the merge place (see the module docs); absent: `merge_transform`
+    /// between the start frames is forced as it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub merge_place: Option<MergePlace>,
+}
+
+/// A merge defined where it happens: the first segment's scan `first_scan` and the pose of
+/// the second segment's scan `merge_at` in its frame. The evaluator turns it into
+/// `first_from_second` with its own estimates of both scans' poses, so the merge is exactly
+/// this relative pose at the merge place, whatever either segment's map drifted elsewhere.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MergePlace {
+    /// A scan of the first segment (log index).
+    pub first_scan: usize,
+    /// `first_scan_from_merge_scan` (m, m, rad).
+    pub relative: [f64; 3],
+}
+
+impl MergeCase {
+    /// The case's kind: `kind`, else the last part of its id.
+    fn kind(&self) -> String {
+        self.kind.clone().unwrap_or_else(|| {
+            self.id
+                .rsplit('/')
+                .next()
+                .unwrap_or(self.id.as_str())
+                .to_owned()
+        })
+    }
 }
 
 /// One line of a results file.
@@ -242,6 +321,9 @@ pub struct MergeResult {
     pub vertices: usize,
     /// The case's label.
     pub label: Option<Label>,
+    /// The case's kind (see [`MergeCase::kind`]).
+    #[serde(default)]
+    pub kind: String,
     /// The case's log.
     pub log: String,
 }
@@ -278,20 +360,32 @@ fn check_case(case: &MergeCase) -> Result<(), String> {
             return Err(format!("{name} [{start}, {end}] ends before it starts"));
         }
     }
-    if case.merge_at < case.second[0] || case.merge_at > case.second[1] {
-        return Err(format!(
-            "merge_at {} is not a scan of second [{}, {}]",
-            case.merge_at, case.second[0], case.second[1]
-        ));
-    }
-    if case.merge_transform.iter().any(|v| !v.is_finite()) {
-        return Err(format!(
-            "merge_transform {:?} is not finite",
-            case.merge_transform
-        ));
-    }
+    let scan_of = |field: &str, scan: usize, (name, [start, end]): (&str, [usize; 2])| {
+        if scan < start || scan > end {
+            return Err(format!(
+                "{field} {scan} is not a scan of {name} [{start}, {end}]"
+            ));
+        }
+        Ok(())
+    };
+    let finite = |field: &str, pose: &[f64; 3]| {
+        if pose.iter().any(|v| !v.is_finite()) {
+            return Err(format!("{field} {pose:?} is not finite"));
+        }
+        Ok(())
+    };
+    scan_of("merge_at", case.merge_at, ("second", case.second))?;
+    finite("merge_transform", &case.merge_transform)?;
     if let Some(name) = &case.odometry_noise {
         OdometryNoiseProfile::from_name(name).map_err(|e| format!("odometry_noise: {e}"))?;
+    }
+    if let Some(place) = &case.merge_place {
+        scan_of(
+            "merge_place.first_scan",
+            place.first_scan,
+            ("first", case.first),
+        )?;
+        finite("merge_place.relative", &place.relative)?;
     }
     Ok(())
 }
@@ -374,6 +468,26 @@ fn cut_segments(
             }
         }
     }
+    segments_from_starts(&starts, n)
+}
+
+/// Consecutive segments of about `length_m` of travel each (corrected poses).
+fn segments_by_travel(poses: &[Se2], length_m: f64) -> Vec<[usize; 2]> {
+    let mut starts = vec![0usize];
+    let mut travel_m = 0.0;
+    for (k, pair) in poses.windows(2).enumerate() {
+        travel_m += (pair[1].translation() - pair[0].translation()).norm();
+        if travel_m >= length_m {
+            starts.push(k + 1);
+            travel_m = 0.0;
+        }
+    }
+    segments_from_starts(&starts, poses.len())
+}
+
+/// `[start, end]` of the segments beginning at `starts` (ascending, the first 0) over `n`
+/// scans; a remainder shorter than half the first segment joins the last full one.
+fn segments_from_starts(starts: &[usize], n: usize) -> Vec<[usize; 2]> {
     let mut segments: Vec<[usize; 2]> = starts
         .iter()
         .enumerate()
@@ -454,6 +568,9 @@ struct MakeCasesReport<'a> {
     valid: usize,
     invalid_place: usize,
     invalid_lookalike: usize,
+    invalid_rotation: usize,
+    invalid_shift: usize,
+    invalid_careless: usize,
     seconds: f64,
 }
 
@@ -469,12 +586,15 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     };
     if !(args.segment_secs.is_finite() && args.segment_secs > 0.0)
         || args.segment_scans == Some(0)
+        || args
+            .segment_length_m
+            .is_some_and(|m| !(m.is_finite() && m > 0.0))
         || !(args.min_overlap.is_finite() && args.min_overlap >= 0.0)
         || !(args.overlap_radius.is_finite() && args.overlap_radius > 0.0)
     {
         return Err(bad_input(
-            "--segment-secs, --segment-scans and --overlap-radius must be positive, \
-             --min-overlap not negative",
+            "--segment-secs, --segment-scans, --segment-length-m and --overlap-radius must \
+             be positive, --min-overlap not negative",
         ));
     }
     let raw = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
@@ -495,7 +615,10 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     let segment_scans = args
         .segment_scans
         .or((!usable).then_some(BROKEN_STAMPS_SEGMENT_SCANS));
-    let segments = cut_segments(&stamps, args.segment_secs, segment_scans);
+    let segments = match args.segment_length_m {
+        Some(length_m) => segments_by_travel(&poses, length_m),
+        None => cut_segments(&stamps, args.segment_secs, segment_scans),
+    };
     let progress = !args.json && std::io::stderr().is_terminal();
     if !args.json {
         eprintln!(
@@ -552,8 +675,11 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     };
     let log_text = args.log.to_string_lossy().into_owned();
     let name = log_name(&log_text);
+    let matcher = mapmerge_scanmatch::ScanMatcher::new(engine_params.tracker.matcher)
+        .map_err(|e| anyhow::anyhow!("scan matcher: {e}"))?;
     let mut cases = Vec::new();
     let (mut valid, mut place, mut lookalike) = (0, 0, 0);
+    let mut per_kind: BTreeMap<&'static str, usize> = BTreeMap::new();
     for &(i, j, merge_at) in &pairs {
         bar.inc(1);
         let (first, second) = (segments[i], segments[j]);
@@ -571,9 +697,9 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
             odometry_noise: noise.clone(),
             seed: args.seed,
             label: Some(label),
+            kind: Some(suffix.to_owned()),
+            merge_place: None,
         };
-        cases.push(make("valid", merge_at, &truth, Label::Valid));
-        valid += 1;
         // A wrong merge must still overlap the first map, or there is nothing to detect.
         let overlaps = |first_from_second: &Se2| {
             let world_from_world2 = world_from_first
@@ -581,6 +707,39 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
                 .compose(&world_from_second.inverse());
             overlap_m2(&grids[i], &grids[j], &world_from_world2) >= args.min_overlap
         };
+        if args.valid_at == ValidAt::MergePlace {
+            let mut pair_rng = ChaCha8Rng::seed_from_u64(pair_seed);
+            let place = MergePlaceCases {
+                poses: &poses,
+                scans,
+                first,
+                second,
+                merge_at,
+                filter: &filter,
+                matcher: &matcher,
+            };
+            for (kind, relative) in place.cases(&mut pair_rng) {
+                let transform = place.start_frames(&relative);
+                let label = if kind == "valid" {
+                    Label::Valid
+                } else {
+                    Label::Invalid
+                };
+                if label == Label::Invalid && !overlaps(&transform) {
+                    continue;
+                }
+                let mut case = make(kind, merge_at, &transform, label);
+                case.merge_place = Some(MergePlace {
+                    first_scan: place.first_scan(),
+                    relative: array_of(&relative),
+                });
+                cases.push(case);
+                *per_kind.entry(kind).or_default() += 1;
+            }
+            continue;
+        }
+        cases.push(make("valid", merge_at, &truth, Label::Valid));
+        valid += 1;
         let mut invalid = 0;
         if invalid < args.invalid_per_pair {
             let found = careless_place_recognition(
@@ -634,6 +793,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     }
     std::fs::write(&args.output, text)
         .with_context(|| format!("writing {}", args.output.display()))?;
+    valid += per_kind.get("valid").copied().unwrap_or(0);
     let report = MakeCasesReport {
         log: &args.log,
         output: &args.output,
@@ -647,6 +807,9 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
         valid,
         invalid_place: place,
         invalid_lookalike: lookalike,
+        invalid_rotation: per_kind.get("rotation").copied().unwrap_or(0),
+        invalid_shift: per_kind.get("shift").copied().unwrap_or(0),
+        invalid_careless: per_kind.get("careless").copied().unwrap_or(0),
         seconds: started.elapsed().as_secs_f64(),
     };
     if args.json {
@@ -654,7 +817,8 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
     } else {
         println!(
             "{}: {} segments ({:.0} scans each), {} overlapping pairs, {} used: {} cases \
-             ({} valid, {} invalid by place recognition, {} look-alikes) in {:.1} s -> {}",
+             ({} valid, {} invalid by place recognition, {} look-alikes, {} turned, {} \
+             shifted, {} careless) in {:.1} s -> {}",
             args.log.display(),
             report.segments,
             report.segment_scans_mean,
@@ -664,6 +828,9 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
             valid,
             place,
             lookalike,
+            report.invalid_rotation,
+            report.invalid_shift,
+            report.invalid_careless,
             report.seconds,
             args.output.display()
         );
@@ -700,6 +867,154 @@ fn merge_scan(
     overlap_scans(poses, first, second, radius_m)
         .first()
         .copied()
+}
+
+/// Half-width of the careless search around the true merge place (m): "the best-scoring
+/// wrong pose within ±4 m at any heading".
+const CARELESS_REACH_M: f64 = 4.0;
+/// Travel (m) of second-segment scans up to `merge_at` that the careless search matches.
+const CARELESS_QUERY_TRAVEL_M: f64 = 3.0;
+/// Shifts of the `shift` kind (m).
+const SHIFT_RANGE_M: (f64, f64) = (2.0, 8.0);
+
+/// The merge-place cases of one pair (`--valid-at merge-place`): every merge is a pose of
+/// the second segment's scan `merge_at` in the frame of the first segment's scan nearest to
+/// it (the relative pose the evaluator applies at the merge place).
+struct MergePlaceCases<'a> {
+    poses: &'a [Se2],
+    scans: &'a [mapmerge_scan::ScanRecord],
+    first: [usize; 2],
+    second: [usize; 2],
+    merge_at: usize,
+    filter: &'a BeamFilter,
+    matcher: &'a mapmerge_scanmatch::ScanMatcher,
+}
+
+impl MergePlaceCases<'_> {
+    /// The first segment's scan nearest to the robot at `merge_at`.
+    fn first_scan(&self) -> usize {
+        let at = self.poses[self.merge_at].translation();
+        (self.first[0]..=self.first[1])
+            .min_by(|&a, &b| {
+                let da = (self.poses[a].translation() - at).norm();
+                let db = (self.poses[b].translation() - at).norm();
+                da.total_cmp(&db).then(a.cmp(&b))
+            })
+            .unwrap_or(self.first[0])
+    }
+
+    /// The truth: `first_scan_from_merge_scan`.
+    fn truth(&self) -> Se2 {
+        self.poses[self.first_scan()].between(&self.poses[self.merge_at])
+    }
+
+    /// `first_from_second` that a merge-place pose is under the corrected poses (what
+    /// `merge_transform` records; the truth for the valid case).
+    fn start_frames(&self, relative: &Se2) -> Se2 {
+        self.poses[self.first[0]]
+            .inverse()
+            .compose(&self.poses[self.first_scan()])
+            .compose(relative)
+            .compose(&self.poses[self.merge_at].inverse())
+            .compose(&self.poses[self.second[0]])
+    }
+
+    /// `(kind, first_scan_from_merge_scan)`: the truth, a turn by 90°, 180° or 270° about
+    /// the robot, a shift of 2–8 m in a random direction, and careless place recognition.
+    fn cases(&self, rng: &mut ChaCha8Rng) -> Vec<(&'static str, Se2)> {
+        let truth = self.truth();
+        let quarter_turns = f64::from(rng.random_range(1i32..=3));
+        let turned = truth.compose(&Se2::new(
+            0.0,
+            0.0,
+            quarter_turns * std::f64::consts::FRAC_PI_2,
+        ));
+        let distance_m = rng.random_range(SHIFT_RANGE_M.0..=SHIFT_RANGE_M.1);
+        let direction = rng.random_range(0.0..std::f64::consts::TAU);
+        let shifted = truth.compose(&Se2::new(
+            distance_m * direction.cos(),
+            distance_m * direction.sin(),
+            0.0,
+        ));
+        let mut cases = vec![("valid", truth), ("rotation", turned), ("shift", shifted)];
+        if let Some(careless) = self.careless(&truth) {
+            cases.push(("careless", careless));
+        }
+        cases
+    }
+
+    /// The best-scoring wrong pose of the merge scan within ±4 m of the truth at any
+    /// heading: the last `CARELESS_QUERY_TRAVEL_M` of second-segment scans (corrected poses,
+    /// merge scan frame) matched against every first-segment scan (first-scan frame) in 18
+    /// heading sectors × 16 boxes of 2 m, each searched exactly; optima within 1 m and 10°
+    /// of the truth are right, the best of the others is the careless merge. (A wrong
+    /// optimum hidden by the truth in the truth's own box is not seen.)
+    fn careless(&self, truth: &Se2) -> Option<Se2> {
+        let first_scan = self.first_scan();
+        let posed_points = |range: std::ops::RangeInclusive<usize>, frame: usize| {
+            let frame_from_world = self.poses[frame].inverse();
+            range
+                .flat_map(|k| {
+                    let frame_from_robot = frame_from_world.compose(&self.poses[k]);
+                    let map = point_map(&frame_from_robot);
+                    self.scans[k]
+                        .scan
+                        .points_in_robot(self.filter)
+                        .into_iter()
+                        .map(move |p| map(&p))
+                })
+                .collect::<Vec<Point2>>()
+        };
+        let target = self
+            .matcher
+            .target(&posed_points(self.first[0]..=self.first[1], first_scan))
+            .ok()?;
+        let mut query_start = self.merge_at;
+        let mut travel_m = 0.0;
+        while query_start > self.second[0] && travel_m < CARELESS_QUERY_TRAVEL_M {
+            travel_m += (self.poses[query_start].translation()
+                - self.poses[query_start - 1].translation())
+            .norm();
+            query_start -= 1;
+        }
+        let query = posed_points(query_start..=self.merge_at, self.merge_at);
+        let sectors = 18;
+        let sector_rad = std::f64::consts::TAU / f64::from(sectors);
+        let window = mapmerge_scanmatch::SearchWindow::new(1.0, sector_rad / 2.0);
+        let mut best: Option<(f64, Se2)> = None;
+        // Boxes of ±1 m side by side over ±CARELESS_REACH_M.
+        let boxes = CARELESS_REACH_M.round() as usize;
+        let centres: Vec<f64> = (0..boxes)
+            .map(|b| -CARELESS_REACH_M + 1.0 + 2.0 * b as f64)
+            .collect();
+        for sector in 0..sectors {
+            for &bx in &centres {
+                for &by in &centres {
+                    let guess = Se2::new(
+                        truth.x_m + bx,
+                        truth.y_m + by,
+                        truth.theta_rad + f64::from(sector) * sector_rad,
+                    );
+                    let Some(found) = mapmerge_scanmatch::match_scan(
+                        target.correlative(),
+                        &query,
+                        &guess,
+                        &window,
+                    ) else {
+                        continue;
+                    };
+                    let pose = found.target_from_query;
+                    if !far_from(truth, &pose, &Se2::identity(), WRONG_BEYOND) {
+                        continue;
+                    }
+                    if best.as_ref().is_none_or(|(score, _)| found.score > *score) {
+                        best = Some((found.score, pose));
+                    }
+                }
+            }
+        }
+        best.map(|(_, pose)| pose)
+    }
 }
 
 /// The verifier's search window (m, rad).
@@ -913,6 +1228,9 @@ fn lookalike_transform(
 struct FirstSegment {
     graph: PoseGraph2,
     points: BTreeMap<NodeId, Arc<[Point2]>>,
+    /// Every scan's pose in the optimised graph (index: scan − the segment's first scan;
+    /// `None` for a scan whose anchor left the graph).
+    scan_poses: Vec<Option<Se2>>,
 }
 
 fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<FirstSegment> {
@@ -921,11 +1239,13 @@ fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result
         ..EngineParams::default()
     })?;
     let mut odometry = Se2::identity();
+    let mut anchors = ScanAnchors::new();
     for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
         odometry = record.odom_from_robot.unwrap_or(odometry);
-        engine
+        let report = engine
             .add_scan(&odometry, &record.scan, None)
             .with_context(|| format!("SLAM at scan {k}"))?;
+        anchors.push(report.anchor.0, report.anchor.1);
     }
     engine.finish()?;
     let atlas = engine.atlas();
@@ -934,7 +1254,12 @@ fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result
         .vertices()
         .filter_map(|(node, _)| Some((node, Arc::clone(atlas.keyframes().get(node)?))))
         .collect();
-    Ok(FirstSegment { graph, points })
+    let scan_poses = anchors.trajectory(&graph);
+    Ok(FirstSegment {
+        graph,
+        points,
+        scan_poses,
+    })
 }
 
 /// A log with an odometry: its path, noise profile and seed (0 without noise).
@@ -1048,22 +1373,33 @@ fn evaluate_case(
 ) -> anyhow::Result<Vec<Outcome>> {
     let mut engine = evaluation_engine()?;
     let map = engine.import_inactive(&first.graph, |node| first.points.get(&node).cloned())?;
-    // Holoch et al., Sec. V-A: the merged map is in the current (second) segment's frame.
-    let second_from_first = se2_of(case.merge_transform).inverse();
     let mut outcomes = vec![Outcome::default(); detectors.len()];
     let mut odometry = Se2::identity();
     let mut merged = false;
     let mut robot = None;
+    let mut merge_scan_anchor: Option<(NodeId, Se2)> = None;
     let [start, end] = case.second;
     for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
         odometry = record.odom_from_robot.unwrap_or(odometry);
-        engine
+        let anchor = engine
             .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
-            .with_context(|| format!("engine at scan {k}"))?;
+            .with_context(|| format!("engine at scan {k}"))?
+            .anchor;
+        if k == case.merge_at {
+            merge_scan_anchor = Some(anchor);
+        }
         let keyframe = engine.robot_node() != robot;
         robot = engine.robot_node();
         if !merged {
             if k >= case.merge_at && robot.is_some() {
+                // The merge scan's pose now: its anchor keyframe's pose and the offset.
+                let second_from_merge_scan = merge_scan_anchor.and_then(|(node, offset)| {
+                    Some(engine.map_graph().vertex(node)?.pose.compose(&offset))
+                });
+                let first_from_second = merge_transform(first, case, second_from_merge_scan)?;
+                // Holoch et al., Sec. V-A: the merged map is in the current (second)
+                // segment's frame.
+                let second_from_first = first_from_second.inverse();
                 engine.force_merge(map, second_from_first, format!("case {}", case.id))?;
                 merged = true;
                 let (current, other) = engine.merged_map_scans();
@@ -1097,6 +1433,29 @@ fn evaluate_case(
         }
     }
     Ok(outcomes)
+}
+
+/// The merge `first_from_second` the evaluator forces: `merge_transform`, or with a merge
+/// place `first_from_scan · relative · second_from_merge_scan⁻¹` from the first segment's
+/// optimised pose of its scan and the engine's live pose of the merge scan.
+fn merge_transform(
+    first: &FirstSegment,
+    case: &MergeCase,
+    second_from_merge_scan: Option<Se2>,
+) -> anyhow::Result<Se2> {
+    let Some(place) = &case.merge_place else {
+        return Ok(se2_of(case.merge_transform));
+    };
+    let first_from_scan = place
+        .first_scan
+        .checked_sub(case.first[0])
+        .and_then(|i| first.scan_poses.get(i).copied().flatten())
+        .ok_or_else(|| anyhow::anyhow!("no pose of first-segment scan {}", place.first_scan))?;
+    let second_from_merge_scan = second_from_merge_scan
+        .ok_or_else(|| anyhow::anyhow!("no pose of merge scan {}", case.merge_at))?;
+    Ok(first_from_scan
+        .compose(&se2_of(place.relative))
+        .compose(&second_from_merge_scan.inverse()))
 }
 
 /// Where a case's log is: as written, else relative to the cases file's folder.
@@ -1233,6 +1592,7 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
                     .then(|| 1e3 * outcome.seconds / outcome.vertices as f64),
                 vertices: outcome.vertices,
                 label: case.label,
+                kind: case.kind(),
                 log: case.log.clone(),
             };
             serde_json::to_writer(&mut out, &result)?;
@@ -1303,6 +1663,8 @@ struct SummaryRow {
     /// Mean highest invalidity of the valid and of the invalid cases.
     mean_valid: Option<f64>,
     mean_invalid: Option<f64>,
+    /// ROC AUC of the valid cases against the invalid cases of each kind.
+    auc_by_kind: BTreeMap<String, Option<f64>>,
 }
 
 fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow {
@@ -1320,6 +1682,17 @@ fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow 
         .iter()
         .map(|r| r.ms_per_vertex.unwrap_or(0.0) * r.vertices as f64)
         .sum();
+    let mut auc_by_kind = BTreeMap::new();
+    for r in results.iter().filter(|r| r.label == Some(Label::Invalid)) {
+        auc_by_kind.entry(r.kind.clone()).or_insert_with(|| {
+            let of_kind: Vec<f64> = results
+                .iter()
+                .filter(|o| o.label == Some(Label::Invalid) && o.kind == r.kind)
+                .map(|o| o.max_invalidity)
+                .collect();
+            roc_auc(&of_kind, &valid)
+        });
+    }
     SummaryRow {
         log: log.to_owned(),
         method: method.to_owned(),
@@ -1331,6 +1704,7 @@ fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow 
         vertices,
         mean_valid: mean(&valid),
         mean_invalid: mean(&invalid),
+        auc_by_kind,
     }
 }
 
@@ -1372,9 +1746,9 @@ fn summary_markdown(rows: &[SummaryRow], seconds: f64) -> String {
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "| log | method | valid / invalid | AUC | mean ms per new vertex | vertices | mean max. invalidity valid / invalid | paper AUC (MIT Stata / Flats and Offices) | paper ms (MIT Stata / Flats and Offices) |"
+        "| log | method | valid / invalid | AUC | AUC by kind | mean ms per new vertex | vertices | mean max. invalidity valid / invalid | paper AUC (MIT Stata / Flats and Offices) | paper ms (MIT Stata / Flats and Offices) |"
     );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|");
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|---|---|");
     let f3 = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.3}"));
     for row in rows {
         let paper = PAPER_TABLE_III.iter().find(|p| p.0 == row.method);
@@ -1384,9 +1758,15 @@ fn summary_markdown(rows: &[SummaryRow], seconds: f64) -> String {
                 format!("{} / {}", p.2, p.4),
             )
         });
+        let by_kind = row
+            .auc_by_kind
+            .iter()
+            .map(|(kind, auc)| format!("{kind} {}", f3(*auc)))
+            .collect::<Vec<_>>()
+            .join(", ");
         let _ = writeln!(
             md,
-            "| {} | {} | {} / {}{} | {} | {} | {} | {} / {} | {paper_auc} | {paper_ms} |",
+            "| {} | {} | {} / {}{} | {} | {by_kind} | {} | {} | {} / {} | {paper_auc} | {paper_ms} |",
             row.log,
             row.method,
             row.valid,
@@ -1429,6 +1809,8 @@ mod tests {
             odometry_noise: Some("default".into()),
             seed: 3,
             label: Some(Label::Valid),
+            kind: None,
+            merge_place: None,
         }
     }
 
@@ -1446,6 +1828,20 @@ mod tests {
         let parsed = parse_cases(null, "c").unwrap();
         assert_eq!(parsed[0].1.odometry_noise, None);
         assert_eq!(parsed[0].1.label, None);
+        assert_eq!(parsed[0].1.kind(), "a");
+        // A merge-place case.
+        let mut c = case();
+        c.kind = Some("rotation".into());
+        c.merge_place = Some(MergePlace {
+            first_scan: 4,
+            relative: [0.5, 0.0, 3.0],
+        });
+        let text = serde_json::to_string(&c).unwrap();
+        assert!(
+            text.ends_with(r#""label":"valid","kind":"rotation","merge_place":{"first_scan":4,"relative":[0.5,0.0,3.0]}}"#),
+            "{text}"
+        );
+        assert_eq!(parse_cases(&text, "c").unwrap(), vec![(1, c)]);
     }
 
     #[test]
@@ -1468,6 +1864,25 @@ mod tests {
                 "c:1: odometry_noise",
             ),
             (format!("{good}\n{good}"), "c:2: duplicate id"),
+            (
+                with(&|c| {
+                    c.merge_place = Some(MergePlace {
+                        first_scan: 10,
+                        relative: [0.0; 3],
+                    })
+                }),
+                "c:1: merge_place.first_scan 10 is not a scan of first",
+            ),
+            (
+                with(&|c| {
+                    c.merge_place = Some(MergePlace {
+                        first_scan: 3,
+                        relative: [f64::NAN, 0.0, 0.0],
+                    })
+                }),
+                // JSON has no NaN: it is written as null, which is no number.
+                "c:1: not a merge case",
+            ),
         ];
         for (text, expected) in cases {
             let err = parse_cases(&text, "c").unwrap_err();
@@ -1493,6 +1908,19 @@ mod tests {
         assert!(!stamps_usable(&[0.0, 1.0, 4.29e9, 3.0]));
         let segments = cut_segments(&[0.0; 45], 100.0, Some(20));
         assert_eq!(segments, vec![[0, 19], [20, 44]]);
+        // By travel: 0.5 m per scan, 10 m segments are 20 scans; a 15-scan rest stays.
+        let poses: Vec<Se2> = (0..75)
+            .map(|k| Se2::new(0.5 * f64::from(k), 0.0, 0.0))
+            .collect();
+        assert_eq!(
+            segments_by_travel(&poses, 10.0),
+            vec![[0, 19], [20, 39], [40, 59], [60, 74]]
+        );
+        // A rest shorter than half a segment joins the last.
+        assert_eq!(
+            segments_by_travel(&poses[..65], 10.0),
+            vec![[0, 19], [20, 39], [40, 64]]
+        );
     }
 
     /// A detector that reports, at the first vertex after the merge only, how far the newest
@@ -1557,6 +1985,57 @@ mod tests {
         assert!(right[0].vertices > 10, "{right:?}");
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
+        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
+
+        // At the merge place: the relative pose decides, whatever `merge_transform` says.
+        let poses: Vec<Se2> = (0..n).map(truth).collect();
+        let place = MergePlaceCases {
+            poses: &poses,
+            scans: &session.log.scans,
+            first,
+            second,
+            merge_at: c.merge_at,
+            filter: &BeamFilter::default(),
+            matcher: &mapmerge_scanmatch::ScanMatcher::default(),
+        };
+        let true_relative = place.truth();
+        let start_frames = place.start_frames(&true_relative);
+        let error = start_frames.between(&first_from_second);
+        assert!(error.translation().norm() < 1e-9 && error.theta_rad.abs() < 1e-9);
+        c.merge_place = Some(MergePlace {
+            first_scan: place.first_scan(),
+            relative: array_of(&true_relative),
+        });
+        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        assert!(right[0].max_invalidity < 0.05, "{right:?}");
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let kinds = place.cases(&mut rng);
+        let names: Vec<&str> = kinds.iter().map(|(k, _)| *k).collect();
+        assert_eq!(&names[..3], ["valid", "rotation", "shift"]);
+        for (kind, relative) in &kinds[1..] {
+            assert!(
+                far_from(&true_relative, relative, &Se2::identity(), WRONG_BEYOND),
+                "{kind} {relative:?} is right"
+            );
+        }
+        let turn = wrap_angle_rad(kinds[1].1.theta_rad - true_relative.theta_rad);
+        assert!(((turn / std::f64::consts::FRAC_PI_2).round().abs() - 1.0).abs() <= 1.0);
+        assert!(
+            (turn / std::f64::consts::FRAC_PI_2 - (turn / std::f64::consts::FRAC_PI_2).round())
+                .abs()
+                < 1e-9
+        );
+        let shift = true_relative.between(&kinds[2].1);
+        assert!(
+            (2.0..=8.0).contains(&shift.translation().norm()),
+            "{shift:?}"
+        );
+        c.merge_place = Some(MergePlace {
+            first_scan: place.first_scan(),
+            relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
+        });
+        c.merge_transform = array_of(&first_from_second);
         let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use common::{ok_json, p, run, scratch};
 use serde_json::Value;
 
-const CASE_FIELDS: [&str; 9] = [
+const CASE_FIELDS: [&str; 10] = [
     "id",
     "log",
     "first",
@@ -23,6 +23,7 @@ const CASE_FIELDS: [&str; 9] = [
     "odometry_noise",
     "seed",
     "label",
+    "kind",
 ];
 
 fn intel() -> Option<PathBuf> {
@@ -149,6 +150,21 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
         ],
         "order.jsonl:1: first [4, 0] ends before it starts",
     );
+    for (flag, value) in [("--segment-length-m", "0"), ("--valid-at", "somewhere")] {
+        let out = run(&[
+            "eval",
+            "make-merge-cases",
+            "--log",
+            p(&log),
+            "--corrected",
+            p(&log),
+            "-o",
+            p(&dir.join("c.jsonl")),
+            flag,
+            value,
+        ]);
+        assert_eq!(out.status.code(), Some(2), "{flag} {value}");
+    }
     let ok = bad("ok.jsonl", format!("{good}\n"));
     expect_bad(
         &[
@@ -280,4 +296,84 @@ fn intel_cases_have_both_labels_and_the_detectors_tell_them_apart() {
         mean(&valid) < mean(&invalid),
         "valid {valid:?} vs invalid {invalid:?}"
     );
+}
+
+/// Issue 15's protocol: merges defined at the merge place, 30 m segments, the log's own
+/// odometry; every case carries its merge place and kind, the invalid kinds are there, and
+/// the summary reports AUC per kind.
+#[test]
+fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
+    let Some(intel) = intel() else {
+        return;
+    };
+    let dir = scratch("invalid-merge-merge-place");
+    let cases = dir.join("cases.jsonl");
+    let report = ok_json(&[
+        "eval",
+        "make-merge-cases",
+        "--log",
+        p(&intel),
+        "--corrected",
+        p(&intel),
+        "-o",
+        p(&cases),
+        "--valid-at",
+        "merge-place",
+        "--segment-length-m",
+        "30",
+        "--odometry-noise",
+        "null",
+        "--max-pairs",
+        "3",
+        "--json",
+    ]);
+    assert_eq!(report["valid"], 3, "{report}");
+    assert_eq!(report["invalid_rotation"], 3, "{report}");
+    let lines = json_lines(&cases);
+    let mut kinds = BTreeSet::new();
+    for case in &lines {
+        let place = &case["merge_place"];
+        let first_scan = place["first_scan"].as_u64().unwrap();
+        let [s, e] = [&case["first"][0], &case["first"][1]].map(|v| v.as_u64().unwrap());
+        assert!(s <= first_scan && first_scan <= e, "{case}");
+        assert_eq!(place["relative"].as_array().unwrap().len(), 3, "{case}");
+        assert_eq!(case["odometry_noise"], Value::Null);
+        let kind = case["kind"].as_str().unwrap().to_owned();
+        let label = if kind == "valid" { "valid" } else { "invalid" };
+        assert_eq!(case["label"], label, "{case}");
+        assert!(case["id"].as_str().unwrap().ends_with(&kind), "{case}");
+        kinds.insert(kind);
+    }
+    for kind in ["valid", "rotation", "shift"] {
+        assert!(kinds.contains(kind), "{kinds:?}");
+    }
+    let results = dir.join("results.jsonl");
+    let report = ok_json(&[
+        "eval",
+        "invalid-merge",
+        "--cases",
+        p(&cases),
+        "-o",
+        p(&results),
+        "--methods",
+        "change_detection",
+        "--json",
+    ]);
+    let row = &report["summary"][0];
+    let by_kind = row["auc_by_kind"].as_object().unwrap();
+    for kind in kinds.iter().filter(|k| *k != "valid") {
+        let auc = by_kind[kind.as_str()].as_f64().unwrap();
+        assert!((0.0..=1.0).contains(&auc), "{row}");
+    }
+    // Valid merges exact at the merge place read lower than turned ones.
+    let results = json_lines(&results);
+    let of = |kind: &str| -> f64 {
+        let v: Vec<f64> = results
+            .iter()
+            .filter(|r| r["kind"] == kind)
+            .map(|r| r["max_invalidity"].as_f64().unwrap())
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    assert!(of("valid") < of("rotation"), "{results:?}");
 }
