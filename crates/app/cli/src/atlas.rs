@@ -555,7 +555,7 @@ fn judge(truth_of_node: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)])
 
 /// Draws a graph's scans coloured by epoch; the newest current-epoch scans (the detector's
 /// window) as larger dots.
-fn draw_graph(
+pub(crate) fn draw_graph(
     graph: &PoseGraph2,
     engine: &Engine,
     conditional: &[(NodeId, NodeId)],

@@ -236,6 +236,12 @@ pub struct InvalidMergeArgs {
     /// the merge, `scan` is the log's scan index).
     #[arg(long)]
     pub trace: Option<PathBuf>,
+    /// Also draw, per case, the merged map at the first new vertex after the merge
+    /// (`DIR/ID-first.png`) and where the first method's invalidity peaked
+    /// (`DIR/ID-peak.png`; `/` in ids becomes `_`): the newest scans in change detection's
+    /// colours (red change, green agree, grey no information), other scans by epoch.
+    #[arg(long)]
+    pub pictures: Option<PathBuf>,
 }
 
 // ------------------------------------------------------------------ formats
@@ -1370,7 +1376,15 @@ fn evaluate_case(
     log: &LaserLog,
     case: &MergeCase,
     detectors: &mut [Box<dyn InvalidMergeDetector>],
+    pictures: Option<&Path>,
 ) -> anyhow::Result<Vec<Outcome>> {
+    let picture = |engine: &Engine, which: &str| -> anyhow::Result<()> {
+        let Some(dir) = pictures else {
+            return Ok(());
+        };
+        let name = format!("{}-{which}.png", case.id.replace('/', "_"));
+        crate::atlas::draw_graph(engine.map_graph(), engine, &[], &dir.join(name))
+    };
     let mut engine = evaluation_engine()?;
     let map = engine.import_inactive(&first.graph, |node| first.points.get(&node).cloned())?;
     let mut outcomes = vec![Outcome::default(); detectors.len()];
@@ -1421,6 +1435,7 @@ fn evaluate_case(
             current: &current,
             other: &other,
         };
+        let peak_before = outcomes.first().map(|o| o.max_invalidity);
         for (detector, outcome) in detectors.iter_mut().zip(outcomes.iter_mut()) {
             let started = Instant::now();
             let ratio = detector.on_vertex(&map);
@@ -1429,6 +1444,14 @@ fn evaluate_case(
             outcome.trace.push((k, ratio));
             if ratio.is_finite() {
                 outcome.max_invalidity = outcome.max_invalidity.max(ratio);
+            }
+        }
+        if let Some(outcome) = outcomes.first() {
+            if outcome.vertices == 1 {
+                picture(&engine, "first")?;
+            }
+            if outcome.vertices == 1 || Some(outcome.max_invalidity) > peak_before {
+                picture(&engine, "peak")?;
             }
         }
     }
@@ -1546,6 +1569,9 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
     let file = std::fs::File::create(&args.output)
         .with_context(|| format!("writing {}", args.output.display()))?;
     let mut out = std::io::BufWriter::new(file);
+    if let Some(dir) = &args.pictures {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let mut trace = match &args.trace {
         Some(path) => Some(std::io::BufWriter::new(
             std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?,
@@ -1568,7 +1594,8 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|m| mapmerge_verify::detector(m))
             .collect();
-        let outcomes = evaluate_case(&first, &log, case, &mut detectors).map_err(context)?;
+        let outcomes = evaluate_case(&first, &log, case, &mut detectors, args.pictures.as_deref())
+            .map_err(context)?;
         for (method, outcome) in methods.iter().zip(outcomes) {
             if let Some(trace) = trace.as_mut() {
                 for (vertex, &(scan, invalidity)) in outcome.trace.iter().enumerate() {
@@ -1981,11 +2008,11 @@ mod tests {
         c.merge_transform = array_of(&first_from_second);
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> =
             vec![Box::new(FirstDistance::default())];
-        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
         assert!(right[0].vertices > 10, "{right:?}");
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
-        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
 
         // At the merge place: the relative pose decides, whatever `merge_transform` says.
@@ -2007,7 +2034,7 @@ mod tests {
             first_scan: place.first_scan(),
             relative: array_of(&true_relative),
         });
-        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let kinds = place.cases(&mut rng);
@@ -2036,7 +2063,7 @@ mod tests {
             relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
         });
         c.merge_transform = array_of(&first_from_second);
-        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors).unwrap();
+        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }
 }

@@ -348,6 +348,7 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
         assert!(kinds.contains(kind), "{kinds:?}");
     }
     let results = dir.join("results.jsonl");
+    let pictures = dir.join("pictures");
     let report = ok_json(&[
         "eval",
         "invalid-merge",
@@ -357,8 +358,17 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
         p(&results),
         "--methods",
         "change_detection",
+        "--pictures",
+        p(&pictures),
         "--json",
     ]);
+    for case in &lines {
+        let stem = case["id"].as_str().unwrap().replace('/', "_");
+        for which in ["first", "peak"] {
+            let png = pictures.join(format!("{stem}-{which}.png"));
+            assert!(png.metadata().unwrap().len() > 1000, "{}", png.display());
+        }
+    }
     let row = &report["summary"][0];
     let by_kind = row["auc_by_kind"].as_object().unwrap();
     for kind in kinds.iter().filter(|k| *k != "valid") {
