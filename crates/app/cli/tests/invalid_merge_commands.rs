@@ -81,6 +81,23 @@ fn case_line(
     .to_string()
 }
 
+/// `mapmerge eval invalid-merge --cases CASES -o RESULTS --methods METHODS EXTRA… --json`.
+fn evaluate(cases: &Path, results: &Path, methods: &str, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "eval",
+        "invalid-merge",
+        "--cases",
+        p(cases),
+        "-o",
+        p(results),
+        "--methods",
+        methods,
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    ok_json(&args)
+}
+
 fn expect_bad(args: &[&str], needle: &str) {
     let out = run(args);
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -257,17 +274,7 @@ fn intel_cases_have_both_labels_and_the_detectors_tell_them_apart() {
     );
     let results = dir.join("results.jsonl");
     let methods = ["change_detection", "gridmap"];
-    let report = ok_json(&[
-        "eval",
-        "invalid-merge",
-        "--cases",
-        p(&cases),
-        "-o",
-        p(&results),
-        "--methods",
-        &methods.join(","),
-        "--json",
-    ]);
+    let report = evaluate(&cases, &results, &methods.join(","), &[]);
     assert_eq!(report["cases"].as_u64().unwrap(), lines.len() as u64);
     let results = json_lines(&results);
     assert_eq!(results.len(), lines.len() * methods.len());
@@ -349,19 +356,12 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     }
     let results = dir.join("results.jsonl");
     let pictures = dir.join("pictures");
-    let report = ok_json(&[
-        "eval",
-        "invalid-merge",
-        "--cases",
-        p(&cases),
-        "-o",
-        p(&results),
-        "--methods",
+    let report = evaluate(
+        &cases,
+        &results,
         "change_detection",
-        "--pictures",
-        p(&pictures),
-        "--json",
-    ]);
+        &["--pictures", p(&pictures)],
+    );
     for case in &lines {
         let stem = case["id"].as_str().unwrap().replace('/', "_");
         for which in ["first", "peak"] {
