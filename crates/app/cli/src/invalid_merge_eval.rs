@@ -232,8 +232,9 @@ pub struct InvalidMergeArgs {
     #[arg(long)]
     pub json: bool,
     /// Also write every detector's invalidity after every new vertex to this file (JSON
-    /// lines `{"id", "method", "vertex", "scan", "invalidity"}`; `vertex` counts from 0 after
-    /// the merge, `scan` is the log's scan index).
+    /// lines `{"id", "method", "vertex", "scan", "invalidity", "support"}`; `vertex` counts
+    /// from 0 after the merge, `scan` is the log's scan index, `support` how many compared
+    /// points or cells the ratio rests on, `null` for detectors without such a count).
     #[arg(long)]
     pub trace: Option<PathBuf>,
     /// Also draw, per case, the merged map at the first new vertex after the merge
@@ -1339,8 +1340,8 @@ struct Outcome {
     max_invalidity: f64,
     seconds: f64,
     vertices: usize,
-    /// `(scan, invalidity)` after every new vertex.
-    trace: Vec<(usize, f64)>,
+    /// `(scan, invalidity, support)` after every new vertex.
+    trace: Vec<(usize, f64, Option<u64>)>,
 }
 
 /// A line of `--trace`.
@@ -1351,6 +1352,8 @@ struct TraceLine<'a> {
     vertex: usize,
     scan: usize,
     invalidity: f64,
+    /// What the ratio rests on (`InvalidMergeDetector::support`), `null` if not counted.
+    support: Option<u64>,
 }
 
 /// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
@@ -1441,7 +1444,7 @@ fn evaluate_case(
             let ratio = detector.on_vertex(&map);
             outcome.seconds += started.elapsed().as_secs_f64();
             outcome.vertices += 1;
-            outcome.trace.push((k, ratio));
+            outcome.trace.push((k, ratio, detector.support()));
             if ratio.is_finite() {
                 outcome.max_invalidity = outcome.max_invalidity.max(ratio);
             }
@@ -1598,13 +1601,14 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             .map_err(context)?;
         for (method, outcome) in methods.iter().zip(outcomes) {
             if let Some(trace) = trace.as_mut() {
-                for (vertex, &(scan, invalidity)) in outcome.trace.iter().enumerate() {
+                for (vertex, &(scan, invalidity, support)) in outcome.trace.iter().enumerate() {
                     let line = TraceLine {
                         id: &case.id,
                         method,
                         vertex,
                         scan,
                         invalidity,
+                        support,
                     };
                     serde_json::to_writer(&mut *trace, &line)?;
                     writeln!(trace)?;

@@ -356,12 +356,23 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     }
     let results = dir.join("results.jsonl");
     let pictures = dir.join("pictures");
+    let trace = dir.join("trace.jsonl");
     let report = evaluate(
         &cases,
         &results,
         "change_detection",
-        &["--pictures", p(&pictures)],
+        &["--pictures", p(&pictures), "--trace", p(&trace)],
     );
+    // Every vertex's ratio with what it rests on: a nonzero ratio needs change detection's
+    // 100 classified points.
+    let trace = json_lines(&trace);
+    assert!(!trace.is_empty());
+    for line in &trace {
+        let support = line["support"].as_u64().unwrap();
+        if line["invalidity"].as_f64().unwrap() > 0.0 {
+            assert!(support >= 100, "{line}");
+        }
+    }
     for case in &lines {
         let stem = case["id"].as_str().unwrap().replace('/', "_");
         for which in ["first", "peak"] {

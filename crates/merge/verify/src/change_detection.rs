@@ -804,6 +804,10 @@ impl InvalidMergeDetector for ChangeDetectionDetector {
         self.info.agree_points = counts[AGREE as usize];
         self.ratio()
     }
+
+    fn support(&self) -> Option<u64> {
+        Some((self.info.change_points + self.info.agree_points) as u64)
+    }
 }
 
 #[cfg(test)]

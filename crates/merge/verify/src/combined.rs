@@ -157,6 +157,11 @@ impl InvalidMergeDetector for CombinedDetector {
         };
         self.combine(cd, gm, bh)
     }
+
+    /// Change detection's (the appearance evidence's finer part).
+    fn support(&self) -> Option<u64> {
+        self.change_detection.support()
+    }
 }
 
 #[cfg(test)]

@@ -498,6 +498,10 @@ impl InvalidMergeDetector for GridmapDetector {
         }
         unit(contradictions as f64 / overlap as f64)
     }
+
+    fn support(&self) -> Option<u64> {
+        Some(self.info.overlap_cells)
+    }
 }
 
 #[cfg(test)]

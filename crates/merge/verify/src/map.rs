@@ -43,4 +43,11 @@ pub trait InvalidMergeDetector: Send {
     /// A new current-epoch vertex was added (the last of `map.current`): the invalidity ratio
     /// in [0, 1] now. Poses in `map` may have moved since the last call.
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64;
+
+    /// How many compared elements the last ratio rests on (change detection: points
+    /// classified *change* or *agree*; gridmap: cells known in both grids), `None` for a
+    /// detector without such a count. A ratio of few elements is weak evidence either way.
+    fn support(&self) -> Option<u64> {
+        None
+    }
 }
