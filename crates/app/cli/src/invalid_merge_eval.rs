@@ -716,15 +716,8 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
         };
         if args.valid_at == ValidAt::MergePlace {
             let mut pair_rng = ChaCha8Rng::seed_from_u64(pair_seed);
-            let place = MergePlaceCases {
-                poses: &poses,
-                scans,
-                first,
-                second,
-                merge_at,
-                filter: &filter,
-                matcher: &matcher,
-            };
+            let place =
+                MergePlaceCases::new(&poses, scans, [first, second], merge_at, &filter, &matcher);
             for (kind, relative) in place.cases(&mut pair_rng) {
                 let transform = place.start_frames(&relative);
                 let label = if kind == "valid" {
@@ -737,7 +730,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
                 }
                 let mut case = make(kind, merge_at, &transform, label);
                 case.merge_place = Some(MergePlace {
-                    first_scan: place.first_scan(),
+                    first_scan: place.first_scan,
                     relative: array_of(&relative),
                 });
                 cases.push(case);
@@ -893,26 +886,45 @@ struct MergePlaceCases<'a> {
     first: [usize; 2],
     second: [usize; 2],
     merge_at: usize,
+    /// The first segment's scan nearest to the robot at `merge_at`.
+    first_scan: usize,
     filter: &'a BeamFilter,
     matcher: &'a mapmerge_scanmatch::ScanMatcher,
 }
 
-impl MergePlaceCases<'_> {
-    /// The first segment's scan nearest to the robot at `merge_at`.
-    fn first_scan(&self) -> usize {
-        let at = self.poses[self.merge_at].translation();
-        (self.first[0]..=self.first[1])
+impl<'a> MergePlaceCases<'a> {
+    /// The cases of the pair `first`, `second` merged at scan `merge_at` (corrected poses).
+    fn new(
+        poses: &'a [Se2],
+        scans: &'a [mapmerge_scan::ScanRecord],
+        [first, second]: [[usize; 2]; 2],
+        merge_at: usize,
+        filter: &'a BeamFilter,
+        matcher: &'a mapmerge_scanmatch::ScanMatcher,
+    ) -> Self {
+        let at = poses[merge_at].translation();
+        let first_scan = (first[0]..=first[1])
             .min_by(|&a, &b| {
-                let da = (self.poses[a].translation() - at).norm();
-                let db = (self.poses[b].translation() - at).norm();
+                let da = (poses[a].translation() - at).norm();
+                let db = (poses[b].translation() - at).norm();
                 da.total_cmp(&db).then(a.cmp(&b))
             })
-            .unwrap_or(self.first[0])
+            .unwrap_or(first[0]);
+        Self {
+            poses,
+            scans,
+            first,
+            second,
+            merge_at,
+            first_scan,
+            filter,
+            matcher,
+        }
     }
 
     /// The truth: `first_scan_from_merge_scan`.
     fn truth(&self) -> Se2 {
-        self.poses[self.first_scan()].between(&self.poses[self.merge_at])
+        self.poses[self.first_scan].between(&self.poses[self.merge_at])
     }
 
     /// `first_from_second` that a merge-place pose is under the corrected poses (what
@@ -920,7 +932,7 @@ impl MergePlaceCases<'_> {
     fn start_frames(&self, relative: &Se2) -> Se2 {
         self.poses[self.first[0]]
             .inverse()
-            .compose(&self.poses[self.first_scan()])
+            .compose(&self.poses[self.first_scan])
             .compose(relative)
             .compose(&self.poses[self.merge_at].inverse())
             .compose(&self.poses[self.second[0]])
@@ -957,7 +969,7 @@ impl MergePlaceCases<'_> {
     /// of the truth are right, the best of the others is the careless merge. (A wrong
     /// optimum hidden by the truth in the truth's own box is not seen.)
     fn careless(&self, truth: &Se2) -> Option<Se2> {
-        let first_scan = self.first_scan();
+        let first_scan = self.first_scan;
         let posed_points = |range: std::ops::RangeInclusive<usize>, frame: usize| {
             let frame_from_world = self.poses[frame].inverse();
             range
@@ -2021,21 +2033,24 @@ mod tests {
 
         // At the merge place: the relative pose decides, whatever `merge_transform` says.
         let poses: Vec<Se2> = (0..n).map(truth).collect();
-        let place = MergePlaceCases {
-            poses: &poses,
-            scans: &session.log.scans,
-            first,
-            second,
-            merge_at: c.merge_at,
-            filter: &BeamFilter::default(),
-            matcher: &mapmerge_scanmatch::ScanMatcher::default(),
-        };
+        let (filter, matcher) = (
+            BeamFilter::default(),
+            mapmerge_scanmatch::ScanMatcher::default(),
+        );
+        let place = MergePlaceCases::new(
+            &poses,
+            &session.log.scans,
+            [first, second],
+            c.merge_at,
+            &filter,
+            &matcher,
+        );
         let true_relative = place.truth();
         let start_frames = place.start_frames(&true_relative);
         let error = start_frames.between(&first_from_second);
         assert!(error.translation().norm() < 1e-9 && error.theta_rad.abs() < 1e-9);
         c.merge_place = Some(MergePlace {
-            first_scan: place.first_scan(),
+            first_scan: place.first_scan,
             relative: array_of(&true_relative),
         });
         let right = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
@@ -2063,7 +2078,7 @@ mod tests {
             "{shift:?}"
         );
         c.merge_place = Some(MergePlace {
-            first_scan: place.first_scan(),
+            first_scan: place.first_scan,
             relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
         });
         c.merge_transform = array_of(&first_from_second);

@@ -81,6 +81,24 @@ fn case_line(
     .to_string()
 }
 
+/// `mapmerge eval make-merge-cases --log LOG --corrected LOG -o OUT EXTRA… --json` (a
+/// corrected log is its own reference).
+fn make_cases(log: &Path, out: &Path, extra: &[&str]) -> Value {
+    let mut args = vec![
+        "eval",
+        "make-merge-cases",
+        "--log",
+        p(log),
+        "--corrected",
+        p(log),
+        "-o",
+        p(out),
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    ok_json(&args)
+}
+
 /// `mapmerge eval invalid-merge --cases CASES -o RESULTS --methods METHODS EXTRA… --json`.
 fn evaluate(cases: &Path, results: &Path, methods: &str, extra: &[&str]) -> Value {
     let mut args = vec![
@@ -222,23 +240,7 @@ fn intel_cases_have_both_labels_and_the_detectors_tell_them_apart() {
     };
     let dir = scratch("invalid-merge-intel");
     let cases = dir.join("cases.jsonl");
-    let make = |out: &Path| {
-        ok_json(&[
-            "eval",
-            "make-merge-cases",
-            "--log",
-            p(&intel),
-            "--corrected",
-            p(&intel),
-            "-o",
-            p(out),
-            "--seed",
-            "4",
-            "--max-pairs",
-            "8",
-            "--json",
-        ])
-    };
+    let make = |out: &Path| make_cases(&intel, out, &["--seed", "4", "--max-pairs", "8"]);
     let report = make(&cases);
     assert!(report["segments"].as_u64().unwrap() >= 20, "{report}");
     // Deterministic for a seed.
@@ -315,25 +317,20 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     };
     let dir = scratch("invalid-merge-merge-place");
     let cases = dir.join("cases.jsonl");
-    let report = ok_json(&[
-        "eval",
-        "make-merge-cases",
-        "--log",
-        p(&intel),
-        "--corrected",
-        p(&intel),
-        "-o",
-        p(&cases),
-        "--valid-at",
-        "merge-place",
-        "--segment-length-m",
-        "30",
-        "--odometry-noise",
-        "null",
-        "--max-pairs",
-        "3",
-        "--json",
-    ]);
+    let report = make_cases(
+        &intel,
+        &cases,
+        &[
+            "--valid-at",
+            "merge-place",
+            "--segment-length-m",
+            "30",
+            "--odometry-noise",
+            "null",
+            "--max-pairs",
+            "3",
+        ],
+    );
     assert_eq!(report["valid"], 3, "{report}");
     assert_eq!(report["invalid_rotation"], 3, "{report}");
     let lines = json_lines(&cases);
