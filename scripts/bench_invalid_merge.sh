@@ -29,7 +29,9 @@ out="$(realpath -m "${OUT_DIR:-bench-out}")"
 work="$out/invalid-merge"
 mkdir -p "$work"
 cargo build --release -q -p mapmerge-cli
-bin="$(realpath target/release/mapmerge)"
+# A copy, so that a rebuild during the run cannot change the binary under it.
+cp target/release/mapmerge "$work/mapmerge"
+bin="$work/mapmerge"
 logs=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus infinite-corridor intel orebro seattle)
 [[ ${#only[@]} -gt 0 ]] && logs=("${only[@]}")
 started=$(date +%s)
@@ -44,8 +46,10 @@ for log in "${logs[@]}"; do
   cat "$work/$log.cases.jsonl" >> "$cases"
 done
 made_secs=$(( $(date +%s) - started ))
-method_args=()
-[[ -n "$methods" ]] && method_args=(--methods "$methods")
+# Every single detector and the hand-made combination; the learned one is fitted afterwards
+# on these results (eval calibrate), leave one log out.
+[[ -z "$methods" ]] && methods=change_detection,gridmap,entropy,histogram,sm,dm,better_hypothesis,combined
+method_args=(--methods "$methods")
 # Two workers, each on its own core, each running whole logs (timings stay one-core timings).
 worker() {
   local core="$1"; shift
@@ -105,3 +109,6 @@ PY
 } > "$out/invalid-merge.md"
 for log in "${logs[@]}"; do cat "$work/$log.results.jsonl"; done > "$work/results.jsonl"
 echo "wrote $out/invalid-merge.md" >&2
+# Issue 15, part 4: every decision fitted on the other logs and scored on each log in turn.
+"$bin" eval calibrate --results "$work/results.jsonl" --report "$out/calibrate.md" > /dev/null
+echo "wrote $out/calibrate.md" >&2

@@ -69,6 +69,9 @@ enum EvalCommand {
     MakeMergeCases(crate::invalid_merge_eval::MakeMergeCasesArgs),
     /// Run the invalid-merge detectors on forced merges (Holoch et al. Table III: AUC, ms/vertex).
     InvalidMerge(crate::invalid_merge_eval::InvalidMergeArgs),
+    /// Leave-one-log-out calibration of the invalid-merge decision on `invalid-merge` results:
+    /// per held-out log the single detectors and the learned combination; writes the model.
+    Calibrate(crate::calibrate_eval::CalibrateArgs),
     /// Score the assembly of `mapmerge split` segments against their kept-apart truth (loop
     /// edge precision/recall, groups, ATE per group, order invariance).
     Assemble(crate::assemble_eval::AssembleEvalArgs),
@@ -169,6 +172,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::GridMerge(a) => crate::grid_merge_eval::run(a),
         EvalCommand::MakeMergeCases(a) => crate::invalid_merge_eval::make_merge_cases(a),
         EvalCommand::InvalidMerge(a) => crate::invalid_merge_eval::invalid_merge(a),
+        EvalCommand::Calibrate(a) => crate::calibrate_eval::calibrate(a),
         EvalCommand::Assemble(a) => crate::assemble_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)

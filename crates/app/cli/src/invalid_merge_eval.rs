@@ -110,7 +110,7 @@ use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanM
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::ScanAnchors;
-use mapmerge_verify::{InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
+use mapmerge_verify::{Evidence, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -300,6 +300,14 @@ pub struct MergePlace {
     pub relative: [f64; 3],
 }
 
+impl MergeResult {
+    /// True when the detector never had enough to compare after the merge (and saw new
+    /// vertices); unknown (older files) counts as supported.
+    pub fn unsupported(&self) -> bool {
+        self.vertices > 0 && self.supported_vertices == Some(0)
+    }
+}
+
 impl MergeCase {
     /// The case's kind: `kind`, else the last part of its id.
     fn kind(&self) -> String {
@@ -333,6 +341,11 @@ pub struct MergeResult {
     pub kind: String,
     /// The case's log.
     pub log: String,
+    /// New vertices at which the detector had enough to compare ([`Evidence::Supported`]);
+    /// 0 of `vertices`: the merge was *unsupported* (nothing it claims could be checked).
+    /// Absent in older files.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub supported_vertices: Option<usize>,
 }
 
 /// Parses a cases file's text; errors are `source:line: reason`. Checks what needs no log.
@@ -429,7 +442,7 @@ fn far_from(a: &Se2, b: &Se2, second_from_robot: &Se2, (m, rad): (f64, f64)) -> 
 }
 
 /// A log's short name: `intel` for `…/intel-corrected.log.xz`.
-fn log_name(log: &str) -> String {
+pub(crate) fn log_name(log: &str) -> String {
     crate::log_short_name(Path::new(log))
 }
 
@@ -1250,6 +1263,14 @@ struct FirstSegment {
     /// Every scan's pose in the optimised graph (index: scan − the segment's first scan;
     /// `None` for a scan whose anchor left the graph).
     scan_poses: Vec<Option<Se2>>,
+    /// The log scan of each keyframe, by the address of its points (the merged map's
+    /// detector scans share them), for `--trace`'s local error.
+    keyframe_scans: HashMap<usize, usize>,
+}
+
+/// The key of a keyframe's points in [`FirstSegment::keyframe_scans`].
+fn points_key(points: &Arc<[Point2]>) -> usize {
+    Arc::as_ptr(points) as *const Point2 as usize
 }
 
 fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result<FirstSegment> {
@@ -1259,25 +1280,32 @@ fn run_first_segment(log: &LaserLog, [start, end]: [usize; 2]) -> anyhow::Result
     })?;
     let mut odometry = Se2::identity();
     let mut anchors = ScanAnchors::new();
+    let mut scan_of_node = HashMap::new();
     for (k, record) in log.scans.iter().enumerate().take(end + 1).skip(start) {
         odometry = record.odom_from_robot.unwrap_or(odometry);
         let report = engine
             .add_scan(&odometry, &record.scan, None)
             .with_context(|| format!("SLAM at scan {k}"))?;
         anchors.push(report.anchor.0, report.anchor.1);
+        scan_of_node.entry(report.anchor.0).or_insert(k);
     }
     engine.finish()?;
     let atlas = engine.atlas();
     let graph = atlas.active().clone();
-    let points = graph
+    let points: BTreeMap<NodeId, Arc<[Point2]>> = graph
         .vertices()
         .filter_map(|(node, _)| Some((node, Arc::clone(atlas.keyframes().get(node)?))))
         .collect();
     let scan_poses = anchors.trajectory(&graph);
+    let keyframe_scans = points
+        .iter()
+        .filter_map(|(node, p)| Some((points_key(p), *scan_of_node.get(node)?)))
+        .collect();
     Ok(FirstSegment {
         graph,
         points,
         scan_poses,
+        keyframe_scans,
     })
 }
 
@@ -1352,8 +1380,84 @@ struct Outcome {
     max_invalidity: f64,
     seconds: f64,
     vertices: usize,
-    /// `(scan, invalidity, support)` after every new vertex.
-    trace: Vec<(usize, f64, Option<u64>)>,
+    supported_vertices: usize,
+    /// What every new vertex saw.
+    trace: Vec<TraceEntry>,
+}
+
+/// One new vertex of [`Outcome::trace`].
+#[derive(Clone, Copy, Debug)]
+struct TraceEntry {
+    scan: usize,
+    invalidity: f64,
+    support: Option<u64>,
+    evidence: Evidence,
+    local_error: Option<LocalError>,
+    /// Edges between the current epoch and the merged data (the merge's and loops since).
+    cross_edges: usize,
+}
+
+/// Edges of `graph` between vertices of different epochs (sessions).
+fn cross_epoch_edges(graph: &PoseGraph2) -> usize {
+    let session = |n: NodeId| graph.vertex(n).map(|v| v.meta.session);
+    graph
+        .edges()
+        .filter(|(_, e)| session(e.from) != session(e.to))
+        .count()
+}
+
+/// How far the newest keyframe's pose relative to its nearest first-segment keyframe is from
+/// the log's corrected relative pose: the misalignment the detectors see there.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+struct LocalError {
+    /// The first-segment scan it is compared with.
+    first_scan: usize,
+    /// Translation error (m).
+    m: f64,
+    /// Rotation error (degrees).
+    deg: f64,
+}
+
+/// [`LocalError`] of the newest current scan (log scan `scan`) in `map`, from the corrected
+/// poses `truth`; `None` without a pose or a first-segment keyframe.
+fn local_error(
+    first: &FirstSegment,
+    map: &MergedMap<'_>,
+    scan: usize,
+    truth: &[Option<Se2>],
+) -> Option<LocalError> {
+    let newest = map.current.last()?;
+    let here = newest.map_from_robot.translation();
+    let nearest = map
+        .other
+        .iter()
+        .filter_map(|o| {
+            Some((
+                o,
+                *first.keyframe_scans.get(&points_key(&o.points_in_robot))?,
+            ))
+        })
+        .min_by(|(a, _), (b, _)| {
+            let da = (a.map_from_robot.translation() - here).norm();
+            let db = (b.map_from_robot.translation() - here).norm();
+            da.total_cmp(&db)
+        })?;
+    let (other, first_scan) = nearest;
+    let estimated = other
+        .map_from_robot
+        .inverse()
+        .compose(&newest.map_from_robot);
+    let (true_other, true_newest) = (truth.get(first_scan)?.as_ref()?, truth.get(scan)?.as_ref()?);
+    let error = true_other
+        .inverse()
+        .compose(true_newest)
+        .inverse()
+        .compose(&estimated);
+    Some(LocalError {
+        first_scan,
+        m: error.translation().norm(),
+        deg: error.theta_rad.abs().to_degrees(),
+    })
 }
 
 /// A line of `--trace`.
@@ -1366,6 +1470,13 @@ struct TraceLine<'a> {
     invalidity: f64,
     /// What the ratio rests on (`InvalidMergeDetector::support`), `null` if not counted.
     support: Option<u64>,
+    /// Whether that was enough (`supported`) or not (`unsupported`).
+    evidence: Evidence,
+    /// The newest keyframe's misalignment against the corrected poses (valid cases).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    local_error: Option<LocalError>,
+    /// Edges between the current epoch and the merged data.
+    cross_edges: usize,
 }
 
 /// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
@@ -1389,6 +1500,7 @@ fn evaluation_engine() -> anyhow::Result<Engine> {
 fn evaluate_case(
     first: &FirstSegment,
     log: &LaserLog,
+    truth: &[Option<Se2>],
     case: &MergeCase,
     detectors: &mut [Box<dyn InvalidMergeDetector>],
     pictures: Option<&Path>,
@@ -1451,12 +1563,25 @@ fn evaluate_case(
             other: &other,
         };
         let peak_before = outcomes.first().map(|o| o.max_invalidity);
+        let local_error = local_error(first, &map, k, truth);
+        let cross_edges = cross_epoch_edges(engine.map_graph());
         for (detector, outcome) in detectors.iter_mut().zip(outcomes.iter_mut()) {
             let started = Instant::now();
             let ratio = detector.on_vertex(&map);
             outcome.seconds += started.elapsed().as_secs_f64();
             outcome.vertices += 1;
-            outcome.trace.push((k, ratio, detector.support()));
+            let evidence = detector.evidence();
+            if evidence == Evidence::Supported {
+                outcome.supported_vertices += 1;
+            }
+            outcome.trace.push(TraceEntry {
+                scan: k,
+                invalidity: ratio,
+                support: detector.support(),
+                evidence,
+                local_error,
+                cross_edges,
+            });
             if ratio.is_finite() {
                 outcome.max_invalidity = outcome.max_invalidity.max(ratio);
             }
@@ -1609,18 +1734,37 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             .iter()
             .filter_map(|m| mapmerge_verify::detector(m))
             .collect();
-        let outcomes = evaluate_case(&first, &log, case, &mut detectors, args.pictures.as_deref())
-            .map_err(context)?;
+        let truth: Vec<Option<Se2>> = cache
+            .log(path)
+            .map_err(context)?
+            .scans
+            .iter()
+            .map(|record| record.odom_from_robot)
+            .collect();
+        let outcomes = evaluate_case(
+            &first,
+            &log,
+            &truth,
+            case,
+            &mut detectors,
+            args.pictures.as_deref(),
+        )
+        .map_err(context)?;
         for (method, outcome) in methods.iter().zip(outcomes) {
             if let Some(trace) = trace.as_mut() {
-                for (vertex, &(scan, invalidity, support)) in outcome.trace.iter().enumerate() {
+                for (vertex, entry) in outcome.trace.iter().enumerate() {
                     let line = TraceLine {
                         id: &case.id,
                         method,
                         vertex,
-                        scan,
-                        invalidity,
-                        support,
+                        scan: entry.scan,
+                        invalidity: entry.invalidity,
+                        support: entry.support,
+                        evidence: entry.evidence,
+                        local_error: entry
+                            .local_error
+                            .filter(|_| case.label == Some(Label::Valid)),
+                        cross_edges: entry.cross_edges,
                     };
                     serde_json::to_writer(&mut *trace, &line)?;
                     writeln!(trace)?;
@@ -1637,6 +1781,7 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
                 label: case.label,
                 kind: case.kind(),
                 log: case.log.clone(),
+                supported_vertices: Some(outcome.supported_vertices),
             };
             serde_json::to_writer(&mut out, &result)?;
             writeln!(out)?;
@@ -1708,6 +1853,8 @@ struct SummaryRow {
     mean_invalid: Option<f64>,
     /// ROC AUC of the valid cases against the invalid cases of each kind.
     auc_by_kind: BTreeMap<String, Option<f64>>,
+    /// Valid and invalid cases that were never supported after the merge.
+    unsupported: [usize; 2],
 }
 
 fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow {
@@ -1748,6 +1895,12 @@ fn summary_row(log: &str, method: &str, results: &[&MergeResult]) -> SummaryRow 
         mean_valid: mean(&valid),
         mean_invalid: mean(&invalid),
         auc_by_kind,
+        unsupported: [Label::Valid, Label::Invalid].map(|label| {
+            results
+                .iter()
+                .filter(|r| r.label == Some(label) && r.unsupported())
+                .count()
+        }),
     }
 }
 
@@ -1809,13 +1962,21 @@ fn summary_markdown(rows: &[SummaryRow], seconds: f64) -> String {
             .join(", ");
         let _ = writeln!(
             md,
-            "| {} | {} | {} / {}{} | {} | {by_kind} | {} | {} | {} / {} | {paper_auc} | {paper_ms} |",
+            "| {} | {} | {} / {}{}{} | {} | {by_kind} | {} | {} | {} / {} | {paper_auc} | {paper_ms} |",
             row.log,
             row.method,
             row.valid,
             row.invalid,
             if row.unlabelled > 0 {
                 format!(" (+{} unlabelled)", row.unlabelled)
+            } else {
+                String::new()
+            },
+            if row.unsupported != [0, 0] {
+                format!(
+                    " (unsupported {} / {})",
+                    row.unsupported[0], row.unsupported[1]
+                )
             } else {
                 String::new()
             },
@@ -2024,11 +2185,11 @@ mod tests {
         c.merge_transform = array_of(&first_from_second);
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> =
             vec![Box::new(FirstDistance::default())];
-        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
+        let right = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
         assert!(right[0].vertices > 10, "{right:?}");
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
-        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
+        let wrong = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
 
         // At the merge place: the relative pose decides, whatever `merge_transform` says.
@@ -2053,7 +2214,7 @@ mod tests {
             first_scan: place.first_scan,
             relative: array_of(&true_relative),
         });
-        let right = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
+        let right = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let kinds = place.cases(&mut rng);
@@ -2082,7 +2243,7 @@ mod tests {
             relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
         });
         c.merge_transform = array_of(&first_from_second);
-        let wrong = evaluate_case(&first_run, &session.log, &c, &mut detectors, None).unwrap();
+        let wrong = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }
 }

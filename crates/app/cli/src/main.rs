@@ -10,6 +10,7 @@ use clap::{Parser, Subcommand};
 mod assemble;
 mod assemble_eval;
 mod atlas;
+mod calibrate_eval;
 mod compare;
 mod corrupt;
 mod eval;

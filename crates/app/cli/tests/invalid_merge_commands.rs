@@ -1,6 +1,7 @@
-//! Integration tests of `mapmerge eval make-merge-cases` and `mapmerge eval invalid-merge`
-//! (issue 6, part 5): the case and result formats, bad case files (exit code 2 naming the
-//! line), cases made from intel with both labels, and the detectors telling them apart.
+//! Integration tests of `mapmerge eval make-merge-cases`, `mapmerge eval invalid-merge`
+//! (issue 6, part 5) and `mapmerge eval calibrate` (issue 15, part 4): the case and result
+//! formats, bad case files (exit code 2 naming the line), cases made from intel with both
+//! labels, the detectors telling them apart, and leave-one-log-out calibration.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -369,6 +370,23 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
         if line["invalidity"].as_f64().unwrap() > 0.0 {
             assert!(support >= 100, "{line}");
         }
+        // Below the minimum the ratio is no evidence: unsupported, not valid.
+        let supported = if support >= 100 {
+            "supported"
+        } else {
+            "unsupported"
+        };
+        assert_eq!(line["evidence"], supported, "{line}");
+        // The forced merge's edge at least joins the epochs.
+        assert!(line["cross_edges"].as_u64().unwrap() >= 1, "{line}");
+        // Valid cases carry the newest keyframe's misalignment against the log's poses.
+        if line["id"].as_str().unwrap().ends_with("valid") {
+            let error = &line["local_error"];
+            assert!(error["m"].as_f64().unwrap() < 1.0, "{line}");
+            assert!(error["deg"].as_f64().unwrap() < 10.0, "{line}");
+        } else {
+            assert!(line.get("local_error").is_none(), "{line}");
+        }
     }
     for case in &lines {
         let stem = case["id"].as_str().unwrap().replace('/', "_");
@@ -385,6 +403,10 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     }
     // Valid merges exact at the merge place read lower than turned ones.
     let results = json_lines(&results);
+    for r in &results {
+        let supported = r["supported_vertices"].as_u64().unwrap();
+        assert!(supported <= r["vertices"].as_u64().unwrap(), "{r}");
+    }
     let of = |kind: &str| -> f64 {
         let v: Vec<f64> = results
             .iter()
@@ -394,4 +416,118 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
         v.iter().sum::<f64>() / v.len() as f64
     };
     assert!(of("valid") < of("rotation"), "{results:?}");
+}
+
+/// A results file of two detectors on `logs` logs, 12 valid and 12 invalid cases each:
+/// `change_detection` separates the labels (with some overlap), `gridmap` is noise, and a
+/// few invalid cases are unsupported (0, never supported) in both.
+fn synthetic_results(path: &Path, logs: usize) {
+    let mut text = String::new();
+    for log in 0..logs {
+        for k in 0..24 {
+            let invalid = k >= 12;
+            let noise = ((log * 31 + k * 17) % 23) as f64 / 23.0;
+            let unsupported = invalid && k % 6 == 0;
+            let cd = if unsupported {
+                0.0
+            } else if invalid {
+                0.3 + 0.6 * noise
+            } else {
+                0.4 * noise
+            };
+            let gm = if unsupported { 0.0 } else { noise };
+            for (method, ratio) in [("change_detection", cd), ("gridmap", gm)] {
+                let line = serde_json::json!({
+                    "id": format!("log{log}/c{k}"),
+                    "method": method,
+                    "max_invalidity": ratio,
+                    "ms_per_vertex": 0.1,
+                    "vertices": 10,
+                    "label": if invalid { "invalid" } else { "valid" },
+                    "kind": if invalid { "shift" } else { "valid" },
+                    "log": format!("data/log{log}-corrected.log"),
+                    "supported_vertices": if unsupported { 0 } else { 10 },
+                });
+                let _ = writeln!(text, "{line}");
+            }
+        }
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+#[test]
+fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
+    let dir = scratch("invalid-merge-calibrate");
+    let results = dir.join("results.jsonl");
+    synthetic_results(&results, 4);
+    let model = dir.join("model.json");
+    let report = dir.join("calibrate.md");
+    let out = ok_json(&[
+        "eval",
+        "calibrate",
+        "--results",
+        p(&results),
+        "--features",
+        "change_detection,gridmap",
+        "-o",
+        p(&model),
+        "--report",
+        p(&report),
+        "--json",
+    ]);
+    assert_eq!(out["cases"], 96, "{out}");
+    let logs = out["logs"].as_array().unwrap();
+    assert_eq!(logs.len(), 4);
+    for row in logs {
+        assert_eq!(row["valid"], 12);
+        assert_eq!(row["eligible"], true);
+        let singles = row["singles"].as_array().unwrap();
+        assert_eq!(singles.len(), 2, "{row}");
+        let cd = singles
+            .iter()
+            .find(|h| h["method"] == "change_detection")
+            .unwrap();
+        // Held out, change detection still separates; unsupported cases were invalid in
+        // the other logs, so calibration scores them above the valid ones (raw: at 0).
+        assert!(cd["auc"].as_f64().unwrap() > 0.9, "{row}");
+        assert!(
+            cd["auc"].as_f64().unwrap() >= cd["raw_auc"].as_f64().unwrap(),
+            "{row}"
+        );
+        assert_eq!(row["best_single"][0], "change_detection", "{row}");
+        assert!(row["learned"]["auc"].as_f64().unwrap() > 0.85, "{row}");
+        // The in-sample figure (fitted on every log) beside the held-out one.
+        assert!(
+            row["learned_in_sample_auc"].as_f64().unwrap() > 0.85,
+            "{row}"
+        );
+    }
+    let fitted: Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    assert_eq!(
+        fitted["methods"],
+        serde_json::json!(["change_detection", "gridmap"])
+    );
+    let weights = fitted["ratio_weights"].as_array().unwrap();
+    assert!(weights[0].as_f64().unwrap() > weights[1].as_f64().unwrap().abs());
+    assert!(std::fs::read_to_string(&report)
+        .unwrap()
+        .contains("| log |"));
+    // A feature the results lack, and a broken line, are bad input naming what is wrong.
+    expect_bad(
+        &[
+            "eval",
+            "calibrate",
+            "--results",
+            p(&results),
+            "--features",
+            "dm",
+        ],
+        "feature `dm`",
+    );
+    let broken = dir.join("broken.jsonl");
+    std::fs::write(&broken, "{\"id\": 1}\n").unwrap();
+    expect_bad(
+        &["eval", "calibrate", "--results", p(&broken)],
+        "broken.jsonl:1",
+    );
 }

@@ -84,9 +84,14 @@ pub struct EngineParams {
     pub decisions: DecisionParams,
     /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
     /// for no verification, as in an evaluation that runs its own detectors; default
-    /// `combined`).
+    /// `combined`). `learned` is the logistic regression calibrated leave-one-log-out on the
+    /// public logs (`mapmerge_verify::LearnedModel::public_logs`: the probability that the
+    /// merge is invalid at equal priors, threshold 0.5); it is not the default because on the
+    /// simulator's held-out worlds it caught fewer wrong merges than `combined`
+    /// (docs/benchmarks.md §8, issue 15 part 4).
     pub detector: String,
-    /// Undo all merges when its invalidity exceeds this (default: 0.5).
+    /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
+    /// merge more likely invalid than valid).
     pub unmerge_threshold: f64,
     /// A merge that was undone is not made again: proposals for the same inactive graph
     /// within this of its transform (m, rad) are refused for the rest of the epoch

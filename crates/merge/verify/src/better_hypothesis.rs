@@ -21,7 +21,7 @@ use mapmerge_scan::{voxel_downsample, Point2};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{unit, OtherSnapshot};
-use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 
 /// Parameters of [`BetterHypothesisDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -296,6 +296,15 @@ impl InvalidMergeDetector for BetterHypothesisDetector {
             self.query(map);
         }
         self.ratio()
+    }
+
+    /// Unsupported until some place was recognised in the merged epochs (agreeing or not).
+    fn evidence(&self) -> Evidence {
+        if self.info.agreeing + self.info.contradicting == 0 {
+            Evidence::Unsupported
+        } else {
+            Evidence::Supported
+        }
     }
 }
 

@@ -17,7 +17,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{fast_atan2, moved, recent, OtherSnapshot};
-use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 
 /// Parameters of [`ChangeDetectionDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -807,6 +807,15 @@ impl InvalidMergeDetector for ChangeDetectionDetector {
 
     fn support(&self) -> Option<u64> {
         Some((self.info.change_points + self.info.agree_points) as u64)
+    }
+
+    /// Unsupported below `min_classified_points` classified points.
+    fn evidence(&self) -> Evidence {
+        if self.info.change_points + self.info.agree_points < self.params.min_classified_points {
+            Evidence::Unsupported
+        } else {
+            Evidence::Supported
+        }
     }
 }
 

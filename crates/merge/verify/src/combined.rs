@@ -19,7 +19,8 @@ use serde::{Deserialize, Serialize};
 use crate::common::{logistic, unit};
 use crate::{
     BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
-    ChangeDetectionParams, GridmapDetector, GridmapParams, InvalidMergeDetector, MergedMap,
+    ChangeDetectionParams, Evidence, GridmapDetector, GridmapParams, InvalidMergeDetector,
+    MergedMap,
 };
 
 /// Parameters of [`CombinedDetector`].
@@ -161,6 +162,18 @@ impl InvalidMergeDetector for CombinedDetector {
     /// Change detection's (the appearance evidence's finer part).
     fn support(&self) -> Option<u64> {
         self.change_detection.support()
+    }
+
+    /// Unsupported while no component had anything to compare.
+    fn evidence(&self) -> Evidence {
+        if self.change_detection.evidence() == Evidence::Unsupported
+            && self.gridmap.evidence() == Evidence::Unsupported
+            && self.better_hypothesis.evidence() == Evidence::Unsupported
+        {
+            Evidence::Unsupported
+        } else {
+            Evidence::Supported
+        }
     }
 }
 

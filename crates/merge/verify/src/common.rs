@@ -78,6 +78,51 @@ impl OtherSnapshot {
                 .zip(other)
                 .all(|((_, pose), s)| !moved(pose, &s.map_from_robot, translation_m, rotation_rad))
     }
+
+    /// `now_from_then` when `other` holds the same vertices and all of them moved together,
+    /// i.e. `now_from_then · pose_then` is within the tolerances of every pose now (a
+    /// re-optimisation that shifted the merged epochs as a whole): what was built from the
+    /// snapshot still holds in the frame `now_from_then` maps it to. `None` otherwise.
+    pub(crate) fn rigid_motion(
+        &self,
+        other: &[DetectorScan],
+        translation_m: f64,
+        rotation_rad: f64,
+    ) -> Option<Se2> {
+        if !self.same_vertices(other) || self.poses.is_empty() {
+            return None;
+        }
+        // Least squares in 2D: the mean turn, then the translation between the centroids.
+        let n = self.poses.len() as f64;
+        let (mut sin, mut cos) = (0.0, 0.0);
+        let (mut then_c, mut now_c) = (Point2::zeros(), Point2::zeros());
+        for ((_, then), s) in self.poses.iter().zip(other) {
+            let now = &s.map_from_robot;
+            if !(then.is_finite() && now.is_finite()) {
+                return None;
+            }
+            let turn = wrap_angle_rad(now.theta_rad - then.theta_rad);
+            sin += turn.sin();
+            cos += turn.cos();
+            then_c += then.translation() / n;
+            now_c += now.translation() / n;
+        }
+        let theta = sin.atan2(cos);
+        let rotated = Se2::new(0.0, 0.0, theta).transform_point(&then_c);
+        let now_from_then = Se2::new(now_c.x - rotated.x, now_c.y - rotated.y, theta);
+        self.poses
+            .iter()
+            .zip(other)
+            .all(|((_, then), s)| {
+                !moved(
+                    &now_from_then.compose(then),
+                    &s.map_from_robot,
+                    translation_m,
+                    rotation_rad,
+                )
+            })
+            .then_some(now_from_then)
+    }
 }
 
 /// `atan2(y, x)` to within 2e-5 rad, several times faster than `f64::atan2` (a minimax
@@ -133,7 +178,45 @@ pub(crate) fn unit(v: f64) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    use std::sync::Arc;
+
+    use proptest::prelude::*;
+
     use super::*;
+
+    fn scans(poses: &[Se2]) -> Vec<DetectorScan> {
+        poses
+            .iter()
+            .enumerate()
+            .map(|(i, p)| DetectorScan {
+                node: NodeId(i as u64),
+                epoch: 1,
+                map_from_robot: *p,
+                points_in_robot: Arc::from(Vec::new()),
+            })
+            .collect()
+    }
+
+    proptest! {
+        /// Poses moved together give back the motion; one pose moved apart gives none.
+        #[test]
+        fn rigid_motion_finds_a_shift_of_the_whole_and_refuses_a_deformation(
+            x in -20.0f64..20.0, y in -20.0f64..20.0, theta in -3.1f64..3.1,
+            poses in proptest::collection::vec((-30.0f64..30.0, -30.0f64..30.0, -3.1f64..3.1), 2..12),
+        ) {
+            let then: Vec<Se2> = poses.iter().map(|&(a, b, c)| Se2::new(a, b, c)).collect();
+            let snapshot = OtherSnapshot::new(&scans(&then));
+            let motion = Se2::new(x, y, theta);
+            let now: Vec<Se2> = then.iter().map(|p| motion.compose(p)).collect();
+            let found = snapshot.rigid_motion(&scans(&now), 0.01, 0.001).unwrap();
+            prop_assert!((found.translation() - motion.translation()).norm() < 1e-6);
+            prop_assert!(wrap_angle_rad(found.theta_rad - motion.theta_rad).abs() < 1e-9);
+            let mut bent = now.clone();
+            bent[0] = bent[0].compose(&Se2::new(0.5, 0.0, 0.0));
+            prop_assert!(snapshot.rigid_motion(&scans(&bent), 0.01, 0.001).is_none());
+            prop_assert!(snapshot.rigid_motion(&scans(&now[1..]), 0.01, 0.001).is_none());
+        }
+    }
 
     #[test]
     fn fast_atan2_matches_std() {

@@ -15,6 +15,12 @@
 //! The window's grid classes (counter form of "hits win", as `mapmerge-grid` within a scan):
 //! occupied when any window scan returned from a cell (after dilation: from any cell of the
 //! square), free when beams passed through and none returned, unknown otherwise.
+//!
+//! Unknown space (issue 15, part 3): a cell the other epochs never saw is unknown in their
+//! grid, so the window's beams through it neither agree nor contradict; only cells known in
+//! both count. When the robot's scans cross only such space (it left the merged map, or the
+//! merge put it where the merged map has no structure) the overlap stays below `τ`: the
+//! ratio is 0 and the merge is *unsupported* ([`Evidence::Unsupported`]), not valid.
 
 use std::sync::Arc;
 
@@ -25,7 +31,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{moved, recent, unit, OtherSnapshot};
-use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 
 /// Parameters of [`GridmapDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -310,13 +316,32 @@ fn clip(a: Point2, b: Point2, size: Point2) -> Option<(Point2, Point2, bool)> {
 }
 
 /// Gridmap comparison (Holoch et al., Sec. IV-B); see the module documentation.
-#[derive(Debug, Default)]
+#[derive(Debug)]
 pub struct GridmapDetector {
     params: GridmapParams,
     snapshot: Option<OtherSnapshot>,
+    /// The canvas' frame from the map frame: identity when built, then the inverse of the
+    /// merged epochs' rigid motion since (so that a re-optimisation that only shifts them as
+    /// a whole costs re-inserting the window, not rebuilding their grid).
+    canvas_from_map: Se2,
     canvas: Canvas,
     inserted: Vec<Inserted>,
     info: GridmapInfo,
+    evidence: Evidence,
+}
+
+impl Default for GridmapDetector {
+    fn default() -> Self {
+        Self {
+            params: GridmapParams::default(),
+            snapshot: None,
+            canvas_from_map: Se2::identity(),
+            canvas: Canvas::default(),
+            inserted: Vec::new(),
+            info: GridmapInfo::default(),
+            evidence: Evidence::Unsupported,
+        }
+    }
 }
 
 impl GridmapDetector {
@@ -349,6 +374,7 @@ impl GridmapDetector {
     /// The other epochs' grid, classified and dilated, and an empty window grid on its lattice.
     fn prepare(&mut self, other: &[DetectorScan]) {
         self.snapshot = Some(OtherSnapshot::new(other));
+        self.canvas_from_map = Se2::identity();
         self.inserted.clear();
         self.canvas = Canvas::default();
         let max_range_m = self.max_range_m();
@@ -443,23 +469,27 @@ impl InvalidMergeDetector for GridmapDetector {
             self.params.cache_translation_m,
             self.params.cache_rotation_rad,
         );
-        // 1. The other epochs' grid: rebuilt when they changed or moved.
-        if self
+        // 1. The other epochs' grid: kept while they only moved as a whole (the window is
+        // then inserted in the grid's frame), rebuilt when they changed or deformed.
+        match self
             .snapshot
             .as_ref()
-            .is_none_or(|s| !s.still_valid(map.other, t, r))
+            .and_then(|s| s.rigid_motion(map.other, t, r))
         {
-            self.prepare(map.other);
+            Some(now_from_then) => self.canvas_from_map = now_from_then.inverse(),
+            None => self.prepare(map.other),
         }
+        let canvas_from_map = self.canvas_from_map;
         // 2. The window: remove scans that left it or moved, insert new and moved ones.
         let window = recent(map.current, self.params.recent_scans);
         let max_range_m = self.max_range_m();
         let mut updated = 0;
         let mut inserted = std::mem::take(&mut self.inserted);
         inserted.retain(|e| {
-            let keep = window
-                .iter()
-                .any(|s| s.node == e.node && !moved(&e.pose, &s.map_from_robot, t, r));
+            let keep = window.iter().any(|s| {
+                s.node == e.node
+                    && !moved(&e.pose, &canvas_from_map.compose(&s.map_from_robot), t, r)
+            });
             if !keep {
                 self.canvas
                     .apply_scan(&e.pose, &e.points, max_range_m, false);
@@ -471,15 +501,12 @@ impl InvalidMergeDetector for GridmapDetector {
             if !scan.map_from_robot.is_finite() || inserted.iter().any(|e| e.node == scan.node) {
                 continue;
             }
-            self.canvas.apply_scan(
-                &scan.map_from_robot,
-                &scan.points_in_robot,
-                max_range_m,
-                true,
-            );
+            let canvas_from_robot = canvas_from_map.compose(&scan.map_from_robot);
+            self.canvas
+                .apply_scan(&canvas_from_robot, &scan.points_in_robot, max_range_m, true);
             inserted.push(Inserted {
                 node: scan.node,
-                pose: scan.map_from_robot,
+                pose: canvas_from_robot,
                 points: Arc::clone(&scan.points_in_robot),
             });
             updated += 1;
@@ -494,13 +521,21 @@ impl InvalidMergeDetector for GridmapDetector {
         };
         let cell_m = self.canvas.geometry.map_or(1.0, |g| g.resolution_m);
         if overlap == 0 || (overlap as f64) * cell_m * cell_m < self.params.min_overlap_m2 {
+            self.evidence = Evidence::Unsupported;
             return 0.0;
         }
+        self.evidence = Evidence::Supported;
         unit(contradictions as f64 / overlap as f64)
     }
 
     fn support(&self) -> Option<u64> {
         Some(self.info.overlap_cells)
+    }
+
+    /// Unsupported below `τ` of overlap: the window's scans crossed only space the merged
+    /// epochs never saw (their grid is unknown there), so nothing could contradict them.
+    fn evidence(&self) -> Evidence {
+        self.evidence
     }
 }
 
@@ -575,6 +610,55 @@ mod tests {
         assert_eq!((d.canvas.overlap, d.canvas.contradictions), (0, 0));
         assert!(d.canvas.hits.iter().all(|&h| h == 0));
         assert!(d.canvas.cells.iter().all(|c| c.misses == 0 && c.near == 0));
+    }
+
+    /// A re-optimisation that moves the whole merged map (both epochs) rigidly keeps the
+    /// grid (no rebuild, the canvas frame follows) and gives the ratios it gave before.
+    #[test]
+    fn a_rigid_motion_of_everything_changes_nothing() {
+        let open = World::office(false);
+        let case = Case::office(&open, &open, &wrong_turned());
+        let motion = Se2::new(3.0, -2.0, 0.7);
+        let moved = |scans: &[DetectorScan]| -> Vec<DetectorScan> {
+            scans
+                .iter()
+                .map(|s| DetectorScan {
+                    map_from_robot: motion.compose(&s.map_from_robot),
+                    ..s.clone()
+                })
+                .collect()
+        };
+        let (other_moved, current_moved) = (moved(&case.other), moved(&case.current));
+        let mut still = GridmapDetector::default();
+        let mut shifted = GridmapDetector::default();
+        let first = MergedMap {
+            current: &case.current[..1],
+            other: &case.other,
+        };
+        still.on_merge(&first);
+        shifted.on_merge(&first);
+        for k in 1..=case.current.len() {
+            let a = still.on_vertex(&MergedMap {
+                current: &case.current[..k],
+                other: &case.other,
+            });
+            // From the fifth vertex on, everything has moved.
+            let (current, other) = if k >= 5 {
+                (&current_moved, &other_moved)
+            } else {
+                (&case.current, &case.other)
+            };
+            let b = shifted.on_vertex(&MergedMap {
+                current: &current[..k],
+                other,
+            });
+            // The same up to cells flipped by rounding (the test world's walls lie on cell
+            // borders, and the motion is estimated to ~1e-15).
+            assert!((a - b).abs() < 0.02, "vertex {k}: {a} vs {b}");
+            let (o1, o2) = (still.info().overlap_cells, shifted.info().overlap_cells);
+            assert!(o1.abs_diff(o2) * 50 <= o1.max(1), "vertex {k}: {o1} vs {o2}");
+        }
+        assert!(shifted.canvas_from_map.translation().norm() > 1.0);
     }
 
     #[test]

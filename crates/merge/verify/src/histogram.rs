@@ -13,7 +13,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{extend_points_in_map, recent, unit, OtherSnapshot};
-use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 
 /// Parameters of [`HistogramDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -51,6 +51,7 @@ pub struct HistogramDetector {
     other: HashMap<Key, u32>,
     current: HashMap<Key, u32>,
     points: Vec<Point2>,
+    evidence: Evidence,
 }
 
 impl HistogramDetector {
@@ -144,10 +145,20 @@ impl InvalidMergeDetector for HistogramDetector {
             }
         }
         self.current = current;
-        if total == 0 || total < self.params.min_points as u64 {
+        self.evidence = if total == 0 || total < self.params.min_points as u64 {
+            Evidence::Unsupported
+        } else {
+            Evidence::Supported
+        };
+        if self.evidence == Evidence::Unsupported {
             return 0.0;
         }
         unit(1.0 - intersection as f64 / total as f64)
+    }
+
+    /// Unsupported below `min_points` window points near other-epoch data.
+    fn evidence(&self) -> Evidence {
+        self.evidence
     }
 }
 

@@ -9,13 +9,15 @@
 //! trait, and the detectors by name ([`detector`], [`DETECTOR_NAMES`], [`all_detectors`]).
 //!
 //! ```
-//! use mapmerge_verify::{detector, MergedMap, DETECTOR_NAMES};
+//! use mapmerge_verify::{detector, Evidence, MergedMap, DETECTOR_NAMES};
 //! // After a merge: prepare once, then ask after every new current-epoch vertex.
 //! let map = MergedMap { current: &[], other: &[] };
 //! for name in DETECTOR_NAMES {
 //!     let mut d = detector(name).unwrap();
 //!     d.on_merge(&map);
-//!     assert_eq!(d.on_vertex(&map), 0.0); // no other-epoch data: no evidence
+//!     let ratio = d.on_vertex(&map);
+//!     // No other-epoch data: no evidence (0, or a calibrated score flagged unsupported).
+//!     assert!(ratio == 0.0 || d.evidence() == Evidence::Unsupported);
 //! }
 //! ```
 
@@ -26,6 +28,7 @@ mod common;
 mod entropy;
 mod gridmap;
 mod histogram;
+mod learned;
 mod map;
 mod registry;
 mod similarity;
@@ -42,6 +45,7 @@ pub use combined::{CombinedDetector, CombinedInfo, CombinedParams};
 pub use entropy::{EntropyDetector, EntropyParams};
 pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
-pub use map::{DetectorScan, InvalidMergeDetector, MergedMap};
+pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample};
+pub use map::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 pub use registry::{all_detectors, detector, DETECTOR_NAMES};
 pub use similarity::{DmDetector, SimilarityParams, SmDetector};

@@ -5,6 +5,7 @@ use std::sync::Arc;
 use mapmerge_geometry::Se2;
 use mapmerge_posegraph::NodeId;
 use mapmerge_scan::Point2;
+use serde::{Deserialize, Serialize};
 
 /// One keyframe scan of the merged map.
 #[derive(Clone, Debug, PartialEq)]
@@ -30,6 +31,20 @@ pub struct MergedMap<'a> {
     pub other: &'a [DetectorScan],
 }
 
+/// Whether a detector's last ratio rests on anything. A merge claims that the maps overlap,
+/// so a detector that finds nothing to compare has no evidence of validity: its ratio (0)
+/// must not count as "valid" (issue 15, part 3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Evidence {
+    /// Enough was compared for the ratio to be evidence either way.
+    #[default]
+    Supported,
+    /// Too little was compared (the current scans fall where the merged epochs have no
+    /// structure, or nothing overlaps): the ratio is 0 and says nothing.
+    Unsupported,
+}
+
 /// An invalid-merge detector (Holoch et al., Sec. IV).
 pub trait InvalidMergeDetector: Send {
     /// Short name, e.g. `change_detection`; used in result files.
@@ -49,5 +64,11 @@ pub trait InvalidMergeDetector: Send {
     /// detector without such a count. A ratio of few elements is weak evidence either way.
     fn support(&self) -> Option<u64> {
         None
+    }
+
+    /// Whether the last ratio rests on enough compared data (see [`Evidence`]); detectors
+    /// without a minimum of their own are always [`Evidence::Supported`].
+    fn evidence(&self) -> Evidence {
+        Evidence::Supported
     }
 }

@@ -14,7 +14,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{recent, unit, OtherSnapshot};
-use crate::{DetectorScan, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 
 /// Parameters of [`SmDetector`] and [`DmDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -148,6 +148,8 @@ struct Similarity {
     params: SimilarityParams,
     snapshot: Option<OtherSnapshot>,
     other: Option<OccupancyGrid>,
+    /// Whether the last window overlapped the other epochs by `τ`.
+    evidence: Evidence,
 }
 
 impl Similarity {
@@ -160,6 +162,16 @@ impl Similarity {
     /// The metrics of the window's grid against the other epochs' there, when the overlap
     /// reaches τ.
     fn metrics(&mut self, map: &MergedMap<'_>) -> Option<MapMetrics> {
+        let metrics = self.overlapping_metrics(map);
+        self.evidence = if metrics.is_some() {
+            Evidence::Supported
+        } else {
+            Evidence::Unsupported
+        };
+        metrics
+    }
+
+    fn overlapping_metrics(&mut self, map: &MergedMap<'_>) -> Option<MapMetrics> {
         let tolerance_m = self.params.cell_m.max(0.0);
         if self
             .snapshot
@@ -215,6 +227,11 @@ impl InvalidMergeDetector for SmDetector {
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
         self.0.metrics(map).map_or(0.0, |m| unit(1.0 - m.sm))
     }
+
+    /// Unsupported below `τ` of overlap.
+    fn evidence(&self) -> Evidence {
+        self.0.evidence
+    }
 }
 
 /// Andersone's distance metric DM as a detector: invalidity `DM / (DM + s)`.
@@ -255,6 +272,11 @@ impl InvalidMergeDetector for DmDetector {
                 0.0
             }
         })
+    }
+
+    /// Unsupported below `τ` of overlap.
+    fn evidence(&self) -> Evidence {
+        self.0.evidence
     }
 }
 

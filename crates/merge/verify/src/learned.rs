@@ -1,0 +1,482 @@
+//! The learned decision (issue 15, part 4): a logistic regression on the component detectors'
+//! highest supported ratios since the merge and on whether each was ever supported
+//! ([`Evidence`]), as Holoch et al. (Sec. V-A) score a merge by each detector's highest ratio.
+//!
+//! Why this form: the detectors' ratios live on different scales and fail in different
+//! places (change detection on changed rooms, gridmap and SM/DM on drift, all of them where
+//! nothing overlaps), so a weighted vote with weights fitted on labelled merges beats a
+//! hand-set rule; a linear model with few weights (two per component) cannot memorise the few
+//! hundred merges of the public logs, and its weights say what each detector is worth. The
+//! model is fitted by [`LearnedModel::fit`] (L2-regularised, features standardised, then the
+//! intercept corrected to equal priors so that 0.5 means "as likely invalid as valid" however
+//! many invalid cases the training set had) and applied online by [`LearnedDetector`]. Its
+//! default model, [`LearnedModel::public_logs`], was fitted by `mapmerge eval calibrate` on
+//! forced merges of the 13 public logs (docs/benchmarks.md §8 gives the command, the
+//! leave-one-log-out figures, and why the engine's default detector is still `combined`).
+
+use serde::{Deserialize, Serialize};
+use smartcore::linalg::basic::arrays::Array;
+use smartcore::linalg::basic::matrix::DenseMatrix;
+use smartcore::linear::logistic_regression::{LogisticRegression, LogisticRegressionParameters};
+
+use crate::{Evidence, InvalidMergeDetector, MergedMap};
+
+/// The model of [`LearnedModel::public_logs`] (written by `mapmerge eval calibrate -o`).
+const PUBLIC_LOGS_MODEL: &str = include_str!("learned_public_logs.json");
+
+/// A fitted logistic regression over component detectors.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LearnedModel {
+    /// The component detectors by name (see [`crate::DETECTOR_NAMES`]).
+    pub methods: Vec<String>,
+    /// Weight of each component's highest supported ratio since the merge.
+    pub ratio_weights: Vec<f64>,
+    /// Weight of "this component was never supported since the merge" (1 or 0).
+    pub unsupported_weights: Vec<f64>,
+    /// The intercept (at equal priors of valid and invalid merges).
+    pub intercept: f64,
+    /// Decision threshold on the probability: above it a merge is judged invalid.
+    pub threshold: f64,
+    /// What it was fitted on (provenance, free text).
+    #[serde(default)]
+    pub fitted_on: String,
+}
+
+/// One labelled merge for [`LearnedModel::fit`]: per component (in the model's order) its
+/// highest supported ratio and whether it was never supported.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LearnedSample {
+    /// Highest supported ratio per component (0 when never supported).
+    pub ratios: Vec<f64>,
+    /// True for a component that was never supported.
+    pub unsupported: Vec<bool>,
+    /// The label: the merge is invalid.
+    pub invalid: bool,
+}
+
+/// Why a model could not be fitted.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FitError {
+    /// No valid or no invalid sample.
+    #[error("need valid and invalid merges to fit ({valid} valid, {invalid} invalid)")]
+    OneClass {
+        /// Valid samples.
+        valid: usize,
+        /// Invalid samples.
+        invalid: usize,
+    },
+    /// A sample's feature count differs from the methods'.
+    #[error("sample {index} has {got} features, the model {expected}")]
+    Shape {
+        /// The sample.
+        index: usize,
+        /// Its features.
+        got: usize,
+        /// The model's.
+        expected: usize,
+    },
+    /// The solver failed.
+    #[error("logistic regression: {0}")]
+    Solver(String),
+}
+
+fn finite_or_zero(x: f64) -> f64 {
+    if x.is_finite() {
+        x
+    } else {
+        0.0
+    }
+}
+
+impl LearnedModel {
+    /// The model fitted on the public logs (see the module documentation).
+    pub fn public_logs() -> Self {
+        // The embedded file is checked by a unit test; a broken one falls back to the
+        // uninformed model rather than failing at run time.
+        serde_json::from_str(PUBLIC_LOGS_MODEL).unwrap_or_else(|_| Self::uninformed())
+    }
+
+    /// A model that knows nothing: probability 0.5 for every merge, never above threshold.
+    pub fn uninformed() -> Self {
+        Self {
+            methods: Vec::new(),
+            ratio_weights: Vec::new(),
+            unsupported_weights: Vec::new(),
+            intercept: 0.0,
+            threshold: 0.5,
+            fitted_on: "nothing".into(),
+        }
+    }
+
+    /// The probability that a merge is invalid given each component's highest supported
+    /// ratio and whether it was never supported (in the order of `methods`; missing entries
+    /// count as 0 / supported).
+    pub fn probability(&self, ratios: &[f64], unsupported: &[bool]) -> f64 {
+        let mut z = self.intercept;
+        for (k, w) in self.ratio_weights.iter().enumerate() {
+            z += w * finite_or_zero(ratios.get(k).copied().unwrap_or(0.0));
+        }
+        for (k, w) in self.unsupported_weights.iter().enumerate() {
+            if unsupported.get(k).copied().unwrap_or(false) {
+                z += w;
+            }
+        }
+        let p = 1.0 / (1.0 + (-finite_or_zero(z)).exp());
+        if p.is_finite() {
+            p
+        } else {
+            0.5
+        }
+    }
+
+    /// Fits the model on `samples` (features per `methods`) with L2 weight `alpha` on the
+    /// standardised features; the intercept is corrected to equal priors.
+    pub fn fit(
+        methods: &[String],
+        samples: &[LearnedSample],
+        alpha: f64,
+        fitted_on: impl Into<String>,
+    ) -> Result<Self, FitError> {
+        let m = methods.len();
+        let invalid = samples.iter().filter(|s| s.invalid).count();
+        let valid = samples.len() - invalid;
+        if valid == 0 || invalid == 0 {
+            return Err(FitError::OneClass { valid, invalid });
+        }
+        let mut rows = Vec::with_capacity(samples.len());
+        for (index, s) in samples.iter().enumerate() {
+            if s.ratios.len() != m || s.unsupported.len() != m {
+                return Err(FitError::Shape {
+                    index,
+                    got: s.ratios.len().min(s.unsupported.len()),
+                    expected: m,
+                });
+            }
+            let row: Vec<f64> = s
+                .ratios
+                .iter()
+                .map(|r| finite_or_zero(*r))
+                .chain(s.unsupported.iter().map(|&u| if u { 1.0 } else { 0.0 }))
+                .collect();
+            rows.push(row);
+        }
+        // Standardise (a constant column stays 0 and gets no weight).
+        let n = rows.len() as f64;
+        let width = 2 * m;
+        let mut mean = vec![0.0; width];
+        let mut scale = vec![0.0; width];
+        for row in &rows {
+            for (k, x) in row.iter().enumerate() {
+                mean[k] += x / n;
+            }
+        }
+        for row in &rows {
+            for (k, x) in row.iter().enumerate() {
+                scale[k] += (x - mean[k]).powi(2) / n;
+            }
+        }
+        let scale: Vec<f64> = scale.iter().map(|v| v.sqrt()).collect();
+        let standardised: Vec<Vec<f64>> = rows
+            .iter()
+            .map(|row| {
+                row.iter()
+                    .enumerate()
+                    .map(|(k, x)| {
+                        if scale[k] > 1e-12 {
+                            (x - mean[k]) / scale[k]
+                        } else {
+                            0.0
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let x =
+            DenseMatrix::from_2d_vec(&standardised).map_err(|e| FitError::Solver(e.to_string()))?;
+        let y: Vec<u32> = samples.iter().map(|s| u32::from(s.invalid)).collect();
+        let parameters = LogisticRegressionParameters::default().with_alpha(alpha.max(0.0));
+        let fitted = LogisticRegression::fit(&x, &y, parameters)
+            .map_err(|e| FitError::Solver(e.to_string()))?;
+        // Back to raw features: w = w' / σ, b = b' − Σ w' μ / σ.
+        let coefficients = fitted.coefficients();
+        let mut weights = vec![0.0; width];
+        let mut intercept = *fitted.intercept().get((0, 0));
+        for k in 0..width {
+            if scale[k] > 1e-12 {
+                let w = *coefficients.get((0, k));
+                weights[k] = w / scale[k];
+                intercept -= w * mean[k] / scale[k];
+            }
+        }
+        // Equal priors: the fit's intercept carries log(invalid / valid) of the training set.
+        intercept -= (invalid as f64 / valid as f64).ln();
+        if !(intercept.is_finite() && weights.iter().all(|w| w.is_finite())) {
+            return Err(FitError::Solver("non-finite weights".into()));
+        }
+        let unsupported_weights = weights.split_off(m);
+        Ok(Self {
+            methods: methods.to_vec(),
+            ratio_weights: weights,
+            unsupported_weights,
+            intercept,
+            threshold: 0.5,
+            fitted_on: fitted_on.into(),
+        })
+    }
+}
+
+/// The learned decision online: runs the model's component detectors after every vertex and
+/// returns the model's probability from their highest supported ratios since the merge.
+pub struct LearnedDetector {
+    model: LearnedModel,
+    components: Vec<Box<dyn InvalidMergeDetector>>,
+    peaks: Vec<f64>,
+    never_supported: Vec<bool>,
+}
+
+impl std::fmt::Debug for LearnedDetector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("LearnedDetector")
+            .field("model", &self.model)
+            .field("peaks", &self.peaks)
+            .field("never_supported", &self.never_supported)
+            .finish()
+    }
+}
+
+impl Default for LearnedDetector {
+    fn default() -> Self {
+        Self::new(LearnedModel::public_logs())
+    }
+}
+
+impl LearnedDetector {
+    /// The detector of `model`; components it does not know (or `learned` itself) count as
+    /// never supported.
+    pub fn new(model: LearnedModel) -> Self {
+        let components: Vec<Box<dyn InvalidMergeDetector>> = model
+            .methods
+            .iter()
+            .map(|name| {
+                (name != "learned")
+                    .then(|| crate::detector(name))
+                    .flatten()
+                    .unwrap_or_else(|| Box::new(Nothing))
+            })
+            .collect();
+        let m = components.len();
+        Self {
+            model,
+            components,
+            peaks: vec![0.0; m],
+            never_supported: vec![true; m],
+        }
+    }
+
+    /// Its model.
+    pub fn model(&self) -> &LearnedModel {
+        &self.model
+    }
+
+    /// Each component's highest supported ratio since the merge and whether it was never
+    /// supported (the model's features now).
+    pub fn features(&self) -> (&[f64], &[bool]) {
+        (&self.peaks, &self.never_supported)
+    }
+}
+
+/// A component the registry does not know: never supported.
+struct Nothing;
+
+impl InvalidMergeDetector for Nothing {
+    fn name(&self) -> &'static str {
+        "nothing"
+    }
+    fn on_merge(&mut self, _: &MergedMap<'_>) {}
+    fn on_vertex(&mut self, _: &MergedMap<'_>) -> f64 {
+        0.0
+    }
+    fn evidence(&self) -> Evidence {
+        Evidence::Unsupported
+    }
+}
+
+impl InvalidMergeDetector for LearnedDetector {
+    fn name(&self) -> &'static str {
+        "learned"
+    }
+
+    fn on_merge(&mut self, map: &MergedMap<'_>) {
+        for c in &mut self.components {
+            c.on_merge(map);
+        }
+        self.peaks.iter_mut().for_each(|p| *p = 0.0);
+        self.never_supported.iter_mut().for_each(|u| *u = true);
+    }
+
+    fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
+        for ((c, peak), never) in self
+            .components
+            .iter_mut()
+            .zip(&mut self.peaks)
+            .zip(&mut self.never_supported)
+        {
+            let ratio = c.on_vertex(map);
+            if c.evidence() == Evidence::Supported && ratio.is_finite() {
+                *never = false;
+                *peak = peak.max(ratio);
+            }
+        }
+        self.model.probability(&self.peaks, &self.never_supported)
+    }
+
+    /// Supported once any component was.
+    fn evidence(&self) -> Evidence {
+        if self.never_supported.iter().all(|&u| u) {
+            Evidence::Unsupported
+        } else {
+            Evidence::Supported
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(cd: f64, gm: f64, unsupported: bool, invalid: bool) -> LearnedSample {
+        LearnedSample {
+            ratios: vec![cd, gm],
+            unsupported: vec![unsupported, unsupported],
+            invalid,
+        }
+    }
+
+    #[test]
+    fn the_embedded_model_parses_and_names_known_detectors() {
+        let model: LearnedModel = serde_json::from_str(PUBLIC_LOGS_MODEL).unwrap();
+        assert!(!model.methods.is_empty());
+        assert_eq!(model.ratio_weights.len(), model.methods.len());
+        assert_eq!(model.unsupported_weights.len(), model.methods.len());
+        for name in &model.methods {
+            assert!(crate::detector(name).is_some(), "{name}");
+            assert_ne!(name, "learned");
+        }
+        assert!(model.threshold > 0.0 && model.threshold < 1.0);
+    }
+
+    #[test]
+    fn a_fit_separates_what_separates_and_keeps_equal_priors() {
+        let methods = vec!["change_detection".to_string(), "gridmap".to_string()];
+        // Invalid merges read high in change detection, valid ones low; gridmap is noise.
+        let mut samples = Vec::new();
+        for k in 0..40 {
+            let noise = (k as f64 * 0.37).fract();
+            samples.push(sample(0.05 + 0.2 * noise, noise, false, false));
+        }
+        for k in 0..120 {
+            let noise = (k as f64 * 0.37).fract();
+            samples.push(sample(
+                0.5 + 0.4 * (k as f64 * 0.61).fract(),
+                noise,
+                false,
+                true,
+            ));
+        }
+        let model = LearnedModel::fit(&methods, &samples, 0.1, "test").unwrap();
+        assert!(model.ratio_weights[0] > 0.0);
+        assert!(
+            model.ratio_weights[0] > 5.0 * model.ratio_weights[1].abs(),
+            "{model:?}"
+        );
+        assert!(model.probability(&[0.1, 0.5], &[false, false]) < 0.5);
+        assert!(model.probability(&[0.8, 0.5], &[false, false]) > 0.5);
+        // Equal priors: the boundary lies between the classes although invalid cases are
+        // three times as many.
+        let boundary = (0..=100)
+            .map(|k| k as f64 / 100.0)
+            .find(|&r| model.probability(&[r, 0.5], &[false, false]) > 0.5)
+            .unwrap();
+        assert!(boundary > 0.2 && boundary < 0.55, "{boundary}");
+    }
+
+    #[test]
+    fn unsupported_merges_are_scored_by_what_they_were_in_training() {
+        let methods = vec!["change_detection".to_string(), "gridmap".to_string()];
+        let mut samples = Vec::new();
+        for k in 0..30 {
+            let noise = (k as f64 * 0.37).fract();
+            samples.push(sample(0.1 * noise, 0.1 * noise, false, false));
+            samples.push(sample(0.6 + 0.3 * noise, 0.5, false, true));
+            // Unsupported merges (ratio 0) were invalid more often than not.
+            samples.push(sample(0.0, 0.0, true, k % 3 != 0));
+        }
+        let model = LearnedModel::fit(&methods, &samples, 0.1, "test").unwrap();
+        let unsupported = model.probability(&[0.0, 0.0], &[true, true]);
+        let supported_zero = model.probability(&[0.0, 0.0], &[false, false]);
+        assert!(
+            unsupported > supported_zero,
+            "{unsupported} vs {supported_zero}"
+        );
+    }
+
+    #[test]
+    fn bad_training_sets_are_errors() {
+        let methods = vec!["change_detection".to_string(), "gridmap".to_string()];
+        let one_class = vec![sample(0.1, 0.1, false, false); 5];
+        assert!(matches!(
+            LearnedModel::fit(&methods, &one_class, 0.1, "t"),
+            Err(FitError::OneClass { .. })
+        ));
+        let mut wrong = vec![
+            sample(0.1, 0.1, false, false),
+            sample(0.9, 0.9, false, true),
+        ];
+        wrong[1].ratios.pop();
+        assert!(matches!(
+            LearnedModel::fit(&methods, &wrong, 0.1, "t"),
+            Err(FitError::Shape { index: 1, .. })
+        ));
+    }
+
+    #[test]
+    fn probabilities_stay_in_the_unit_interval_for_any_input() {
+        let model = LearnedModel {
+            methods: vec!["a".into()],
+            ratio_weights: vec![1e300],
+            unsupported_weights: vec![-1e300],
+            intercept: f64::NAN,
+            threshold: 0.5,
+            fitted_on: String::new(),
+        };
+        for r in [f64::NAN, f64::INFINITY, -1.0, 0.0, 1.0] {
+            for u in [true, false] {
+                let p = model.probability(&[r], &[u]);
+                assert!((0.0..=1.0).contains(&p), "{p}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_detector_keeps_the_highest_supported_ratio_since_the_merge() {
+        use crate::testworld::{wrong_turned, Case, World};
+        use mapmerge_geometry::{LieGroup, Se2};
+        let model = LearnedModel {
+            methods: vec!["change_detection".into(), "nope".into()],
+            ratio_weights: vec![10.0, 0.0],
+            unsupported_weights: vec![0.0, 0.0],
+            intercept: -2.0,
+            threshold: 0.5,
+            fitted_on: String::new(),
+        };
+        let open = World::office(false);
+        let right = Case::office(&open, &open, &Se2::identity())
+            .max_ratio(&mut LearnedDetector::new(model.clone()));
+        let wrong = Case::office(&open, &open, &wrong_turned())
+            .max_ratio(&mut LearnedDetector::new(model.clone()));
+        assert!(wrong > right, "{wrong} vs {right}");
+        let d = LearnedDetector::new(model);
+        assert_eq!(d.features().1, &[true, true]);
+    }
+}
