@@ -110,7 +110,11 @@ use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanM
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::ScanAnchors;
-use mapmerge_verify::{Evidence, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
+use mapmerge_verify::{
+    ChangeDetectionDetector, ChangeDetectionParams, DmDetector, EntropyDetector, EntropyParams,
+    Evidence, GridmapDetector, GridmapParams, HistogramDetector, HistogramParams,
+    InvalidMergeDetector, MergedMap, SimilarityParams, SmDetector, DETECTOR_NAMES,
+};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -231,10 +235,16 @@ pub struct InvalidMergeArgs {
     /// Print one JSON summary instead of text (no progress bar).
     #[arg(long)]
     pub json: bool,
+    /// Detector parameters other than the defaults (JSON: `{"change_detection": {…},
+    /// "gridmap": {…}, "entropy": {…}, "histogram": {…}, "sm": {…}, "dm": {…}}`, each
+    /// optional and each partial, fields as in `mapmerge_verify`), e.g. to vary the window.
+    #[arg(long)]
+    pub detector_params: Option<PathBuf>,
     /// Also write every detector's invalidity after every new vertex to this file (JSON
-    /// lines `{"id", "method", "vertex", "scan", "invalidity", "support"}`; `vertex` counts
-    /// from 0 after the merge, `scan` is the log's scan index, `support` how many compared
-    /// points or cells the ratio rests on, `null` for detectors without such a count).
+    /// lines `{"id", "method", "vertex", "scan", "invalidity", "support", "evidence",
+    /// "cross_edges", "local_error"}`; `vertex` counts from 0 after the merge, `scan` is the
+    /// log's scan index, `support` how many compared points or cells the ratio rests on,
+    /// `null` for detectors without such a count).
     #[arg(long)]
     pub trace: Option<PathBuf>,
     /// Also draw, per case, the merged map at the first new vertex after the merge
@@ -243,6 +253,43 @@ pub struct InvalidMergeArgs {
     /// colours (red change, green agree, grey no information), other scans by epoch.
     #[arg(long)]
     pub pictures: Option<PathBuf>,
+}
+
+/// `--detector-params`: parameters per detector name, the rest default.
+#[derive(Debug, Default, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+struct DetectorParamsFile {
+    change_detection: Option<ChangeDetectionParams>,
+    gridmap: Option<GridmapParams>,
+    entropy: Option<EntropyParams>,
+    histogram: Option<HistogramParams>,
+    sm: Option<SimilarityParams>,
+    dm: Option<SimilarityParams>,
+}
+
+impl DetectorParamsFile {
+    fn read(path: &Path) -> anyhow::Result<Self> {
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        serde_json::from_str(&text)
+            .map_err(|e| bad_input(format!("{}: bad detector parameters: {e}", path.display())))
+    }
+
+    /// The detector `name` with these parameters (the registry's defaults otherwise).
+    fn detector(&self, name: &str) -> Option<Box<dyn InvalidMergeDetector>> {
+        let boxed: Box<dyn InvalidMergeDetector> = match name {
+            "change_detection" => {
+                Box::new(ChangeDetectionDetector::new(self.change_detection.clone()?))
+            }
+            "gridmap" => Box::new(GridmapDetector::new(self.gridmap.clone()?)),
+            "entropy" => Box::new(EntropyDetector::new(self.entropy.clone()?)),
+            "histogram" => Box::new(HistogramDetector::new(self.histogram.clone()?)),
+            "sm" => Box::new(SmDetector::new(self.sm.clone()?)),
+            "dm" => Box::new(DmDetector::new(self.dm.clone()?)),
+            _ => return None,
+        };
+        Some(boxed)
+    }
 }
 
 // ------------------------------------------------------------------ formats
@@ -1672,6 +1719,10 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             )));
         }
     }
+    let detector_params = match &args.detector_params {
+        Some(path) => DetectorParamsFile::read(path)?,
+        None => DetectorParamsFile::default(),
+    };
     let mut cases = read_cases(&args.cases)?;
     if let Some(max) = args.max_cases {
         cases.truncate(max);
@@ -1732,7 +1783,11 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             .map_err(context)?;
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = methods
             .iter()
-            .filter_map(|m| mapmerge_verify::detector(m))
+            .filter_map(|m| {
+                detector_params
+                    .detector(m)
+                    .or_else(|| mapmerge_verify::detector(m))
+            })
             .collect();
         let truth: Vec<Option<Se2>> = cache
             .log(path)

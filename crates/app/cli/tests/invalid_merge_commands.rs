@@ -232,6 +232,22 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
     assert_eq!(lines.len(), 1);
     assert_eq!(lines[0]["id"], "a");
     assert_eq!(lines[0]["method"], "histogram");
+    // Detector parameters with an unknown field are bad input.
+    let params = dir.join("params.json");
+    std::fs::write(&params, r#"{"change_detection": {"recent_scanz": 5}}"#).unwrap();
+    expect_bad(
+        &[
+            "eval",
+            "invalid-merge",
+            "--cases",
+            p(&ok),
+            "-o",
+            p(&results),
+            "--detector-params",
+            p(&params),
+        ],
+        "bad detector parameters",
+    );
 }
 
 #[test]
@@ -352,7 +368,8 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     for kind in ["valid", "rotation", "shift"] {
         assert!(kinds.contains(kind), "{kinds:?}");
     }
-    let results = dir.join("results.jsonl");
+    let results_path = dir.join("results.jsonl");
+    let results = results_path.clone();
     let pictures = dir.join("pictures");
     let trace = dir.join("trace.jsonl");
     let report = evaluate(
@@ -416,6 +433,24 @@ fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
         v.iter().sum::<f64>() / v.len() as f64
     };
     assert!(of("valid") < of("rotation"), "{results:?}");
+    // Detector parameters are used: a minimum no window reaches leaves every vertex
+    // unsupported (and every ratio 0).
+    let params = dir.join("params.json");
+    std::fs::write(
+        &params,
+        r#"{"change_detection": {"min_classified_points": 1000000000}}"#,
+    )
+    .unwrap();
+    evaluate(
+        &cases,
+        &results_path,
+        "change_detection",
+        &["--detector-params", p(&params)],
+    );
+    for r in json_lines(&results_path) {
+        assert_eq!(r["supported_vertices"], 0, "{r}");
+        assert_eq!(r["max_invalidity"], 0.0, "{r}");
+    }
 }
 
 /// A results file of two detectors on `logs` logs, 12 valid and 12 invalid cases each:
