@@ -188,14 +188,7 @@ fn choose_alpha(methods: &[String], train: &[&Case], fixed: Option<f64>) -> f64 
             let Some((_, scores)) = fit_and_score(methods, &inner, &test, alpha) else {
                 continue;
             };
-            let (mut invalid, mut valid) = (Vec::new(), Vec::new());
-            for (c, s) in test.iter().zip(&scores) {
-                if c.invalid {
-                    invalid.push(*s);
-                } else {
-                    valid.push(*s);
-                }
-            }
+            let (invalid, valid) = by_label(&test, scores.iter().map(|s| Some(*s)));
             if let Some(auc) = roc_auc(&invalid, &valid) {
                 sum += auc;
                 folds += 1;
@@ -228,22 +221,26 @@ fn fit_and_score(
     Some((model, scores))
 }
 
-fn held_out(method: &str, test: &[&Case], scores: &[f64], threshold: f64) -> HeldOut {
-    let split = |pick: &dyn Fn(&Case, f64) -> Option<f64>| -> (Vec<f64>, Vec<f64>) {
-        let (mut invalid, mut valid) = (Vec::new(), Vec::new());
-        for (c, s) in test.iter().zip(scores) {
-            if let Some(v) = pick(c, *s).filter(|v| v.is_finite()) {
-                if c.invalid {
-                    invalid.push(v);
-                } else {
-                    valid.push(v);
-                }
+/// `values` (one per case of `cases`, finite ones kept) split into those of invalid and of
+/// valid cases.
+fn by_label(cases: &[&Case], values: impl Iterator<Item = Option<f64>>) -> (Vec<f64>, Vec<f64>) {
+    let (mut invalid, mut valid) = (Vec::new(), Vec::new());
+    for (c, v) in cases.iter().zip(values) {
+        if let Some(v) = v.filter(|v| v.is_finite()) {
+            if c.invalid {
+                invalid.push(v);
+            } else {
+                valid.push(v);
             }
         }
-        (invalid, valid)
-    };
-    let (invalid, valid) = split(&|_, s| Some(s));
-    let (raw_invalid, raw_valid) = split(&|c, _| c.scores.get(method).map(|s| s.0));
+    }
+    (invalid, valid)
+}
+
+fn held_out(method: &str, test: &[&Case], scores: &[f64], threshold: f64) -> HeldOut {
+    let (invalid, valid) = by_label(test, scores.iter().map(|s| Some(*s)));
+    let raw = test.iter().map(|c| c.scores.get(method).map(|s| s.0));
+    let (raw_invalid, raw_valid) = by_label(test, raw);
     HeldOut {
         method: method.to_owned(),
         auc: roc_auc(&invalid, &valid),
@@ -362,17 +359,12 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     let model = LearnedModel::fit(&features, &all, alpha, provenance).ok();
     if let Some(model) = &model {
         for row in &mut rows {
-            let (mut invalid, mut valid) = (Vec::new(), Vec::new());
-            for c in cases.iter().filter(|c| c.log == row.log) {
-                if let Some(s) = c.sample(&features) {
-                    let p = model.probability(&s.ratios, &s.unsupported);
-                    if c.invalid {
-                        invalid.push(p);
-                    } else {
-                        valid.push(p);
-                    }
-                }
-            }
+            let of_log: Vec<&Case> = cases.iter().filter(|c| c.log == row.log).collect();
+            let scores = of_log.iter().map(|c| {
+                c.sample(&features)
+                    .map(|s| model.probability(&s.ratios, &s.unsupported))
+            });
+            let (invalid, valid) = by_label(&of_log, scores);
             row.learned_in_sample_auc = roc_auc(&invalid, &valid);
         }
     }

@@ -1439,6 +1439,14 @@ struct TraceEntry {
     invalidity: f64,
     support: Option<u64>,
     evidence: Evidence,
+    /// What the trace adds (only when tracing).
+    diagnostics: Option<Diagnostics>,
+}
+
+/// Per vertex, for `--trace` only: the misalignment where the robot is and the edges joining
+/// the epochs.
+#[derive(Clone, Copy, Debug)]
+struct Diagnostics {
     local_error: Option<LocalError>,
     /// Edges between the current epoch and the merged data (the merge's and loops since).
     cross_edges: usize,
@@ -1523,7 +1531,7 @@ struct TraceLine<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     local_error: Option<LocalError>,
     /// Edges between the current epoch and the merged data.
-    cross_edges: usize,
+    cross_edges: Option<usize>,
 }
 
 /// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
@@ -1544,10 +1552,11 @@ fn evaluation_engine() -> anyhow::Result<Engine> {
 /// is forced with `merge_transform`, and from then on the engine keeps closing loops into the
 /// merged data and re-optimising, as it does live (Holoch et al. evaluate on the merged
 /// graph of their SLAM system). After every new keyframe each detector sees the merged map.
+/// `truth` (the log's corrected poses) turns on the trace's [`Diagnostics`].
 fn evaluate_case(
     first: &FirstSegment,
     log: &LaserLog,
-    truth: &[Option<Se2>],
+    truth: Option<&[Option<Se2>]>,
     case: &MergeCase,
     detectors: &mut [Box<dyn InvalidMergeDetector>],
     pictures: Option<&Path>,
@@ -1610,8 +1619,10 @@ fn evaluate_case(
             other: &other,
         };
         let peak_before = outcomes.first().map(|o| o.max_invalidity);
-        let local_error = local_error(first, &map, k, truth);
-        let cross_edges = cross_epoch_edges(engine.map_graph());
+        let diagnostics = truth.map(|truth| Diagnostics {
+            local_error: local_error(first, &map, k, truth),
+            cross_edges: cross_epoch_edges(engine.map_graph()),
+        });
         for (detector, outcome) in detectors.iter_mut().zip(outcomes.iter_mut()) {
             let started = Instant::now();
             let ratio = detector.on_vertex(&map);
@@ -1626,8 +1637,7 @@ fn evaluate_case(
                 invalidity: ratio,
                 support: detector.support(),
                 evidence,
-                local_error,
-                cross_edges,
+                diagnostics,
             });
             if ratio.is_finite() {
                 outcome.max_invalidity = outcome.max_invalidity.max(ratio);
@@ -1789,17 +1799,22 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
                     .or_else(|| mapmerge_verify::detector(m))
             })
             .collect();
-        let truth: Vec<Option<Se2>> = cache
-            .log(path)
-            .map_err(context)?
-            .scans
-            .iter()
-            .map(|record| record.odom_from_robot)
-            .collect();
+        // The corrected poses, for the trace's misalignment (only when tracing).
+        let truth: Option<Vec<Option<Se2>>> = if args.trace.is_some() {
+            let raw = cache.log(path).map_err(context)?;
+            Some(
+                raw.scans
+                    .iter()
+                    .map(|record| record.odom_from_robot)
+                    .collect(),
+            )
+        } else {
+            None
+        };
         let outcomes = evaluate_case(
             &first,
             &log,
-            &truth,
+            truth.as_deref(),
             case,
             &mut detectors,
             args.pictures.as_deref(),
@@ -1817,9 +1832,10 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
                         support: entry.support,
                         evidence: entry.evidence,
                         local_error: entry
-                            .local_error
+                            .diagnostics
+                            .and_then(|d| d.local_error)
                             .filter(|_| case.label == Some(Label::Valid)),
-                        cross_edges: entry.cross_edges,
+                        cross_edges: entry.diagnostics.map(|d| d.cross_edges),
                     };
                     serde_json::to_writer(&mut *trace, &line)?;
                     writeln!(trace)?;
@@ -2240,11 +2256,13 @@ mod tests {
         c.merge_transform = array_of(&first_from_second);
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> =
             vec![Box::new(FirstDistance::default())];
-        let right = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
+        let right =
+            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
         assert!(right[0].vertices > 10, "{right:?}");
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
-        let wrong = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
+        let wrong =
+            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
 
         // At the merge place: the relative pose decides, whatever `merge_transform` says.
@@ -2269,7 +2287,8 @@ mod tests {
             first_scan: place.first_scan,
             relative: array_of(&true_relative),
         });
-        let right = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
+        let right =
+            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let kinds = place.cases(&mut rng);
@@ -2298,7 +2317,8 @@ mod tests {
             relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
         });
         c.merge_transform = array_of(&first_from_second);
-        let wrong = evaluate_case(&first_run, &session.log, &[], &c, &mut detectors, None).unwrap();
+        let wrong =
+            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }
 }

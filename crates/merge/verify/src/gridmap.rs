@@ -258,6 +258,8 @@ impl Canvas {
         let to_cells = |p: &Point2| (p - geometry.origin_m) / geometry.resolution_m;
         let start = to_cells(&origin);
         let size = Point2::new(geometry.width as f64, geometry.height as f64);
+        // Borrowed apart from the counters `miss` changes (given back below).
+        let known = std::mem::take(&mut self.known);
         for p in points_in_robot {
             let range = p.norm();
             if !(range.is_finite() && range > 0.0 && range <= max_range_m) {
@@ -269,18 +271,17 @@ impl Canvas {
             };
             // Misses along the beam (the end cell excluded when it is the return; cells the
             // other epochs never saw skipped), then the return.
-            let known = std::mem::take(&mut self.known);
             mapmerge_grid::traverse(from, to, geometry.width, end_inside, |i| {
                 if known.get(i >> 6).is_some_and(|w| (w >> (i & 63)) & 1 == 1) {
                     self.miss(i, add);
                 }
             });
-            self.known = known;
             if end_inside {
                 let (x, y) = (end.x.floor() as usize, end.y.floor() as usize);
                 self.hit(y * geometry.width + x, add);
             }
         }
+        self.known = known;
     }
 }
 
@@ -340,7 +341,6 @@ pub struct GridmapDetector {
     canvas: Canvas,
     inserted: Vec<Inserted>,
     info: GridmapInfo,
-    evidence: Evidence,
 }
 
 impl Default for GridmapDetector {
@@ -352,7 +352,6 @@ impl Default for GridmapDetector {
             canvas: Canvas::default(),
             inserted: Vec::new(),
             info: GridmapInfo::default(),
-            evidence: Evidence::Unsupported,
         }
     }
 }
@@ -374,6 +373,13 @@ impl GridmapDetector {
     /// What the last [`InvalidMergeDetector::on_vertex`] compared.
     pub fn info(&self) -> GridmapInfo {
         self.info
+    }
+
+    /// The last overlap reached `τ` (Sec. IV-B): below it the ratio is 0 and no evidence.
+    fn overlap_reaches_tau(&self) -> bool {
+        let cell_m = self.canvas.geometry.map_or(1.0, |g| g.resolution_m);
+        let overlap = self.info.overlap_cells;
+        overlap > 0 && (overlap as f64) * cell_m * cell_m >= self.params.min_overlap_m2
     }
 
     fn max_range_m(&self) -> f64 {
@@ -541,12 +547,9 @@ impl InvalidMergeDetector for GridmapDetector {
             contradiction_cells: contradictions,
             updated_scans: updated,
         };
-        let cell_m = self.canvas.geometry.map_or(1.0, |g| g.resolution_m);
-        if overlap == 0 || (overlap as f64) * cell_m * cell_m < self.params.min_overlap_m2 {
-            self.evidence = Evidence::Unsupported;
+        if !self.overlap_reaches_tau() {
             return 0.0;
         }
-        self.evidence = Evidence::Supported;
         unit(contradictions as f64 / overlap as f64)
     }
 
@@ -557,7 +560,11 @@ impl InvalidMergeDetector for GridmapDetector {
     /// Unsupported below `τ` of overlap: the window's scans crossed only space the merged
     /// epochs never saw (their grid is unknown there), so nothing could contradict them.
     fn evidence(&self) -> Evidence {
-        self.evidence
+        if self.overlap_reaches_tau() {
+            Evidence::Supported
+        } else {
+            Evidence::Unsupported
+        }
     }
 }
 
