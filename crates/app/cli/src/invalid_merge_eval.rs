@@ -71,7 +71,9 @@
 //!    against the whole first segment within ±4 m of the truth at any heading (the tracker's
 //!    correlative matcher, exact in each of 18 × 16 sub-windows of 20° × 2 m × 2 m; a wrong
 //!    optimum in the truth's own sub-window is not seen).
-//!    `--segment-length-m` cuts segments by travel along the corrected poses instead of time.
+//!    `--segment-length-m` cuts segments by travel along the corrected poses instead of time;
+//!    with `--split-at-jumps-m` a segment also ends where the corrected poses jump (kidnaps,
+//!    session changes in `mapmerge sim --corrected-log`).
 //!
 //!    Every case's merged maps overlap by at least `--min-overlap` m² (whole segments).
 //!
@@ -197,6 +199,11 @@ pub struct MakeMergeCasesArgs {
     /// and `--segment-scans`).
     #[arg(long)]
     pub segment_length_m: Option<f64>,
+    /// With `--segment-length-m`: consecutive corrected poses further apart than this (m)
+    /// are a jump (a kidnap, or the next session in `mapmerge sim --corrected-log`), where a
+    /// segment ends. Off by default: some public logs keep one scan per 1–3 m (orebro).
+    #[arg(long)]
+    pub split_at_jumps_m: Option<f64>,
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
@@ -538,8 +545,34 @@ fn cut_segments(
     segments_from_starts(&starts, n)
 }
 
-/// Consecutive segments of about `length_m` of travel each (corrected poses).
-fn segments_by_travel(poses: &[Se2], length_m: f64) -> Vec<[usize; 2]> {
+/// Consecutive segments of about `length_m` of travel each (corrected poses). With `jump_m`,
+/// consecutive poses further apart than that are a jump, not travel, and a segment ends
+/// there (each stretch between jumps is cut as a whole log is; one shorter than a segment is
+/// one segment).
+fn segments_by_travel(poses: &[Se2], length_m: f64, jump_m: Option<f64>) -> Vec<[usize; 2]> {
+    let mut segments = Vec::new();
+    let mut piece_start = 0;
+    let jump_m = jump_m.unwrap_or(f64::INFINITY);
+    for (k, pair) in poses.windows(2).enumerate() {
+        if (pair[1].translation() - pair[0].translation()).norm() > jump_m {
+            segments.extend(travel_pieces(
+                poses.get(piece_start..=k).unwrap_or_default(),
+                length_m,
+                piece_start,
+            ));
+            piece_start = k + 1;
+        }
+    }
+    segments.extend(travel_pieces(
+        poses.get(piece_start..).unwrap_or_default(),
+        length_m,
+        piece_start,
+    ));
+    segments
+}
+
+/// [`segments_by_travel`] within a stretch without jumps starting at scan `offset`.
+fn travel_pieces(poses: &[Se2], length_m: f64, offset: usize) -> Vec<[usize; 2]> {
     let mut starts = vec![0usize];
     let mut travel_m = 0.0;
     for (k, pair) in poses.windows(2).enumerate() {
@@ -550,6 +583,9 @@ fn segments_by_travel(poses: &[Se2], length_m: f64) -> Vec<[usize; 2]> {
         }
     }
     segments_from_starts(&starts, poses.len())
+        .into_iter()
+        .map(|[s, e]| [s + offset, e + offset])
+        .collect()
 }
 
 /// `[start, end]` of the segments beginning at `starts` (ascending, the first 0) over `n`
@@ -658,10 +694,13 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
             .is_some_and(|m| !(m.is_finite() && m > 0.0))
         || !(args.min_overlap.is_finite() && args.min_overlap >= 0.0)
         || !(args.overlap_radius.is_finite() && args.overlap_radius > 0.0)
+        || args
+            .split_at_jumps_m
+            .is_some_and(|m| !(m.is_finite() && m > 0.0))
     {
         return Err(bad_input(
-            "--segment-secs, --segment-scans, --segment-length-m and --overlap-radius must \
-             be positive, --min-overlap not negative",
+            "--segment-secs, --segment-scans, --segment-length-m, --overlap-radius and \
+             --split-at-jumps-m must be positive, --min-overlap not negative",
         ));
     }
     let raw = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
@@ -683,7 +722,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
         .segment_scans
         .or((!usable).then_some(BROKEN_STAMPS_SEGMENT_SCANS));
     let segments = match args.segment_length_m {
-        Some(length_m) => segments_by_travel(&poses, length_m),
+        Some(length_m) => segments_by_travel(&poses, length_m, args.split_at_jumps_m),
         None => cut_segments(&stamps, args.segment_secs, segment_scans),
     };
     let progress = !args.json && std::io::stderr().is_terminal();
@@ -2188,13 +2227,21 @@ mod tests {
             .map(|k| Se2::new(0.5 * f64::from(k), 0.0, 0.0))
             .collect();
         assert_eq!(
-            segments_by_travel(&poses, 10.0),
+            segments_by_travel(&poses, 10.0, None),
             vec![[0, 19], [20, 39], [40, 59], [60, 74]]
         );
         // A rest shorter than half a segment joins the last.
         assert_eq!(
-            segments_by_travel(&poses[..65], 10.0),
+            segments_by_travel(&poses[..65], 10.0, None),
             vec![[0, 19], [20, 39], [40, 64]]
+        );
+        // A jump (a kidnap, the next session) ends a segment and is no travel; a short rest
+        // before it joins its stretch's last segment, nothing joins across it.
+        let mut jumped = poses[..25].to_vec();
+        jumped.extend((0..30).map(|k| Se2::new(100.0 + 0.5 * f64::from(k), 5.0, 0.0)));
+        assert_eq!(
+            segments_by_travel(&jumped, 10.0, Some(2.0)),
+            vec![[0, 24], [25, 44], [45, 54]]
         );
     }
 

@@ -10,6 +10,7 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, OccupancyGrid};
 use mapmerge_io::{MapMode, RosMap};
 use mapmerge_render::{Picture, PictureStyle, Rgb};
+use mapmerge_scan::LaserLog;
 use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, World, WorldPreset};
 use serde::Serialize;
 
@@ -58,6 +59,12 @@ pub struct SimArgs {
     /// Skip the PNG pictures (faster).
     #[arg(long)]
     pub no_pictures: bool,
+    /// Also write `corrected.log`: every session's scans at their true poses (world frame),
+    /// one session after another, stamps shifted to increase — a corrected log, e.g. for
+    /// `eval make-merge-cases` (whose segments end at the jumps between sessions and at
+    /// kidnaps).
+    #[arg(long)]
+    pub corrected_log: bool,
     /// Output folder (created if missing).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -104,6 +111,9 @@ struct DatasetSummary<'a> {
     seed: u64,
     params: &'a SimParams,
     world_map: &'static str,
+    /// `--corrected-log`'s file.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    corrected_log: Option<String>,
     sessions: Vec<SessionSummary<'a>>,
 }
 
@@ -217,17 +227,51 @@ fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
             motion: &session.motion,
         });
     }
+    let corrected_log = if args.corrected_log {
+        let name = format!("corrected.log{}", if args.compress { ".xz" } else { "" });
+        mapmerge_io::write_carmen(&dir.join(&name), &corrected_log(&dataset.sessions))?;
+        Some(name)
+    } else {
+        None
+    };
     let summary = DatasetSummary {
         world: &dataset.world_name,
         seed: dataset.seed,
         params: &dataset.params,
         world_map: "world.yaml",
+        corrected_log,
         sessions: summaries,
     };
     let json = serde_json::to_string_pretty(&summary)?;
     std::fs::write(dir.join("dataset.json"), json + "\n")
         .with_context(|| format!("writing {}", dir.join("dataset.json").display()))?;
     Ok(())
+}
+
+/// The sessions' scans at their true poses, in session order, as one corrected log (no
+/// odometry messages); each session's stamps shifted to start 1 s after the previous one's
+/// last scan.
+fn corrected_log(sessions: &[SessionData]) -> LaserLog {
+    let mut log = LaserLog {
+        params: sessions
+            .first()
+            .map(|s| s.log.params.clone())
+            .unwrap_or_default(),
+        ..LaserLog::default()
+    };
+    let mut next_start_secs = 0.0;
+    for session in sessions {
+        let first_secs = session.log.scans.first().map_or(0.0, |r| r.stamp_secs);
+        let shift_secs = next_start_secs - first_secs;
+        for (record, (_, world_from_robot)) in session.log.scans.iter().zip(&session.truth) {
+            let mut record = record.clone();
+            record.stamp_secs += shift_secs;
+            record.odom_from_robot = Some(*world_from_robot);
+            next_start_secs = record.stamp_secs + 1.0;
+            log.scans.push(record);
+        }
+    }
+    log
 }
 
 /// Rasterises `world` and writes it as a map_server map (the PGM xz-compressed with

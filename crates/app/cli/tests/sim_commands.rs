@@ -169,3 +169,49 @@ fn a_grid_from_the_simulated_log_and_true_poses_lands_on_the_world_s_walls() {
         free.len()
     );
 }
+
+/// `--corrected-log`: every session's scans, in order, at the true poses of the TUM files,
+/// stamps increasing across sessions.
+#[test]
+fn the_corrected_log_holds_every_scan_at_its_true_pose() {
+    let dir = scratch("sim-corrected");
+    ok_json(&[
+        "sim",
+        "--world",
+        "office-aliased",
+        "--sessions",
+        "2",
+        "--duration",
+        "30",
+        "--seed",
+        "5",
+        "--no-pictures",
+        "--corrected-log",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    let corrected = mapmerge_io::read_carmen(&dir.join("corrected.log")).unwrap();
+    let mut truth = Vec::new();
+    let mut scans = Vec::new();
+    for k in 0..2 {
+        let session = mapmerge_io::read_carmen(&dir.join(format!("session_{k}.log"))).unwrap();
+        scans.extend(session.scans.into_iter().map(|r| r.scan.ranges_m));
+        let tum = mapmerge_io::read_tum_planar(&dir.join(format!("session_{k}.truth.tum")));
+        truth.extend(tum.unwrap().into_iter().map(|(_, pose)| pose));
+    }
+    assert_eq!(corrected.scans.len(), truth.len());
+    for (k, record) in corrected.scans.iter().enumerate() {
+        let pose = record.odom_from_robot.unwrap();
+        let error = pose.translation() - truth[k].translation();
+        assert!(error.norm() < 1e-3, "scan {k}: {pose:?} vs {:?}", truth[k]);
+        assert_eq!(record.scan.ranges_m, scans[k], "scan {k}");
+    }
+    assert!(corrected
+        .scans
+        .windows(2)
+        .all(|w| w[1].stamp_secs > w[0].stamp_secs));
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(dataset["corrected_log"], "corrected.log");
+}

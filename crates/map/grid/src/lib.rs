@@ -25,7 +25,7 @@ pub use morphology::{CellMask, DistanceField};
 pub use occupancy::{
     log_odds_of, probability_of, CellClass, ClassThresholds, OccupancyGrid, SensorModel, MAX_CELLS,
 };
-pub use raycast::{traverse, InsertInfo, InsertParams};
+pub use raycast::{traverse, traverse_cells, InsertInfo, InsertParams};
 
 /// A point in the plane (metres).
 pub type Point2 = nalgebra::Vector2<f64>;

@@ -196,9 +196,7 @@ impl OccupancyGrid {
 /// inside a grid `width` wide) passes through, from the start cell on. The end cell is
 /// visited unless `skip_end`. Returns the number of cells visited.
 ///
-/// Amanatides & Woo's traversal, stepping exactly `|Δx| + |Δy|` times between the end cells so
-/// rounding can never overshoot; where the segment crosses a cell corner exactly, one of the
-/// two side cells is visited.
+/// [`traverse_cells`] with the cells given as row-major indices.
 pub fn traverse(
     start: Point2,
     end: Point2,
@@ -206,32 +204,38 @@ pub fn traverse(
     skip_end: bool,
     mut visit: impl FnMut(usize),
 ) -> usize {
-    let (cx, cy) = (start.x.floor() as i64, start.y.floor() as i64);
+    let width = width as i64;
+    traverse_cells(start, end, skip_end, |x, y| visit((y * width + x) as usize))
+}
+
+/// Visits the cells `(x, y)` the segment `start → end` (in cell units, both at non-negative
+/// coordinates) passes through, from the start cell on. The end cell is visited unless
+/// `skip_end`. Returns the number of cells visited. (For storage laid out other than row by
+/// row, e.g. in tiles.)
+///
+/// Amanatides & Woo's traversal, stepping exactly `|Δx| + |Δy|` times between the end cells so
+/// rounding can never overshoot; where the segment crosses a cell corner exactly, one of the
+/// two side cells is visited.
+pub fn traverse_cells(
+    start: Point2,
+    end: Point2,
+    skip_end: bool,
+    mut visit: impl FnMut(i64, i64),
+) -> usize {
+    let (mut x, mut y) = (start.x.floor() as i64, start.y.floor() as i64);
     let (ex, ey) = (end.x.floor() as i64, end.y.floor() as i64);
     let delta = end - start;
-    let step_x: i64 = if ex > cx {
-        1
-    } else if ex < cx {
-        -1
-    } else {
-        0
-    };
-    let step_y: i64 = if ey > cy {
-        1
-    } else if ey < cy {
-        -1
-    } else {
-        0
-    };
+    let step_x: i64 = (ex - x).signum();
+    let step_y: i64 = (ey - y).signum();
     // Parameter t ∈ [0, 1] along the segment at which the next x / y cell border is crossed.
     let boundary = |c: i64, step: i64| if step > 0 { (c + 1) as f64 } else { c as f64 };
     let mut t_max_x = if step_x != 0 {
-        (boundary(cx, step_x) - start.x) / delta.x
+        (boundary(x, step_x) - start.x) / delta.x
     } else {
         f64::INFINITY
     };
     let mut t_max_y = if step_y != 0 {
-        (boundary(cy, step_y) - start.y) / delta.y
+        (boundary(y, step_y) - start.y) / delta.y
     } else {
         f64::INFINITY
     };
@@ -245,22 +249,19 @@ pub fn traverse(
     } else {
         f64::INFINITY
     };
-    let mut remaining_x = (ex - cx).unsigned_abs();
-    let mut remaining_y = (ey - cy).unsigned_abs();
-    let width = width as i64;
-    let mut index = cy * width + cx;
-    let index_step_y = step_y * width;
+    let mut remaining_x = (ex - x).unsigned_abs();
+    let mut remaining_y = (ey - y).unsigned_abs();
     let steps = remaining_x + remaining_y;
     for _ in 0..steps {
-        visit(index as usize);
+        visit(x, y);
         // Take the nearer border; once an axis has reached the end column/row, only the
         // other one may step.
         if remaining_y == 0 || (remaining_x > 0 && t_max_x < t_max_y) {
-            index += step_x;
+            x += step_x;
             t_max_x += t_delta_x;
             remaining_x -= 1;
         } else {
-            index += index_step_y;
+            y += step_y;
             t_max_y += t_delta_y;
             remaining_y -= 1;
         }
@@ -268,7 +269,7 @@ pub fn traverse(
     if skip_end {
         steps as usize
     } else {
-        visit(index as usize);
+        visit(x, y);
         steps as usize + 1
     }
 }

@@ -110,18 +110,54 @@ struct Inserted {
     points: Arc<[Point2]>,
 }
 
+/// Where cell `(x, y)` of a grid is stored: in 32 × 32 tiles (8 KB of cell records), row by
+/// row of tiles, each tile row by row. At 2.5 cm a grid row of records spans several memory
+/// pages, so a beam stepping across rows touched a new page at every step; within a tile it
+/// touches two. The per-cell record loads were the gridmap's cost (freiburg-campus, one
+/// core, same run: 1.04 ms per new vertex row-major, 1.04 with 4 × 4 tiles, 0.91 with
+/// 16 × 16, 0.90 with 32 × 32).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct TileLattice {
+    tiles_wide: usize,
+}
+
+impl TileLattice {
+    const SIDE_BITS: u32 = 5;
+    const SIDE: usize = 1 << Self::SIDE_BITS;
+    const MASK: usize = Self::SIDE - 1;
+
+    /// The lattice of a `width` × `height` grid, and the number of cells it stores
+    /// (the grid padded to whole tiles).
+    fn new(width: usize, height: usize) -> (Self, usize) {
+        let (tiles_wide, tiles_high) = (width.div_ceil(Self::SIDE), height.div_ceil(Self::SIDE));
+        (
+            Self { tiles_wide },
+            tiles_wide * tiles_high * Self::SIDE * Self::SIDE,
+        )
+    }
+
+    /// Storage index of cell `(x, y)` (non-negative, inside the grid).
+    #[inline]
+    fn index(&self, x: usize, y: usize) -> usize {
+        let tile = (y >> Self::SIDE_BITS) * self.tiles_wide + (x >> Self::SIDE_BITS);
+        (tile << (2 * Self::SIDE_BITS)) | ((y & Self::MASK) << Self::SIDE_BITS) | (x & Self::MASK)
+    }
+}
+
 /// The two grids on one lattice.
 #[derive(Debug, Default)]
 struct Canvas {
     geometry: Option<GridGeometry>,
-    /// Per cell: the other epochs' dilated class and the window's counters (one 8-byte
-    /// record, so a beam step touches one cache line).
+    lattice: TileLattice,
+    /// Per cell (stored as `lattice` says): the other epochs' dilated class and the window's
+    /// counters (one 8-byte record, so a beam step touches one record).
     cells: Vec<CellState>,
-    /// Window: returns per cell.
+    /// Window: returns per cell (same storage order).
     hits: Vec<u32>,
-    /// One bit per cell: the other epochs know it (not unknown). A beam's misses in cells
-    /// they never saw change nothing (no overlap either way), so those cells are not touched:
-    /// the bit set (2 MB at most) stays in cache while the cell records would not.
+    /// One bit per cell (same storage order): the other epochs know it (not unknown). A
+    /// beam's misses in cells they never saw change nothing (no overlap either way), so those
+    /// cells are not touched: the bit set (2 MB at most) stays in cache while the cell
+    /// records would not.
     known: Vec<u64>,
     radius: i64,
     overlap: u64,
@@ -203,11 +239,13 @@ impl Canvas {
         self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
     }
 
-    fn hit(&mut self, i: usize, add: bool) {
+    /// One return more (or less) in cell `(x, y)`.
+    fn hit(&mut self, x: usize, y: usize, add: bool) {
         let Some(geometry) = self.geometry else {
             return;
         };
-        let Some(h) = self.hits.get_mut(i) else {
+        let lattice = self.lattice;
+        let Some(h) = self.hits.get_mut(lattice.index(x, y)) else {
             return;
         };
         let was = *h > 0;
@@ -221,11 +259,11 @@ impl Canvas {
         }
         // The cell started or stopped returning: its dilation square changes.
         let (w, h) = (geometry.width as i64, geometry.height as i64);
-        let (cx, cy) = ((i % geometry.width) as i64, (i / geometry.width) as i64);
+        let (cx, cy) = (x as i64, y as i64);
         let r = self.radius;
         for y in (cy - r).max(0)..=(cy + r).min(h - 1) {
             for x in (cx - r).max(0)..=(cx + r).min(w - 1) {
-                let j = (y * w + x) as usize;
+                let j = lattice.index(x as usize, y as usize);
                 self.update(j, |c| {
                     if let Some(cell) = c.cells.get_mut(j) {
                         cell.near = if add {
@@ -260,6 +298,7 @@ impl Canvas {
         let size = Point2::new(geometry.width as f64, geometry.height as f64);
         // Borrowed apart from the counters `miss` changes (given back below).
         let known = std::mem::take(&mut self.known);
+        let lattice = self.lattice;
         for p in points_in_robot {
             let range = p.norm();
             if !(range.is_finite() && range > 0.0 && range <= max_range_m) {
@@ -271,14 +310,14 @@ impl Canvas {
             };
             // Misses along the beam (the end cell excluded when it is the return; cells the
             // other epochs never saw skipped), then the return.
-            mapmerge_grid::traverse(from, to, geometry.width, end_inside, |i| {
+            mapmerge_grid::traverse_cells(from, to, end_inside, |x, y| {
+                let i = lattice.index(x as usize, y as usize);
                 if known.get(i >> 6).is_some_and(|w| (w >> (i & 63)) & 1 == 1) {
                     self.miss(i, add);
                 }
             });
             if end_inside {
-                let (x, y) = (end.x.floor() as usize, end.y.floor() as usize);
-                self.hit(y * geometry.width + x, add);
+                self.hit(end.x.floor() as usize, end.y.floor() as usize, add);
             }
         }
         self.known = known;
@@ -447,32 +486,29 @@ impl GridmapDetector {
         let occupied = grid.mask(CellClass::Occupied, thresholds).dilate(radius);
         let free = grid.mask(CellClass::Free, thresholds);
         let geometry = *grid.geometry();
-        let cells: Vec<CellState> = occupied
-            .flags()
-            .iter()
-            .zip(free.flags())
-            .map(|(&o, &f)| CellState {
-                other: if o {
-                    OCCUPIED
-                } else if f {
-                    FREE
-                } else {
-                    UNKNOWN
-                },
-                ..CellState::default()
-            })
-            .collect();
-        let mut known = vec![0u64; cells.len().div_ceil(64)];
-        for (i, c) in cells.iter().enumerate() {
-            if c.other != UNKNOWN {
-                if let Some(w) = known.get_mut(i >> 6) {
-                    *w |= 1 << (i & 63);
-                }
+        let (lattice, stored) = TileLattice::new(geometry.width, geometry.height);
+        let mut cells = vec![CellState::default(); stored];
+        let mut known = vec![0u64; stored.div_ceil(64)];
+        let classes = occupied.flags().iter().zip(free.flags());
+        for (row_major, (&o, &f)) in classes.enumerate() {
+            let other = if o {
+                OCCUPIED
+            } else if f {
+                FREE
+            } else {
+                continue;
+            };
+            let (x, y) = (row_major % geometry.width, row_major / geometry.width);
+            let i = lattice.index(x, y);
+            if let (Some(c), Some(w)) = (cells.get_mut(i), known.get_mut(i >> 6)) {
+                c.other = other;
+                *w |= 1 << (i & 63);
             }
         }
         self.canvas = Canvas {
             geometry: Some(geometry),
-            hits: vec![0; cells.len()],
+            lattice,
+            hits: vec![0; stored],
             known,
             cells,
             radius: radius as i64,
@@ -639,6 +675,25 @@ mod tests {
         assert_eq!((d.canvas.overlap, d.canvas.contradictions), (0, 0));
         assert!(d.canvas.hits.iter().all(|&h| h == 0));
         assert!(d.canvas.cells.iter().all(|c| c.misses == 0 && c.near == 0));
+    }
+
+    /// Every cell of a grid has its own storage index, inside the padded storage.
+    #[test]
+    fn the_tile_lattice_stores_every_cell_once() {
+        for (width, height) in [(1, 1), (31, 33), (64, 32), (100, 7)] {
+            let (lattice, stored) = TileLattice::new(width, height);
+            let mut seen = vec![false; stored];
+            for y in 0..height {
+                for x in 0..width {
+                    let i = lattice.index(x, y);
+                    assert!(
+                        i < stored && !seen[i],
+                        "{width}x{height}: ({x}, {y}) -> {i}"
+                    );
+                    seen[i] = true;
+                }
+            }
+        }
     }
 
     /// A re-optimisation that moves the whole merged map (both epochs) rigidly keeps the
