@@ -5,16 +5,18 @@
 #    against the simulator's ground truth.
 # 2. Public logs: intel, aces, freiburg-079 with three kidnaps each (at 1/4, 1/2, 3/4 of the
 #    scans), merges judged against the corrected poses (--judge-with-log-poses).
-# Usage: scripts/bench_lifelong.sh [--jobs N] [--only sim|logs]. Writes bench-out/lifelong.md.
-# MAPMERGE_BIN=PATH runs another build.
+# Usage: scripts/bench_lifelong.sh [--jobs N] [--only sim|logs] [--config ENGINE.json].
+# Writes bench-out/lifelong.md (OUT_DIR=… elsewhere). MAPMERGE_BIN=PATH runs another build;
+# --config passes engine parameters to every run (e.g. {"detector": "learned"}).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-jobs=2; only=""
+jobs=2; only=""; config=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --jobs) jobs="$2"; shift 2 ;;
     --only) only="$2"; shift 2 ;;
-    *) echo "usage: $0 [--jobs N] [--only sim|logs]" >&2; exit 2 ;;
+    --config) config=(--config "$(realpath "$2")"); shift 2 ;;
+    *) echo "usage: $0 [--jobs N] [--only sim|logs] [--config ENGINE.json]" >&2; exit 2 ;;
   esac
 done
 if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
@@ -24,7 +26,7 @@ out="$(realpath -m "${OUT_DIR:-bench-out}")/lifelong"
 mkdir -p "$out"
 run() { # name, args...
   local name="$1"; shift
-  "$bin" atlas "$@" --no-pictures -o "$out/$name" --json > "$out/$name.json" 2> "$out/$name.err"
+  "$bin" atlas "$@" "${config[@]}" --no-pictures -o "$out/$name" --json > "$out/$name.json" 2> "$out/$name.err"
 }
 if [[ "$only" != logs ]]; then
   for seed in $(seq 1 10); do
@@ -45,7 +47,7 @@ if [[ "$only" != sim ]]; then
     # One core for the timing target.
     one_core=(env RAYON_NUM_THREADS=1)
     command -v taskset >/dev/null && one_core+=(taskset -c 0)
-    "${one_core[@]}" "$bin" atlas "$path" --kidnap-at "$((n / 4)),$((n / 2)),$((3 * n / 4))" \
+    "${one_core[@]}" "$bin" atlas "$path" "${config[@]}" --kidnap-at "$((n / 4)),$((n / 2)),$((3 * n / 4))" \
       --judge-with-log-poses --no-pictures -o "$out/log-$log" --json > "$out/log-$log.json" 2> "$out/log-$log.err"
   done
 fi

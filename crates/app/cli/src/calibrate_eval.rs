@@ -15,7 +15,7 @@
 //! training logs only (nested), unless `--alpha` fixes it. Reported per held-out log: each single detector's AUC (calibrated), the best of them, the
 //! learned combination's AUC and its hit rates at the threshold; pooled over the held-out
 //! predictions: AUC per invalid kind. Finally the model fitted on every log is written
-//! (`-o`), the one the engine embeds (`mapmerge_verify::LearnedModel::public_logs`).
+//! (`-o`), the one the engine embeds (`mapmerge_verify::LearnedModel::calibrated`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fmt::Write as _;

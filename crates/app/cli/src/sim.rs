@@ -61,8 +61,8 @@ pub struct SimArgs {
     pub no_pictures: bool,
     /// Also write `corrected.log`: every session's scans at their true poses (world frame),
     /// one session after another, stamps shifted to increase — a corrected log, e.g. for
-    /// `eval make-merge-cases` (whose segments end at the jumps between sessions and at
-    /// kidnaps).
+    /// `eval make-merge-cases --split-at-jumps-m 1` (its segments then end at the jumps
+    /// between sessions and at kidnaps).
     #[arg(long)]
     pub corrected_log: bool,
     /// Output folder (created if missing).

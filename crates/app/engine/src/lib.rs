@@ -84,11 +84,12 @@ pub struct EngineParams {
     pub decisions: DecisionParams,
     /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
     /// for no verification, as in an evaluation that runs its own detectors; default
-    /// `combined`). `learned` is the logistic regression calibrated leave-one-log-out on the
-    /// public logs (`mapmerge_verify::LearnedModel::public_logs`: the probability that the
-    /// merge is invalid at equal priors, threshold 0.5); it is not the default because on the
-    /// simulator's held-out worlds it caught fewer wrong merges than `combined`
-    /// (docs/benchmarks.md §8, issue 15 part 4).
+    /// `combined`). `learned` is the logistic regression calibrated on forced merges of the
+    /// public logs and the simulator's tuning seeds (`mapmerge_verify::LearnedModel::
+    /// calibrated`: the probability that the merge is invalid at equal priors, threshold
+    /// 0.5); it is not the default because it caught fewer wrong merges than `combined` on
+    /// the tuning seeds (1 of 2) and on the held-out worlds (12 of 42 against 30 of 51),
+    /// though it undid fewer correct ones (docs/benchmarks.md §8, issue 15 part 4).
     pub detector: String,
     /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
     /// merge more likely invalid than valid).

@@ -10,9 +10,10 @@
 //! model is fitted by [`LearnedModel::fit`] (L2-regularised, features standardised, then the
 //! intercept corrected to equal priors so that 0.5 means "as likely invalid as valid" however
 //! many invalid cases the training set had) and applied online by [`LearnedDetector`]. Its
-//! default model, [`LearnedModel::public_logs`], was fitted by `mapmerge eval calibrate` on
-//! forced merges of the 13 public logs (docs/benchmarks.md §8 gives the command, the
-//! leave-one-log-out figures, and why the engine's default detector is still `combined`).
+//! default model, [`LearnedModel::calibrated`], was fitted by `mapmerge eval calibrate` on
+//! forced merges of the 13 public logs (odometry `none` and `default`) and of the simulator's
+//! tuning seeds (office-aliased 1–10); docs/benchmarks.md §8 gives the commands and the
+//! leave-one-log-out figures.
 
 use serde::{Deserialize, Serialize};
 use smartcore::linalg::basic::arrays::Array;
@@ -21,8 +22,8 @@ use smartcore::linear::logistic_regression::{LogisticRegression, LogisticRegress
 
 use crate::{Evidence, InvalidMergeDetector, MergedMap};
 
-/// The model of [`LearnedModel::public_logs`] (written by `mapmerge eval calibrate -o`).
-const PUBLIC_LOGS_MODEL: &str = include_str!("learned_public_logs.json");
+/// The model of [`LearnedModel::calibrated`] (written by `mapmerge eval calibrate -o`).
+const CALIBRATED_MODEL: &str = include_str!("learned_calibrated.json");
 
 /// A fitted logistic regression over component detectors.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -90,11 +91,12 @@ fn finite_or_zero(x: f64) -> f64 {
 }
 
 impl LearnedModel {
-    /// The model fitted on the public logs (see the module documentation).
-    pub fn public_logs() -> Self {
+    /// The model fitted on the public logs and the simulator's tuning seeds (see the module
+    /// documentation).
+    pub fn calibrated() -> Self {
         // The embedded file is checked by a unit test; a broken one falls back to the
         // uninformed model rather than failing at run time.
-        serde_json::from_str(PUBLIC_LOGS_MODEL).unwrap_or_else(|_| Self::uninformed())
+        serde_json::from_str(CALIBRATED_MODEL).unwrap_or_else(|_| Self::uninformed())
     }
 
     /// A model that knows nothing: probability 0.5 for every merge, never above threshold.
@@ -247,7 +249,7 @@ impl std::fmt::Debug for LearnedDetector {
 
 impl Default for LearnedDetector {
     fn default() -> Self {
-        Self::new(LearnedModel::public_logs())
+        Self::new(LearnedModel::calibrated())
     }
 }
 
@@ -355,7 +357,7 @@ mod tests {
 
     #[test]
     fn the_embedded_model_parses_and_names_known_detectors() {
-        let model: LearnedModel = serde_json::from_str(PUBLIC_LOGS_MODEL).unwrap();
+        let model: LearnedModel = serde_json::from_str(CALIBRATED_MODEL).unwrap();
         assert!(!model.methods.is_empty());
         assert_eq!(model.ratio_weights.len(), model.methods.len());
         assert_eq!(model.unsupported_weights.len(), model.methods.len());
