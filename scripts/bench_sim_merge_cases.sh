@@ -9,21 +9,27 @@
 # under odometry noise `default` (the engine meets noisy odometry in the simulator; `none` as
 # well with --noise "none default", twice the time: ~10 min per seed and setting on one core);
 # two seeds at a time, each on one core.
-# Usage: scripts/bench_sim_merge_cases.sh [--seeds "1 2 …"] [--world W] [--noise "default …"]
+# --place-only: only the `place` kind (make-merge-cases --place-kind: careless place
+# recognition over the whole first segment, so wrong places in look-alike rooms, the engine's
+# own failure), to add to an earlier run's results; written to place-NOISE/.
+# Usage: scripts/bench_sim_merge_cases.sh [--seeds "1 2 …"] [--world W] [--noise "default …"] [--place-only]
 # Writes bench-out/sim-merge-cases/NOISE/*.results.jsonl; OUT_DIR=… elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-seeds="$(seq 1 10)"; world=office-aliased; noises=default
+seeds="$(seq 1 10)"; world=office-aliased; noises=default; place_only=0
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --seeds) seeds="$2"; shift 2 ;;
     --world) world="$2"; shift 2 ;;
     --noise) noises="$2"; shift 2 ;;
+    --place-only) place_only=1; shift ;;
     *) echo "usage: $0 [--seeds \"1 2 …\"] [--world W] [--noise \"default …\"]" >&2; exit 2 ;;
   esac
 done
 out="$(realpath -m "${OUT_DIR:-bench-out}")/sim-merge-cases"
-for noise in $noises; do mkdir -p "$out/$noise"; done
+prefix=""; kind_args=()
+(( place_only )) && { prefix=place-; kind_args=(--place-kind); }
+for noise in $noises; do mkdir -p "$out/$prefix$noise"; done
 cargo build --release -q -p mapmerge-cli
 cp target/release/mapmerge "$out/mapmerge"
 bin="$out/mapmerge"
@@ -37,12 +43,19 @@ one_seed() { # core seed
   # The log's name is its file stem without "-corrected": one "log" per seed in calibrate.
   mv "$out/$name/corrected.log" "$out/$name-corrected.log"
   for noise in $noises; do
+    local dir="$out/$prefix$noise"
     "$bin" eval make-merge-cases --log "$out/$name-corrected.log" --corrected "$out/$name-corrected.log" \
-      -o "$out/$noise/$name.cases.jsonl" --seed 0 --max-pairs 15 --valid-at merge-place \
-      --segment-length-m 30 --split-at-jumps-m 1 --odometry-noise "$noise" --json > "$out/$noise/$name.made.json"
-    "${pin[@]}" "$bin" eval invalid-merge --cases "$out/$noise/$name.cases.jsonl" \
-      -o "$out/$noise/$name.results.jsonl" --methods "$methods" \
-      --report "$out/$noise/$name.table.md" > /dev/null
+      -o "$dir/$name.cases.jsonl" --seed 0 --max-pairs 15 --valid-at merge-place \
+      --segment-length-m 30 --split-at-jumps-m 1 "${kind_args[@]}" --odometry-noise "$noise" \
+      --json > "$dir/$name.made.json"
+    if (( place_only )); then
+      grep '"kind":"place"' "$dir/$name.cases.jsonl" > "$dir/$name.place.jsonl" || true
+      mv "$dir/$name.place.jsonl" "$dir/$name.cases.jsonl"
+    fi
+    [[ -s "$dir/$name.cases.jsonl" ]] || continue
+    "${pin[@]}" "$bin" eval invalid-merge --cases "$dir/$name.cases.jsonl" \
+      -o "$dir/$name.results.jsonl" --methods "$methods" \
+      --report "$dir/$name.table.md" > /dev/null
   done
   echo "seed $seed done" >&2
 }
@@ -60,6 +73,7 @@ worker 0 "${even[@]}" & first=$!
 [[ ${#odd[@]} -gt 0 ]] && { worker 1 "${odd[@]}" & second=$!; wait "$second"; }
 wait "$first"
 for noise in $noises; do
-  cat "$out/$noise"/*.results.jsonl > "$out/$noise/results.jsonl"
-  echo "$noise: $(wc -l < "$out/$noise/results.jsonl") results" >&2
+  dir="$out/$prefix$noise"
+  cat "$dir/$world"-*.results.jsonl > "$dir/results.jsonl"
+  echo "$prefix$noise: $(wc -l < "$dir/results.jsonl") results" >&2
 done

@@ -73,7 +73,8 @@
 //!    optimum in the truth's own sub-window is not seen).
 //!    `--segment-length-m` cuts segments by travel along the corrected poses instead of time;
 //!    with `--split-at-jumps-m` a segment also ends where the corrected poses jump (kidnaps,
-//!    session changes in `mapmerge sim --corrected-log`).
+//!    session changes in `mapmerge sim --corrected-log`). `--place-kind` adds a `place` case
+//!    per pair, made as with `start-frames` (no `merge_place`: its transform is the case).
 //!
 //!    Every case's merged maps overlap by at least `--min-overlap` m² (whole segments).
 //!
@@ -199,6 +200,12 @@ pub struct MakeMergeCasesArgs {
     /// and `--segment-scans`).
     #[arg(long)]
     pub segment_length_m: Option<f64>,
+    /// With `--valid-at merge-place`: also one `place` case per pair, careless place
+    /// recognition over the whole first segment as with `start-frames` (the wrong place may
+    /// lie far from the truth, e.g. in a look-alike room: the lifelong engine's own wrong
+    /// merges).
+    #[arg(long)]
+    pub place_kind: bool,
     /// With `--segment-length-m`: consecutive corrected poses further apart than this (m)
     /// are a jump (a kidnap, or the next session in `mapmerge sim --corrected-log`), where a
     /// segment ends. Off by default: some public logs keep one scan per 1–3 m (orebro).
@@ -813,6 +820,25 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
                 .compose(&world_from_second.inverse());
             overlap_m2(&grids[i], &grids[j], &world_from_world2) >= args.min_overlap
         };
+        // Careless place recognition over the whole first segment: (query scan, transform).
+        let wrong_place = || {
+            careless_place_recognition(
+                &poses,
+                scans,
+                first,
+                second,
+                &truth,
+                args.overlap_radius,
+                &filter,
+                &verifier,
+                &SearchWindowM {
+                    linear_m: window.linear_m,
+                    angular_rad: window.angular_rad,
+                },
+                &engine_params.atlas.loops.place,
+            )
+            .filter(|(_, t)| overlaps(t))
+        };
         if args.valid_at == ValidAt::MergePlace {
             let mut pair_rng = ChaCha8Rng::seed_from_u64(pair_seed);
             let place =
@@ -835,28 +861,19 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
                 cases.push(case);
                 *per_kind.entry(kind).or_default() += 1;
             }
+            if args.place_kind {
+                if let Some((at, transform)) = wrong_place() {
+                    cases.push(make("place", at, &transform, Label::Invalid));
+                    *per_kind.entry("place").or_default() += 1;
+                }
+            }
             continue;
         }
         cases.push(make("valid", merge_at, &truth, Label::Valid));
         valid += 1;
         let mut invalid = 0;
         if invalid < args.invalid_per_pair {
-            let found = careless_place_recognition(
-                &poses,
-                scans,
-                first,
-                second,
-                &truth,
-                args.overlap_radius,
-                &filter,
-                &verifier,
-                &SearchWindowM {
-                    linear_m: window.linear_m,
-                    angular_rad: window.angular_rad,
-                },
-                &engine_params.atlas.loops.place,
-            );
-            if let Some((at, transform)) = found.filter(|(_, t)| overlaps(t)) {
+            if let Some((at, transform)) = wrong_place() {
                 cases.push(make("place", at, &transform, Label::Invalid));
                 place += 1;
                 invalid += 1;
@@ -904,7 +921,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
         pairs_used: pairs.len(),
         cases: cases.len(),
         valid,
-        invalid_place: place,
+        invalid_place: place + per_kind.get("place").copied().unwrap_or(0),
         invalid_lookalike: lookalike,
         invalid_rotation: per_kind.get("rotation").copied().unwrap_or(0),
         invalid_shift: per_kind.get("shift").copied().unwrap_or(0),
@@ -925,7 +942,7 @@ pub fn make_merge_cases(args: &MakeMergeCasesArgs) -> anyhow::Result<()> {
             report.pairs_used,
             report.cases,
             valid,
-            place,
+            report.invalid_place,
             lookalike,
             report.invalid_rotation,
             report.invalid_shift,

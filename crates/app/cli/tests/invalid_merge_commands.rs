@@ -324,6 +324,41 @@ fn intel_cases_have_both_labels_and_the_detectors_tell_them_apart() {
     );
 }
 
+/// `--place-kind` adds, per pair, a `place` case (careless place recognition over the whole
+/// first segment, its transform the case, no merge place) and leaves the other cases as
+/// they were.
+#[test]
+fn the_place_kind_adds_wrong_places_and_changes_nothing_else() {
+    let Some(intel) = intel() else {
+        return;
+    };
+    let dir = scratch("invalid-merge-place-kind");
+    let (plain, with_place) = (dir.join("plain.jsonl"), dir.join("place.jsonl"));
+    let args = [
+        "--valid-at",
+        "merge-place",
+        "--segment-length-m",
+        "30",
+        "--max-pairs",
+        "3",
+    ];
+    make_cases(&intel, &plain, &args);
+    let mut more = args.to_vec();
+    more.push("--place-kind");
+    let report = make_cases(&intel, &with_place, &more);
+    let (plain, with_place) = (json_lines(&plain), json_lines(&with_place));
+    let (places, others): (Vec<_>, Vec<_>) =
+        with_place.into_iter().partition(|c| c["kind"] == "place");
+    assert_eq!(others, plain);
+    assert!(!places.is_empty() && places.len() <= 3, "{places:?}");
+    assert_eq!(report["invalid_place"], places.len());
+    for case in &places {
+        assert_eq!(case["label"], "invalid", "{case}");
+        assert!(case.get("merge_place").is_none_or(Value::is_null), "{case}");
+        assert!(case["id"].as_str().unwrap().ends_with("/place"), "{case}");
+    }
+}
+
 /// Issue 15's protocol: merges defined at the merge place, 30 m segments, the log's own
 /// odometry; every case carries its merge place and kind, the invalid kinds are there, and
 /// the summary reports AUC per kind.
