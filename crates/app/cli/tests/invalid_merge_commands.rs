@@ -100,8 +100,8 @@ fn make_cases(log: &Path, out: &Path, extra: &[&str]) -> Value {
     ok_json(&args)
 }
 
-/// `mapmerge eval invalid-merge --cases CASES -o RESULTS --methods METHODS EXTRA… --json`.
-fn evaluate(cases: &Path, results: &Path, methods: &str, extra: &[&str]) -> Value {
+/// The arguments `eval invalid-merge --cases CASES -o RESULTS EXTRA…`.
+fn invalid_merge_args<'a>(cases: &'a Path, results: &'a Path, extra: &[&'a str]) -> Vec<&'a str> {
     let mut args = vec![
         "eval",
         "invalid-merge",
@@ -109,10 +109,14 @@ fn evaluate(cases: &Path, results: &Path, methods: &str, extra: &[&str]) -> Valu
         p(cases),
         "-o",
         p(results),
-        "--methods",
-        methods,
-        "--json",
     ];
+    args.extend_from_slice(extra);
+    args
+}
+
+/// `mapmerge eval invalid-merge --cases CASES -o RESULTS --methods METHODS EXTRA… --json`.
+fn evaluate(cases: &Path, results: &Path, methods: &str, extra: &[&str]) -> Value {
+    let mut args = invalid_merge_args(cases, results, &["--methods", methods, "--json"]);
     args.extend_from_slice(extra);
     ok_json(&args)
 }
@@ -137,14 +141,7 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
     };
     let json = bad("json.jsonl", format!("{good}\n{{\"id\": \"b\", \"log\"\n"));
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&json),
-            "-o",
-            p(&results),
-        ],
+        &invalid_merge_args(&json, &results, &[]),
         "json.jsonl:2: not a merge case",
     );
     let range = bad(
@@ -152,38 +149,17 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
         format!("{good}\n\n{}\n", case_line(&log, "b", [0, 4], [5, 25], 8)),
     );
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&range),
-            "-o",
-            p(&results),
-        ],
+        &invalid_merge_args(&range, &results, &[]),
         "range.jsonl:3: second [5, 25] is beyond the 20 scans",
     );
     let outside = bad("outside.jsonl", case_line(&log, "c", [0, 4], [5, 19], 3));
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&outside),
-            "-o",
-            p(&results),
-        ],
+        &invalid_merge_args(&outside, &results, &[]),
         "outside.jsonl:1: merge_at 3 is not a scan of second [5, 19]",
     );
     let order = bad("order.jsonl", case_line(&log, "d", [4, 0], [5, 19], 8));
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&order),
-            "-o",
-            p(&results),
-        ],
+        &invalid_merge_args(&order, &results, &[]),
         "order.jsonl:1: first [4, 0] ends before it starts",
     );
     for (flag, value) in [("--segment-length-m", "0"), ("--valid-at", "somewhere")] {
@@ -203,30 +179,11 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
     }
     let ok = bad("ok.jsonl", format!("{good}\n"));
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&ok),
-            "-o",
-            p(&results),
-            "--methods",
-            "psychic",
-        ],
+        &invalid_merge_args(&ok, &results, &["--methods", "psychic"]),
         "unknown method `psychic`",
     );
     // A case it did not generate, on a log of that format, runs.
-    let report = ok_json(&[
-        "eval",
-        "invalid-merge",
-        "--cases",
-        p(&ok),
-        "-o",
-        p(&results),
-        "--methods",
-        "histogram",
-        "--json",
-    ]);
+    let report = evaluate(&ok, &results, "histogram", &[]);
     assert_eq!(report["cases"], 1);
     let lines = json_lines(&results);
     assert_eq!(lines.len(), 1);
@@ -236,16 +193,7 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
     let params = dir.join("params.json");
     std::fs::write(&params, r#"{"change_detection": {"recent_scanz": 5}}"#).unwrap();
     expect_bad(
-        &[
-            "eval",
-            "invalid-merge",
-            "--cases",
-            p(&ok),
-            "-o",
-            p(&results),
-            "--detector-params",
-            p(&params),
-        ],
+        &invalid_merge_args(&ok, &results, &["--detector-params", p(&params)]),
         "bad detector parameters",
     );
 }

@@ -148,8 +148,7 @@ impl TileLattice {
 #[derive(Debug, Default)]
 struct Canvas {
     geometry: Option<GridGeometry>,
-    lattice: TileLattice,
-    /// Per cell (stored as `lattice` says): the other epochs' dilated class and the window's
+    /// Per cell (stored as `geometry`'s [`TileLattice`] says): the other epochs' dilated class and the window's
     /// counters (one 8-byte record, so a beam step touches one record).
     cells: Vec<CellState>,
     /// Window: returns per cell (same storage order).
@@ -244,7 +243,7 @@ impl Canvas {
         let Some(geometry) = self.geometry else {
             return;
         };
-        let lattice = self.lattice;
+        let lattice = TileLattice::new(geometry.width, geometry.height).0;
         let Some(h) = self.hits.get_mut(lattice.index(x, y)) else {
             return;
         };
@@ -298,7 +297,7 @@ impl Canvas {
         let size = Point2::new(geometry.width as f64, geometry.height as f64);
         // Borrowed apart from the counters `miss` changes (given back below).
         let known = std::mem::take(&mut self.known);
-        let lattice = self.lattice;
+        let lattice = TileLattice::new(geometry.width, geometry.height).0;
         for p in points_in_robot {
             let range = p.norm();
             if !(range.is_finite() && range > 0.0 && range <= max_range_m) {
@@ -507,7 +506,6 @@ impl GridmapDetector {
         }
         self.canvas = Canvas {
             geometry: Some(geometry),
-            lattice,
             hits: vec![0; stored],
             known,
             cells,
