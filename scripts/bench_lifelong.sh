@@ -5,18 +5,22 @@
 #    against the simulator's ground truth.
 # 2. Public logs: intel, aces, freiburg-079 with three kidnaps each (at 1/4, 1/2, 3/4 of the
 #    scans), merges judged against the corrected poses (--judge-with-log-poses).
-# Usage: scripts/bench_lifelong.sh [--jobs N] [--only sim|logs] [--config ENGINE.json].
+#    With --fitting-seeds, also seeds 1-20 of every world (the seeds the engine's learned
+#    decision is fitted on, scripts/fit_engine_decision.sh; none of them held out).
+# Usage: scripts/bench_lifelong.sh [--jobs N] [--only sim|logs] [--config ENGINE.json]
+#        [--fitting-seeds].
 # Writes bench-out/lifelong.md (OUT_DIR=… elsewhere). MAPMERGE_BIN=PATH runs another build;
 # --config passes engine parameters to every run (e.g. {"detector": "learned"}).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-jobs=2; only=""; config=()
+jobs=2; only=""; config=(); fitting=0
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --jobs) jobs="$2"; shift 2 ;;
     --only) only="$2"; shift 2 ;;
     --config) config=(--config "$(realpath "$2")"); shift 2 ;;
-    *) echo "usage: $0 [--jobs N] [--only sim|logs] [--config ENGINE.json]" >&2; exit 2 ;;
+    --fitting-seeds) fitting=1; shift ;;
+    *) echo "usage: $0 [--jobs N] [--only sim|logs] [--config ENGINE.json] [--fitting-seeds]" >&2; exit 2 ;;
   esac
 done
 if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
@@ -33,12 +37,16 @@ if [[ "$only" != logs ]]; then
     run "tune-office-aliased-$seed" --sim office-aliased --seed "$seed" &
     while (( $(jobs -rp | wc -l) >= jobs )); do wait -n; done
   done
-  for world in office office-aliased corridor-loop warehouse symmetric-hall; do
-    for seed in $(seq 101 110); do
-      run "held-$world-$seed" --sim "$world" --seed "$seed" &
-      while (( $(jobs -rp | wc -l) >= jobs )); do wait -n; done
+  every_world() { # prefix, first seed, last seed
+    for world in office office-aliased corridor-loop warehouse symmetric-hall; do
+      for seed in $(seq "$2" "$3"); do
+        run "$1-$world-$seed" --sim "$world" --seed "$seed" &
+        while (( $(jobs -rp | wc -l) >= jobs )); do wait -n; done
+      done
     done
-  done
+  }
+  if (( fitting )); then every_world fit 1 20; fi
+  every_world held 101 110
 fi
 if [[ "$only" != sim ]]; then
   for log in intel aces freiburg-079; do
@@ -82,6 +90,11 @@ print("| runs | count | epochs after the first | ending correctly merged | wrong
 print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 tune = load("tune-office-aliased-*.json")
 if tune: row("tuning: office-aliased seeds 1–10", tune)
+for world in ["office", "office-aliased", "corridor-loop", "warehouse", "symmetric-hall"]:
+    fit = load(f"fit-{world}-[0-9]*.json")
+    if fit: row(f"fitting: {world} seeds 1–20", fit)
+fit_all = load("fit-*.json")
+if fit_all: row("**fitting: all worlds**", fit_all)
 for world in ["office", "office-aliased", "corridor-loop", "warehouse", "symmetric-hall"]:
     held = load(f"held-{world}-[0-9]*.json")
     if held: row(f"held out: {world} seeds 101–110", held)

@@ -21,7 +21,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Args;
 use mapmerge_atlas::{AtlasEvent, EpochEndReason};
-use mapmerge_engine::{Decision, Engine, EngineParams, EventKind, MergeState};
+use mapmerge_engine::{Decision, DetectorReading, Engine, EngineParams, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{GridGeometry, Point2};
 use mapmerge_io::{AnyGraph, GraphFormat};
@@ -34,6 +34,7 @@ use mapmerge_verify::{
 };
 use serde::Serialize;
 
+use crate::invalid_merge_eval::{Label, MergeResult};
 use crate::{bad_file, bad_input, print_json};
 
 /// Arguments of `mapmerge atlas`.
@@ -70,6 +71,16 @@ pub struct AtlasArgs {
     /// Skip the pictures (faster).
     #[arg(long)]
     pub no_pictures: bool,
+    /// Writes every judged merge that the detector read as `mapmerge eval invalid-merge`
+    /// results (JSON lines: one per method, the detector's and its components' highest
+    /// ratios, labelled by the truth), so that `mapmerge eval calibrate --results` can fit
+    /// the decision on the engine's own merges.
+    #[arg(long)]
+    pub merge_results: Option<PathBuf>,
+    /// The group these merges count as in `--merge-results` (`eval calibrate` leaves one
+    /// group out at a time; default: `sim-PRESET`, or the first log's name).
+    #[arg(long)]
+    pub results_group: Option<String>,
     /// Output folder.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -122,6 +133,8 @@ struct MergeReport {
     undone_after_m: Option<f64>,
     /// When its epoch ended (a full merge became final): travel after the merge (m).
     final_after_m: Option<f64>,
+    /// What the detector (first) and its components read while the merge was judged.
+    readings: Vec<DetectorReading>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -318,6 +331,9 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     out.flush()?;
     write_atlas(&engine, &args.output.join("atlas"))?;
     let (merges, unmerges) = summarise(&engine, &truth_of_node);
+    if let Some(path) = &args.merge_results {
+        write_merge_results(args, &merges, path)?;
+    }
     let judged = !truth_of_node.is_empty();
     let wrong: Vec<&MergeReport> = merges.iter().filter(|m| m.correct == Some(false)).collect();
     let correct: Vec<&MergeReport> = merges.iter().filter(|m| m.correct == Some(true)).collect();
@@ -507,6 +523,7 @@ fn summarise(
             undone_at_scan: record.ended_at_scan,
             undone_after_m: record.ended_after_m(),
             final_after_m,
+            readings: record.readings.clone(),
         });
     }
     let unmerges = engine
@@ -529,6 +546,58 @@ fn summarise(
         })
         .collect();
     (merges, unmerges)
+}
+
+/// `--merge-results`: one `eval invalid-merge` result per judged merge and method.
+fn write_merge_results(
+    args: &AtlasArgs,
+    merges: &[MergeReport],
+    path: &Path,
+) -> anyhow::Result<()> {
+    let group = args
+        .results_group
+        .clone()
+        .unwrap_or_else(|| match &args.sim {
+            Some(preset) => format!("sim-{preset}"),
+            None => args
+                .logs
+                .first()
+                .map_or_else(|| "atlas".to_owned(), |l| crate::log_short_name(l)),
+        });
+    let run = args
+        .output
+        .file_name()
+        .map_or_else(|| "atlas".into(), |n| n.to_string_lossy().into_owned());
+    let mut out = std::io::BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    );
+    for (k, merge) in merges.iter().enumerate() {
+        let Some(correct) = merge.correct else {
+            continue;
+        };
+        for reading in &merge.readings {
+            let result = MergeResult {
+                id: format!("{group}/{run}/merge{k}"),
+                method: reading.method.clone(),
+                max_invalidity: reading.peak_ratio,
+                ms_per_vertex: None,
+                vertices: reading.vertices,
+                label: Some(if correct {
+                    Label::Valid
+                } else {
+                    Label::Invalid
+                }),
+                kind: "engine".into(),
+                log: group.clone(),
+                supported_vertices: Some(reading.supported_vertices),
+            };
+            serde_json::to_writer(&mut out, &result)?;
+            writeln!(out)?;
+        }
+    }
+    out.flush()
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(())
 }
 
 /// A merge is correct when most of its merge edges (recorded by the engine when it decided,

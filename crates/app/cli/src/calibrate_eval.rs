@@ -345,16 +345,21 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     let all: Vec<LearnedSample> = cases.iter().filter_map(|c| c.sample(&features)).collect();
     let every: Vec<&Case> = cases.iter().collect();
     let alpha = choose_alpha(&features, &every, args.alpha);
+    let names: Vec<String> = args
+        .results
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    // Many files (e.g. one per simulator run): the count, the first and the last.
+    let files = match names.as_slice() {
+        [first, .., last] if names.len() > 4 => format!("{} files: {first} … {last}", names.len()),
+        _ => names.join(", "),
+    };
     let provenance = format!(
-        "mapmerge eval calibrate (alpha {alpha}) --features {} on {} cases of {} logs ({})",
+        "mapmerge eval calibrate (alpha {alpha}) --features {} on {} cases of {} logs ({files})",
         features.join(","),
         all.len(),
         logs.len(),
-        args.results
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", ")
     );
     let model = LearnedModel::fit(&features, &all, alpha, provenance).ok();
     if let Some(model) = &model {

@@ -29,6 +29,8 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         "60",
         "-o",
         p(&dir),
+        "--merge-results",
+        p(&dir.join("merges.jsonl")),
         "--json",
     ]);
     assert_eq!(report["sessions"], 2, "{report}");
@@ -97,6 +99,49 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
     }
     assert!(report["ambiguous_keyframes"].is_u64());
     assert!(dir.join("atlas/active.g2o").is_file());
+    // --merge-results: one line per judged merge and method (the detector's own reading
+    // first), labelled by the truth, in the format `eval calibrate --results` reads.
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(dir.join("merges.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let mut expected = Vec::new();
+    for (k, m) in report["merges"].as_array().unwrap().iter().enumerate() {
+        for reading in m["readings"].as_array().unwrap() {
+            let label = if m["correct"] == true {
+                "valid"
+            } else {
+                "invalid"
+            };
+            expected.push((
+                format!(
+                    "sim-office-aliased/{}/merge{k}",
+                    dir.file_name().unwrap().to_string_lossy()
+                ),
+                reading["method"].as_str().unwrap().to_owned(),
+                label,
+                reading["peak_ratio"].as_f64().unwrap(),
+            ));
+        }
+        if let Some(first) = m["readings"].as_array().unwrap().first() {
+            assert_eq!(first["method"], "combined", "{m}");
+        }
+    }
+    let got: Vec<_> = lines
+        .iter()
+        .map(|l| {
+            (
+                l["id"].as_str().unwrap().to_owned(),
+                l["method"].as_str().unwrap().to_owned(),
+                l["label"].as_str().unwrap(),
+                l["max_invalidity"].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(got, expected);
+    assert!(!got.is_empty(), "no merge was judged on this seed");
+    assert!(lines.iter().all(|l| l["log"] == "sim-office-aliased"));
 }
 
 #[test]

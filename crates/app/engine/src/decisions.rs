@@ -146,9 +146,54 @@ pub struct MergeRecord {
     /// Its merge edges `(from, to, from_from_to)` as made (inactive vertex to active one;
     /// overlap edges included), for judging against a ground truth.
     pub edges: Vec<(NodeId, NodeId, Se2)>,
+    /// What the invalid-merge detector read while this merge was judged (conditional, then
+    /// on probation): the detector first, then its components (a combination's); empty
+    /// when it was never judged.
+    #[serde(default)]
+    pub readings: Vec<DetectorReading>,
+}
+
+/// One method's readings over a merge's judging (see [`MergeRecord::readings`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DetectorReading {
+    /// The detector (`mapmerge_verify::DETECTOR_NAMES`).
+    pub method: String,
+    /// Its highest ratio (0 when never supported: unsupported ratios are 0).
+    pub peak_ratio: f64,
+    /// Vertices it judged.
+    pub vertices: usize,
+    /// Vertices at which it had enough to compare (`mapmerge_verify::Evidence::Supported`).
+    pub supported_vertices: usize,
 }
 
 impl MergeRecord {
+    /// Adds one vertex's readings `(method, ratio, supported)`, in a fixed order per
+    /// detector.
+    pub(crate) fn note_readings(&mut self, readings: &[(&str, f64, bool)]) {
+        for (method, ratio, supported) in readings {
+            let position = self.readings.iter().position(|r| r.method == *method);
+            let reading = match position {
+                Some(k) => &mut self.readings[k],
+                None => {
+                    self.readings.push(DetectorReading {
+                        method: (*method).to_owned(),
+                        peak_ratio: 0.0,
+                        vertices: 0,
+                        supported_vertices: 0,
+                    });
+                    let last = self.readings.len() - 1;
+                    &mut self.readings[last]
+                }
+            };
+            reading.vertices += 1;
+            if *supported {
+                reading.supported_vertices += 1;
+            }
+            if ratio.is_finite() {
+                reading.peak_ratio = reading.peak_ratio.max(*ratio);
+            }
+        }
+    }
     /// Travel from the first decision (conditional, else full) to the end (m).
     pub fn ended_after_m(&self) -> Option<f64> {
         let start = self.conditional_travel_m.or(self.full_travel_m)?;
@@ -270,6 +315,7 @@ mod tests {
             views: 2,
             active_from_inactive: [0.0; 3],
             edges: Vec::new(),
+            readings: Vec::new(),
         };
         assert_eq!(record.ended_after_m(), None);
         assert_eq!(record.full_after_m(), None);
@@ -280,6 +326,26 @@ mod tests {
         // A forced merge starts full.
         record.conditional_travel_m = None;
         assert_eq!(record.ended_after_m(), Some(4.5));
+        // Readings keep each method's highest ratio and count its vertices, in first-seen
+        // order; a non-finite ratio counts as a vertex but not as a peak.
+        record.note_readings(&[("learned", 0.2, true), ("gridmap", 0.0, false)]);
+        record.note_readings(&[("learned", f64::NAN, true), ("gridmap", 0.4, true)]);
+        record.note_readings(&[("learned", 0.1, false), ("gridmap", 0.3, true)]);
+        let got: Vec<(&str, f64, usize, usize)> = record
+            .readings
+            .iter()
+            .map(|r| {
+                (
+                    r.method.as_str(),
+                    r.peak_ratio,
+                    r.vertices,
+                    r.supported_vertices,
+                )
+            })
+            .collect();
+        assert_eq!(got, [("learned", 0.2, 3, 2), ("gridmap", 0.4, 3, 2)]);
+        let json = serde_json::to_string(&record).unwrap();
+        assert_eq!(serde_json::from_str::<MergeRecord>(&json).unwrap(), record);
     }
 
     #[test]

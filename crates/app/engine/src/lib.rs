@@ -34,12 +34,16 @@ use mapmerge_place::ScanMatchVerifier;
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
-use mapmerge_verify::{DetectorScan, InvalidMergeDetector, MergedMap};
+use mapmerge_verify::{
+    DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector, LearnedModel, MergedMap,
+};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
 use decisions::Conditional;
-pub use decisions::{Decision, DecisionParams, EventKind, MergeRecord, MergeState, ObservedEdge};
+pub use decisions::{
+    Decision, DecisionParams, DetectorReading, EventKind, MergeRecord, MergeState, ObservedEdge,
+};
 /// Counters of the merge and recovery hypotheses (`created`, `merge`, `recovery`,
 /// `conditional`, `full`, `rejected_conditional`, `expired`).
 pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;
@@ -66,6 +70,9 @@ pub enum EngineError {
     /// No detector of that name.
     #[error("unknown invalid-merge detector `{0}` (known: {1})")]
     UnknownDetector(String, String),
+    /// A `learned_model` was given for another detector.
+    #[error("learned_model is for detector `learned`, but the detector is `{0}`")]
+    ModelWithoutLearned(String),
 }
 
 /// [`EngineParams::detector`] for no verification.
@@ -89,8 +96,16 @@ pub struct EngineParams {
     /// calibrated`: the probability that the merge is invalid at equal priors, threshold
     /// 0.5); it is not the default because it caught fewer wrong merges than `combined` on
     /// the tuning seeds (1 of 2) and on the held-out worlds (12 of 42 against 30 of 51),
-    /// though it undid fewer correct ones (docs/benchmarks.md §8, issue 15 part 4).
+    /// though it undid fewer correct ones. A model fitted on the engine's own merges
+    /// (`learned_model`, `scripts/fit_engine_decision.sh`) caught more wrong merges than
+    /// `combined` on its fitting seeds but also undid more correct ones (17 against 10), so
+    /// by the rule fixed beforehand it is not the default either (docs/benchmarks.md §8,
+    /// issue 15 part 4).
     pub detector: String,
+    /// The model of detector `learned` (default: none, `LearnedModel::calibrated`); e.g. one
+    /// fitted by `mapmerge eval calibrate` on the engine's own merges. An error with any
+    /// other detector.
+    pub learned_model: Option<LearnedModel>,
     /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
     /// merge more likely invalid than valid).
     pub unmerge_threshold: f64,
@@ -107,6 +122,7 @@ impl Default for EngineParams {
             atlas: AtlasParams::default(),
             decisions: DecisionParams::default(),
             detector: "combined".into(),
+            learned_model: None,
             unmerge_threshold: 0.5,
             refused_within: (1.0, 10f64.to_radians()),
         }
@@ -183,18 +199,21 @@ pub struct Engine {
 impl Engine {
     /// A new engine: epoch 0 starts.
     pub fn new(params: EngineParams) -> Result<Self, EngineError> {
-        let detector = match params.detector.as_str() {
-            NO_DETECTOR => None,
-            name => Some(mapmerge_verify::detector(name).ok_or_else(|| {
-                EngineError::UnknownDetector(
-                    params.detector.clone(),
-                    format!(
-                        "{}, {NO_DETECTOR}",
-                        mapmerge_verify::DETECTOR_NAMES.join(", ")
-                    ),
-                )
-            })?),
-        };
+        let detector: Option<Box<dyn InvalidMergeDetector>> =
+            match (params.detector.as_str(), &params.learned_model) {
+                ("learned", Some(model)) => Some(Box::new(LearnedDetector::new(model.clone()))),
+                (name, Some(_)) => return Err(EngineError::ModelWithoutLearned(name.to_owned())),
+                (NO_DETECTOR, None) => None,
+                (name, None) => Some(mapmerge_verify::detector(name).ok_or_else(|| {
+                    EngineError::UnknownDetector(
+                        params.detector.clone(),
+                        format!(
+                            "{}, {NO_DETECTOR}",
+                            mapmerge_verify::DETECTOR_NAMES.join(", ")
+                        ),
+                    )
+                })?),
+            };
         let verifier = params
             .atlas
             .recognition
@@ -653,6 +672,7 @@ impl Engine {
                 .iter()
                 .map(|e| (e.inactive, e.active, e.inactive_from_active))
                 .collect(),
+            readings: Vec::new(),
         });
         self.log_decision(Decision::ConditionalMerge {
             hypothesis: id.0,
@@ -805,6 +825,7 @@ impl Engine {
                     views: counts.weighted_views.round() as usize,
                     active_from_inactive: event.active_from_inactive,
                     edges: merge_edges,
+                    readings: Vec::new(),
                 };
                 match conditional.and_then(|c| self.merge_log.get_mut(c.record)) {
                     Some(existing) => {
@@ -907,6 +928,28 @@ impl Engine {
         });
         self.max_invalidity = self.max_invalidity.max(invalidity);
         let name = detector.name().to_owned();
+        let supported = |evidence| evidence == Evidence::Supported;
+        let readings: Vec<(&str, f64, bool)> =
+            std::iter::once((detector.name(), invalidity, supported(detector.evidence())))
+                .chain(
+                    detector
+                        .component_readings()
+                        .into_iter()
+                        .map(|(method, ratio, evidence)| (method, ratio, supported(evidence))),
+                )
+                .collect();
+        // The merge being judged: the conditional one, else the newest full one.
+        let epoch = self.atlas.current_epoch().0;
+        let judged = match &self.conditional {
+            Some(conditional) => Some(conditional.record),
+            None => self
+                .merge_log
+                .iter()
+                .rposition(|r| r.epoch == epoch && r.state == MergeState::Full),
+        };
+        if let Some(record) = judged.and_then(|k| self.merge_log.get_mut(k)) {
+            record.note_readings(&readings);
+        }
         if let Some(conditional) = &self.conditional {
             if invalidity > self.params.decisions.conditional_reject_threshold {
                 let (id, map) = (conditional.hypothesis, conditional.map);
@@ -989,6 +1032,7 @@ impl Engine {
             views: 0,
             active_from_inactive: event.active_from_inactive,
             edges,
+            readings: Vec::new(),
         });
         self.restart_detector();
         self.collect_events();

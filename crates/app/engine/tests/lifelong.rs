@@ -12,6 +12,7 @@ use mapmerge_engine::{Engine, EngineParams, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_sim::{simulate, SimParams};
+use mapmerge_verify::LearnedModel;
 
 /// Runs a simulated data set through the engine; checks the invariants after every scan and
 /// returns the engine and every keyframe's true pose.
@@ -267,6 +268,78 @@ fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
         .as_deref()
         .unwrap_or("")
         .contains("invalidity"));
+    // What the detector read while judging it: its own ratio first, above the threshold
+    // that undid it, on every vertex it judged.
+    let reading = &record.readings[0];
+    assert_eq!(reading.method, EngineParams::default().detector);
+    assert!(reading.peak_ratio > EngineParams::default().unmerge_threshold);
+    assert!(reading.vertices >= 1 && reading.supported_vertices <= reading.vertices);
+}
+
+#[test]
+fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_are_recorded() {
+    let mut params = SimParams::default().with_preset_name("office").unwrap();
+    params.sessions = 2;
+    params.duration_secs = 40.0;
+    params.kidnap.max_per_session = 0;
+    let dataset = simulate(&params, 5).unwrap();
+    // A model that never calls a merge invalid, whatever its components read.
+    let never = LearnedModel {
+        methods: vec!["change_detection".into(), "gridmap".into()],
+        ratio_weights: vec![0.0, 0.0],
+        unsupported_weights: vec![0.0, 0.0],
+        intercept: -50.0,
+        threshold: 0.5,
+        fitted_on: "test".into(),
+    };
+    // A model for another detector is a mistake, not something to ignore.
+    let misplaced = Engine::new(EngineParams {
+        learned_model: Some(never.clone()),
+        ..EngineParams::default()
+    });
+    assert!(matches!(
+        misplaced,
+        Err(mapmerge_engine::EngineError::ModelWithoutLearned(ref d)) if d == "combined"
+    ));
+    let mut engine = Engine::new(EngineParams {
+        detector: "learned".into(),
+        learned_model: Some(never),
+        ..EngineParams::default()
+    })
+    .unwrap();
+    let mut odometry = Se2::identity();
+    for record in &dataset.sessions[0].log.scans {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        engine.add_scan(&odometry, &record.scan, None).unwrap();
+    }
+    engine.end_epoch(EpochEndReason::Restart).unwrap();
+    let second = &dataset.sessions[1].log.scans;
+    let truth = |s: usize| dataset.sessions[s].truth[0].1;
+    let wrong = truth(1)
+        .inverse()
+        .compose(&truth(0))
+        .compose(&Se2::new(2.5, 1.0, 0.5));
+    let mut odometry = Se2::identity();
+    for (k, record) in second.iter().enumerate() {
+        if k == 50 {
+            engine
+                .force_merge(MapId(0), wrong, "wrong on purpose")
+                .unwrap();
+        }
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        engine.add_scan(&odometry, &record.scan, None).unwrap();
+    }
+    let record = engine.merge_log().last().unwrap();
+    assert_eq!(record.state, MergeState::Full, "the model never undoes");
+    let methods: Vec<&str> = record.readings.iter().map(|r| r.method.as_str()).collect();
+    assert_eq!(methods, ["learned", "change_detection", "gridmap"]);
+    assert!(record.readings[0].peak_ratio < 1e-6);
+    // The components saw the wrong merge for what it is.
+    assert!(record.readings[1].peak_ratio > 0.3, "{:?}", record.readings);
+    assert!(record
+        .readings
+        .iter()
+        .all(|r| r.vertices == record.readings[0].vertices));
 }
 
 #[test]

@@ -235,6 +235,8 @@ pub struct LearnedDetector {
     components: Vec<Box<dyn InvalidMergeDetector>>,
     peaks: Vec<f64>,
     never_supported: Vec<bool>,
+    /// Each component's ratio at the last vertex.
+    last: Vec<f64>,
 }
 
 impl std::fmt::Debug for LearnedDetector {
@@ -273,6 +275,7 @@ impl LearnedDetector {
             components,
             peaks: vec![0.0; m],
             never_supported: vec![true; m],
+            last: vec![0.0; m],
         }
     }
 
@@ -315,16 +318,19 @@ impl InvalidMergeDetector for LearnedDetector {
         }
         self.peaks.iter_mut().for_each(|p| *p = 0.0);
         self.never_supported.iter_mut().for_each(|u| *u = true);
+        self.last.iter_mut().for_each(|r| *r = 0.0);
     }
 
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
-        for ((c, peak), never) in self
+        for (((c, peak), never), last) in self
             .components
             .iter_mut()
             .zip(&mut self.peaks)
             .zip(&mut self.never_supported)
+            .zip(&mut self.last)
         {
             let ratio = c.on_vertex(map);
+            *last = ratio;
             if c.evidence() == Evidence::Supported && ratio.is_finite() {
                 *never = false;
                 *peak = peak.max(ratio);
@@ -340,6 +346,14 @@ impl InvalidMergeDetector for LearnedDetector {
         } else {
             Evidence::Supported
         }
+    }
+
+    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+        self.components
+            .iter()
+            .zip(&self.last)
+            .map(|(c, &ratio)| (c.name(), ratio, c.evidence()))
+            .collect()
     }
 }
 

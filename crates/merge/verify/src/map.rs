@@ -71,4 +71,11 @@ pub trait InvalidMergeDetector: Send {
     fn evidence(&self) -> Evidence {
         Evidence::Supported
     }
+
+    /// For a detector made of other detectors: each component's name, last ratio and
+    /// evidence (after the last [`InvalidMergeDetector::on_vertex`]); empty for a single
+    /// detector. Lets a caller record what a combination's decision rested on.
+    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+        Vec::new()
+    }
 }

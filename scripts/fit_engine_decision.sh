@@ -1,0 +1,72 @@
+#!/usr/bin/env bash
+# Issue 15, part 4: the engine's decision fitted on the engine's own merges.
+# 1. `mapmerge atlas --sim WORLD --seed S` on the fitting seeds 1-20 of every world preset
+#    (none of them held out: the lifelong benchmark holds out 101-110), with detector
+#    `learned` that never acts (thresholds above 1), so every merge is judged over its whole
+#    conditional phase and probation; `--merge-results` writes each merge's readings,
+#    labelled by the simulator's truth.
+# 2. `mapmerge eval calibrate` on them, leaving one world out at a time (L2 weight nested),
+#    and the model on all of them (`-o`).
+# 3. An `atlas --config` for it: threshold 0.5 (equal priors), or with --false-alarm-budget F
+#    the lowest probability that at most a share F of the correct merges exceed (in sample)
+#    as both engine thresholds (unmerge, conditional reject).
+# Usage: scripts/fit_engine_decision.sh [--jobs N] [--false-alarm-budget F]. Writes $OUT_DIR
+# (default bench-out/engine-fit): runs/, model.json, calibrate.md, engine-config.json.
+# MAPMERGE_BIN=PATH runs another build.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+jobs=2; budget=""
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --jobs) jobs="$2"; shift 2 ;;
+    --false-alarm-budget) budget="$2"; shift 2 ;;
+    *) echo "usage: $0 [--jobs N] [--false-alarm-budget F]" >&2; exit 2 ;;
+  esac
+done
+if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
+bin="$(realpath "${MAPMERGE_BIN:-target/release/mapmerge}")"
+out="$(realpath -m "${OUT_DIR:-bench-out/engine-fit}")"
+mkdir -p "$out/runs"
+shadow="$out/shadow.json"
+echo '{"detector": "learned", "unmerge_threshold": 2.0, "decisions": {"conditional_reject_threshold": 2.0}}' > "$shadow"
+for world in office office-aliased corridor-loop warehouse symmetric-hall; do
+  for seed in $(seq 1 20); do
+    name="$world-$seed"
+    [[ -s "$out/runs/$name.json" ]] && continue # kept from an earlier run of this build
+    "$bin" atlas --sim "$world" --seed "$seed" --config "$shadow" --no-pictures \
+      -o "$out/runs/$name" --merge-results "$out/runs/$name.merges.jsonl" --json \
+      > "$out/runs/$name.json" 2> "$out/runs/$name.err" &
+    while (( $(jobs -rp | wc -l) >= jobs )); do wait -n; done
+  done
+done
+wait
+"$bin" eval calibrate --results "$out"/runs/*.merges.jsonl -o "$out/model.json" \
+  --report "$out/calibrate.md" --min-cases 3 > /dev/null
+cat "$out/calibrate.md"
+python3 - "$out" "$budget" <<'PY'
+import glob, json, math, os, sys
+out, budget = sys.argv[1], sys.argv[2]
+model = json.load(open(os.path.join(out, "model.json")))
+threshold = 0.5
+if budget:
+    cases = {}
+    for f in glob.glob(os.path.join(out, "runs", "*.merges.jsonl")):
+        for line in open(f):
+            r = json.loads(line)
+            c = cases.setdefault(r["id"], {"valid": r["label"] == "valid", "scores": {}})
+            c["scores"][r["method"]] = (r["max_invalidity"], r["vertices"] > 0 and r["supported_vertices"] == 0)
+    def probability(c):
+        z = model["intercept"]
+        for k, method in enumerate(model["methods"]):
+            ratio, unsupported = c["scores"][method]
+            z += model["ratio_weights"][k] * ratio + (model["unsupported_weights"][k] if unsupported else 0.0)
+        return 1.0 / (1.0 + math.exp(-z))
+    valid = sorted(probability(c) for c in cases.values() if c["valid"])
+    allowed = math.floor(float(budget) * len(valid))
+    threshold = math.ceil(valid[len(valid) - allowed - 1] * 100) / 100
+    print(f"threshold {threshold}: {sum(v > threshold for v in valid)} of {len(valid)} correct merges above it (budget {budget})")
+model["threshold"] = threshold
+config = {"detector": "learned", "learned_model": model, "unmerge_threshold": threshold,
+          "decisions": {"conditional_reject_threshold": threshold}}
+json.dump(config, open(os.path.join(out, "engine-config.json"), "w"), indent=1)
+PY
