@@ -52,6 +52,12 @@ pub struct CalibrateArgs {
     /// per fold from 0.01, 0.1, 1, 10, 100 by leave-one-log-out on its training logs.
     #[arg(long)]
     pub alpha: Option<f64>,
+    /// Sets the written model's threshold to the lowest probability (rounded up to 0.01)
+    /// that at most this share of the valid cases exceed, in sample (default: 0.5, equal
+    /// priors): a false-alarm budget for a decision that meets fewer invalid merges than
+    /// valid ones.
+    #[arg(long)]
+    pub false_alarm_budget: Option<f64>,
     /// A held-out log counts towards the targets with at least this many valid and this many
     /// invalid cases.
     #[arg(long, default_value_t = 10)]
@@ -253,6 +259,13 @@ fn held_out(method: &str, test: &[&Case], scores: &[f64], threshold: f64) -> Hel
 /// Runs `mapmerge eval calibrate`.
 pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     let started = Instant::now();
+    if let Some(budget) = args.false_alarm_budget {
+        if !(0.0..1.0).contains(&budget) {
+            return Err(bad_input(format!(
+                "--false-alarm-budget {budget} is not a share in [0, 1)"
+            )));
+        }
+    }
     let cases = read_cases(&args.results)?;
     if cases.is_empty() {
         return Err(bad_input("no labelled cases in the results".to_owned()));
@@ -361,7 +374,15 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         all.len(),
         logs.len(),
     );
-    let model = LearnedModel::fit(&features, &all, alpha, provenance).ok();
+    let mut model = LearnedModel::fit(&features, &all, alpha, provenance).ok();
+    if let (Some(model), Some(budget)) = (model.as_mut(), args.false_alarm_budget) {
+        let valid: Vec<f64> = all
+            .iter()
+            .filter(|s| !s.invalid)
+            .map(|s| model.probability(&s.ratios, &s.unsupported))
+            .collect();
+        model.threshold = threshold_for_budget(valid, budget);
+    }
     if let Some(model) = &model {
         for row in &mut rows {
             let of_log: Vec<&Case> = cases.iter().filter(|c| c.log == row.log).collect();
@@ -398,6 +419,22 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     } else {
         print!("{markdown}");
         Ok(())
+    }
+}
+
+/// The lowest threshold, rounded up to 0.01, that at most `budget` of the `valid` scores
+/// exceed (0.5 without valid scores).
+fn threshold_for_budget(mut valid: Vec<f64>, budget: f64) -> f64 {
+    valid.retain(|v| v.is_finite());
+    valid.sort_by(f64::total_cmp);
+    let allowed = (budget * valid.len() as f64).floor() as usize;
+    match valid
+        .len()
+        .checked_sub(allowed + 1)
+        .and_then(|k| valid.get(k).copied())
+    {
+        Some(score) => ((score * 100.0).ceil() / 100.0).min(1.0),
+        None => 0.5,
     }
 }
 
@@ -511,4 +548,28 @@ fn calibrate_markdown(
         );
     }
     md
+}
+
+#[cfg(test)]
+mod tests {
+    use super::threshold_for_budget;
+
+    #[test]
+    fn the_budget_threshold_lets_at_most_that_share_of_valid_scores_above_it() {
+        let valid: Vec<f64> = (0..100).map(|k| f64::from(k) / 100.0 + 0.001).collect();
+        for budget in [0.0, 0.033, 0.1, 0.5] {
+            let t = threshold_for_budget(valid.clone(), budget);
+            let above = valid.iter().filter(|&&v| v > t).count();
+            assert!(
+                above as f64 <= budget * 100.0,
+                "{budget}: {t} lets {above} above"
+            );
+            // …and is the lowest such threshold at 0.01 steps.
+            let lower = t - 0.01;
+            let above_lower = valid.iter().filter(|&&v| v > lower).count();
+            assert!(above_lower as f64 > budget * 100.0, "{budget}: {lower}");
+        }
+        assert_eq!(threshold_for_budget(vec![f64::NAN], 0.1), 0.5);
+        assert_eq!(threshold_for_budget(Vec::new(), 0.1), 0.5);
+    }
 }

@@ -530,6 +530,38 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
     assert!(std::fs::read_to_string(&report)
         .unwrap()
         .contains("| log |"));
+    // A false-alarm budget moves the written model's threshold; a share outside [0, 1) is
+    // bad input.
+    let budgeted = dir.join("budgeted.json");
+    ok_json(&[
+        "eval",
+        "calibrate",
+        "--results",
+        p(&results),
+        "--features",
+        "change_detection,gridmap",
+        "--alpha",
+        "1",
+        "--false-alarm-budget",
+        "0",
+        "-o",
+        p(&budgeted),
+        "--json",
+    ]);
+    let budgeted: Value =
+        serde_json::from_str(&std::fs::read_to_string(&budgeted).unwrap()).unwrap();
+    assert_ne!(budgeted["threshold"], 0.5, "{budgeted}");
+    expect_bad(
+        &[
+            "eval",
+            "calibrate",
+            "--results",
+            p(&results),
+            "--false-alarm-budget",
+            "1.5",
+        ],
+        "--false-alarm-budget",
+    );
     // A feature the results lack, and a broken line, are bad input naming what is wrong.
     expect_bad(
         &[

@@ -178,8 +178,6 @@ pub struct Engine {
     travel_before_epoch_m: f64,
     events: Vec<EngineEvent>,
     atlas_events_seen: usize,
-    /// Largest invalidity seen since the last merge.
-    max_invalidity: f64,
     /// The active graph just before the last merge or unmerge (for pictures).
     before_last_change: Option<PoseGraph2>,
     /// Every merge decision as it went, in order.
@@ -237,7 +235,6 @@ impl Engine {
             travel_before_epoch_m: 0.0,
             events: Vec::new(),
             atlas_events_seen: 0,
-            max_invalidity: 0.0,
             before_last_change: None,
             merge_log: Vec::new(),
             tracker_info_before_epoch: TrackerInfo::default(),
@@ -286,9 +283,13 @@ impl Engine {
         }
     }
 
-    /// The largest invalidity the detector reported since the last merge.
+    /// The largest invalidity the detector reported for the newest merge decision (0 before
+    /// it judged one), from that record's readings.
     pub fn max_invalidity(&self) -> f64 {
-        self.max_invalidity
+        self.merge_log
+            .last()
+            .and_then(|r| r.readings.first())
+            .map_or(0.0, |r| r.peak_ratio)
     }
 
     /// The active graph as it was just before the last merge or unmerge.
@@ -898,7 +899,6 @@ impl Engine {
 
     /// Starts the detector over on the map it now judges (G' or the merged graph).
     fn restart_detector(&mut self) {
-        self.max_invalidity = 0.0;
         let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
         if let Some(detector) = self.detector.as_mut() {
             if !other.is_empty() {
@@ -926,7 +926,6 @@ impl Engine {
             current: &current,
             other: &other,
         });
-        self.max_invalidity = self.max_invalidity.max(invalidity);
         let name = detector.name().to_owned();
         let supported = |evidence| evidence == Evidence::Supported;
         let readings: Vec<(&str, f64, bool)> =

@@ -273,6 +273,7 @@ fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
     let reading = &record.readings[0];
     assert_eq!(reading.method, EngineParams::default().detector);
     assert!(reading.peak_ratio > EngineParams::default().unmerge_threshold);
+    assert_eq!(engine.max_invalidity(), reading.peak_ratio);
     assert!(reading.vertices >= 1 && reading.supported_vertices <= reading.vertices);
 }
 
@@ -334,6 +335,7 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
     let methods: Vec<&str> = record.readings.iter().map(|r| r.method.as_str()).collect();
     assert_eq!(methods, ["learned", "change_detection", "gridmap"]);
     assert!(record.readings[0].peak_ratio < 1e-6);
+    assert_eq!(engine.max_invalidity(), record.readings[0].peak_ratio);
     // The components saw the wrong merge for what it is.
     assert!(record.readings[1].peak_ratio > 0.3, "{:?}", record.readings);
     assert!(record
