@@ -7,6 +7,7 @@
 # Writes bench-out/place.md (+ bench-out/place/runs.jsonl).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source scripts/log_split.sh
 only=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -17,9 +18,13 @@ done
 data="${MAPMERGE_DATA:-../shared/data}"
 out="${OUT_DIR:-bench-out}"
 mkdir -p "$out/place"
-cargo build --release -q -p mapmerge-place --example place_benchmark
-bin=target/release/examples/place_benchmark
-names=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus infinite-corridor intel orebro seattle sim)
+if [[ -z "${PLACE_BENCH_BIN:-}" ]]; then
+  cargo build --release -q -p mapmerge-place --example place_benchmark
+  bin=target/release/examples/place_benchmark
+else
+  bin="$PLACE_BENCH_BIN"   # a copy, so that builds during the run do not replace it
+fi
+names=("${ALL_LOGS[@]}" sim)
 [[ ${#only[@]} -gt 0 ]] && names=("${only[@]}")
 results="$out/place/runs.jsonl"; : > "$results"
 for name in "${names[@]}"; do
@@ -30,7 +35,7 @@ for name in "${names[@]}"; do
   fi
   echo "done $name" >&2
 done
-python3 - "$results" "$*" > "$out/place.md" <<'PY'
+python3 - "$results" "$*" "${HELD_OUT_LOGS[*]}" "${TUNING_LOGS[*]}" > "$out/place.md" <<'PY'
 import json, sys
 runs = [json.loads(l) for l in open(sys.argv[1])]
 print("Place recognition with the default configuration (`BenchConfig::default()` in")
@@ -44,20 +49,25 @@ print("30° among the retrieved candidates, descriptor yaw within 20°; *verifie
 print("candidate verified to the true pose (the ceiling of any acceptance rule). *refused*: queries whose")
 print("best verified candidate missed the score or the confidence threshold, how many of those were")
 print("wrong, and how many of the wrong ones put the query into a look-alike room (sim).\n")
-print("| log | keyframes | queries | revisits | accepted | true | precision | recall | retrieved | verified | refused by score: all / wrong / look-alike | refused by confidence: all / wrong / look-alike | ms per query |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-tot = dict(revisits=0, accepted=0, true=0, recalled=0)
+held_out, tuning = set(sys.argv[3].split()), set(sys.argv[4].split())
+set_of = lambda name: "held-out" if name in held_out else "tuning" if name in tuning else "–"
+print("| log | set | keyframes | queries | revisits | accepted | true | precision | recall | retrieved | verified | refused by score: all / wrong / look-alike | refused by confidence: all / wrong / look-alike | ms per query (median) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+keys = ["revisits", "accepted", "true", "recalled", "retrieved", "verified"]
 for r in runs:
     by_score = f"{r['refused_by_score']} / {r['refused_by_score_wrong']} / {r['refused_by_score_look_alike']}"
     refused = f"{by_score} | {r['refused_by_confidence']} / {r['refused_by_confidence_wrong']} / {r['refused_by_confidence_look_alike']}"
-    print(f"| {r['name']} | {r['keyframes']} | {r['queries']} | {r['revisits']} | {r['accepted']} | {r['true']} "
-          f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['retrieved']} | {r['verified']} | {refused} | {r['ms_per_query']:.0f} |")
-    if not r['name'].startswith('sim'):
-        for k in tot: tot[k] += r[k]
-if tot['revisits']:
+    median = f" ({r['ms_per_query_median']:.0f})" if 'ms_per_query_median' in r else ""
+    print(f"| {r['name']} | {set_of(r['name'])} | {r['keyframes']} | {r['queries']} | {r['revisits']} | {r['accepted']} | {r['true']} "
+          f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['retrieved']} | {r['verified']} | {refused} | {r['ms_per_query']:.0f}{median} |")
+for label, names in [("**held-out logs**", held_out), ("**tuning logs**", tuning), ("**all public logs**", held_out | tuning)]:
+    tot = {k: sum(r[k] for r in runs if r['name'] in names) for k in keys}
+    if not tot['revisits']:
+        continue
     p = tot['true'] / tot['accepted'] if tot['accepted'] else 1.0
-    print(f"| all public logs | | | {tot['revisits']} | {tot['accepted']} | {tot['true']} | {p:.3f} | "
-          f"{tot['recalled'] / tot['revisits']:.3f} | | | | | |")
+    share = lambda k: f"{tot[k]} ({100 * tot[k] / tot['revisits']:.1f} %)"
+    print(f"| {label} | | | | {tot['revisits']} | {tot['accepted']} | {tot['true']} | {p:.3f} | "
+          f"{tot['recalled'] / tot['revisits']:.3f} | {share('retrieved')} | {share('verified')} | | | |")
 sims = [r for r in runs if r['name'].startswith('sim')]
 for r in sims:
     print(f"\n{r['name']}: {r['revisits_in_look_alike_rooms']} of the {r['revisits']} revisits are in rooms with "

@@ -17,6 +17,11 @@
 //!   each pair's association is reused from the first run (it depends on the two segments
 //!   only), the incremental grouping is redone arrival by arrival; an order passes when its
 //!   final groups equal the given order's.
+//! - **Pools** (`--split` given more than once): the segments of every folder go into one
+//!   assembly. The folders are cut from different logs, so any edge between segments of two
+//!   folders is false by construction, and so is any group that mixes folders; the truth's
+//!   overlapping pairs and groups are those of each folder. `--arrival-seed` shuffles the
+//!   measured run's arrivals (the replays of the invariance test shuffle anyway).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::PathBuf;
@@ -32,7 +37,7 @@ use serde::Serialize;
 use crate::assemble::{
     arrival_order, load_params, load_segments, segment_name, LoadedSegment, Order, TrajectorySource,
 };
-use crate::{bad_file, bad_input, print_json};
+use crate::{bad_file, bad_input, print_json, progress_bar};
 
 /// A loop edge is true within this (m, deg) of the truth.
 const TRUE_EDGE: (f64, f64) = (0.5, 10.0);
@@ -45,9 +50,14 @@ const COVERAGE_TRAVEL_M: f64 = 2.0;
 
 #[derive(Args, Debug)]
 pub struct AssembleEvalArgs {
-    /// A folder written by `mapmerge split` (segment logs + `truth/`).
+    /// A folder written by `mapmerge split` (segment logs + `truth/`). Give it once per log
+    /// to pool the segments of several logs in one assembly.
+    #[arg(long, required = true)]
+    pub split: Vec<PathBuf>,
+    /// The measured run takes the segments in a random order with this seed (default: the
+    /// folders in the order given, each folder's segments by name).
     #[arg(long)]
-    pub split: PathBuf,
+    pub arrival_seed: Option<u64>,
     /// Random arrival orders for the invariance test.
     #[arg(long, default_value_t = 20)]
     pub orders: u64,
@@ -76,15 +86,18 @@ pub struct AssembleEvalArgs {
 struct EdgeVerdict<'a> {
     #[serde(flatten)]
     edge: &'a SegmentLoop,
+    /// Between segments of two different pooled folders: false by construction.
+    cross_log: bool,
+    /// `null` for a cross-log edge.
     translation_error_m: f64,
     rotation_error_deg: f64,
     correct: bool,
 }
 
-/// The scores of one split folder.
+/// The scores of one assembly of the segments of one or more split folders.
 #[derive(Clone, Debug, Serialize)]
 pub struct AssembleScore {
-    pub split: PathBuf,
+    pub splits: Vec<PathBuf>,
     pub segments: usize,
     pub scans: usize,
     pub loop_edges: usize,
@@ -95,6 +108,12 @@ pub struct AssembleScore {
     pub pair_recall: Option<f64>,
     pub edge_coverage: Option<f64>,
     pub false_pairs: usize,
+    /// Loop edges between segments of two different folders (false by construction).
+    pub cross_log_edges: usize,
+    /// Assembled groups holding segments of more than one folder.
+    pub mixed_groups: usize,
+    /// Per folder: its edges (between two of its own segments) and its overlapping pairs.
+    pub per_split: Vec<SplitScore>,
     pub truth_groups: Vec<Vec<String>>,
     pub groups: Vec<Vec<String>>,
     pub groups_correct: bool,
@@ -105,6 +124,22 @@ pub struct AssembleScore {
     pub trajectory_secs: f64,
     pub association_secs: f64,
     pub optimisation_secs: f64,
+    /// The replays of the order-invariance test (pairs reused; grouping and consistency
+    /// checks redone arrival by arrival).
+    pub order_invariance_secs: f64,
+}
+
+/// One folder's share of a pooled assembly.
+#[derive(Clone, Debug, Serialize)]
+pub struct SplitScore {
+    pub split: PathBuf,
+    pub segments: usize,
+    pub loop_edges: usize,
+    pub true_edges: usize,
+    pub overlapping_pairs: usize,
+    pub pairs_found: usize,
+    /// Edges from this folder's segments to another folder's.
+    pub cross_log_edges: usize,
 }
 
 /// Path samples every `OVERLAP_SAMPLE_M` of travel: (scan, travel m, position).
@@ -169,8 +204,12 @@ pub fn run(args: &AssembleEvalArgs) -> anyhow::Result<()> {
         print_json(&score)
     } else {
         println!(
-            "{}: {} segments, {} loop edges ({} true, precision {}), pair recall {} ({} of {} overlapping pairs), coverage {}, {} false pairs; groups {} (truth {:?}, assembled {:?}); ATE per group {:?} m; order invariance {}/{}",
-            args.split.display(),
+            "{}: {} segments, {} loop edges ({} true, precision {}), pair recall {} ({} of {} overlapping pairs), coverage {}, {} false pairs, {} edges between logs, {} groups mixing logs; groups {} (truth {:?}, assembled {:?}); ATE per group {:?} m; order invariance {}/{}",
+            args.split
+                .iter()
+                .map(|s| s.display().to_string())
+                .collect::<Vec<_>>()
+                .join(" + "),
             score.segments,
             score.loop_edges,
             score.true_edges,
@@ -180,6 +219,8 @@ pub fn run(args: &AssembleEvalArgs) -> anyhow::Result<()> {
             score.overlapping_pairs,
             fmt_ratio(score.edge_coverage),
             score.false_pairs,
+            score.cross_log_edges,
+            score.mixed_groups,
             if score.groups_correct { "correct" } else { "WRONG" },
             score.truth_groups,
             score.groups,
@@ -195,10 +236,10 @@ fn fmt_ratio(r: Option<f64>) -> String {
     r.map_or_else(|| "–".into(), |r| format!("{:.1} %", 100.0 * r))
 }
 
-/// Runs the assembly on `args.split` and scores it.
-pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&args.split)
-        .with_context(|| format!("reading {}", args.split.display()))
+/// The segment logs of one split folder, sorted.
+fn split_segment_paths(split: &std::path::Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(split)
+        .with_context(|| format!("reading {}", split.display()))
         .map_err(|e| bad_input(format!("{e:#}")))?
         .filter_map(|e| e.ok().map(|e| e.path()))
         .filter(|p| {
@@ -213,21 +254,40 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
     if paths.is_empty() {
         return Err(bad_input(format!(
             "{}: no segment logs (write them with `mapmerge split`)",
-            args.split.display()
+            split.display()
         )));
     }
-    // The truth, kept apart from the assembly.
+    Ok(paths)
+}
+
+/// Runs the assembly on the segments of `args.split` (one folder, or a pool of several) and
+/// scores it.
+pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
+    // Every segment, the folder it came from, and its truth, kept apart from the assembly.
+    let mut paths: Vec<PathBuf> = Vec::new();
+    let mut split_of: BTreeMap<String, usize> = BTreeMap::new();
     let mut truth: BTreeMap<String, Vec<Se2>> = BTreeMap::new();
-    for path in &paths {
-        let name = segment_name(path);
-        let file = args.split.join("truth").join(format!("{name}.tum"));
-        let poses: Vec<Se2> = mapmerge_io::read_tum_planar(&file)
-            .map_err(bad_file)?
-            .into_iter()
-            .map(|(_, p)| p)
-            .collect();
-        truth.insert(name, poses);
+    for (index, split) in args.split.iter().enumerate() {
+        for path in split_segment_paths(split)? {
+            let name = segment_name(&path);
+            if split_of.insert(name.clone(), index).is_some() {
+                return Err(bad_input(format!(
+                    "{}: a segment named `{name}` is in two of the pooled folders (split \
+                     different logs)",
+                    path.display()
+                )));
+            }
+            let file = split.join("truth").join(format!("{name}.tum"));
+            let poses: Vec<Se2> = mapmerge_io::read_tum_planar(&file)
+                .map_err(bad_file)?
+                .into_iter()
+                .map(|(_, p)| p)
+                .collect();
+            truth.insert(name, poses);
+            paths.push(path);
+        }
     }
+    let same_split = |a: &str, b: &str| split_of.get(a).is_some_and(|i| split_of.get(b) == Some(i));
     let params = load_params(args.config.as_deref(), false)?;
     let started = Instant::now();
     let loaded = load_segments(&paths, args.trajectory, !args.json)?;
@@ -256,17 +316,24 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
     // The assembly in the given (sorted) order.
     let started = Instant::now();
     let mut assembler = Assembler::new(params.clone()).map_err(|e| bad_input(e.to_string()))?;
-    for segment in segments.iter().cloned() {
-        let arrival = assembler.add_segment(segment)?;
+    let measured_order = match args.arrival_seed {
+        Some(seed) => arrival_order(segments.len(), Order::Random, seed),
+        None => arrival_order(segments.len(), Order::Given, 0),
+    };
+    let bar = progress_bar(segments.len(), "segments", "association", !args.json);
+    for &i in &measured_order {
+        let arrival = assembler.add_segment(segments[i].clone())?;
+        bar.inc(1);
         if !args.json {
-            eprintln!(
+            bar.println(format!(
                 "  {}: connected to [{}] ({:.1} s)",
                 arrival.segment,
                 arrival.connected.join(", "),
                 arrival.association_secs
-            );
+            ));
         }
     }
+    bar.finish_and_clear();
     let association_secs = started.elapsed().as_secs_f64();
     let groups = assembler.groups()?;
     // Loop edges against the truth.
@@ -281,12 +348,19 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         ) else {
             continue;
         };
-        let error = tf.between(tt).between(&l.from_from_to);
-        let (dt, dr) = (
-            error.translation().norm(),
-            wrap_angle_rad(error.theta_rad).abs().to_degrees(),
-        );
-        let correct = dt <= TRUE_EDGE.0 && dr <= TRUE_EDGE.1;
+        // Two folders' truths are in unrelated frames: an edge between them has no error,
+        // only the verdict false.
+        let cross_log = !same_split(&l.from_segment, &l.to_segment);
+        let (dt, dr) = if cross_log {
+            (f64::NAN, f64::NAN)
+        } else {
+            let error = tf.between(tt).between(&l.from_from_to);
+            (
+                error.translation().norm(),
+                wrap_angle_rad(error.theta_rad).abs().to_degrees(),
+            )
+        };
+        let correct = !cross_log && dt <= TRUE_EDGE.0 && dr <= TRUE_EDGE.1;
         let pair = (l.from_segment.clone(), l.to_segment.clone());
         found_pairs.insert(pair.clone());
         if correct {
@@ -302,6 +376,7 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         }
         verdicts.push(EdgeVerdict {
             edge: l,
+            cross_log,
             translation_error_m: dt,
             rotation_error_deg: dr,
             correct,
@@ -338,7 +413,7 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
     let mut overlapping: BTreeSet<(String, String)> = BTreeSet::new();
     let (mut covered, mut overlap_samples) = (0usize, 0usize);
     for (i, a) in names.iter().enumerate() {
-        for b in names.iter().skip(i + 1) {
+        for b in names.iter().skip(i + 1).filter(|b| same_split(a, b)) {
             let (sa, sb) = (&samples[a], &samples[b]);
             let near = |s: &(usize, f64, nalgebra::Vector2<f64>),
                         others: &[(usize, f64, nalgebra::Vector2<f64>)]| {
@@ -394,6 +469,43 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         .collect::<BTreeSet<_>>()
         .len();
     let truth_groups = components(&names, &overlapping);
+    let split_count = |group: &[String]| {
+        group
+            .iter()
+            .filter_map(|n| split_of.get(n))
+            .collect::<BTreeSet<_>>()
+            .len()
+    };
+    let mixed_groups = groups.iter().filter(|g| split_count(g) > 1).count();
+    let per_split: Vec<SplitScore> = args
+        .split
+        .iter()
+        .enumerate()
+        .map(|(index, split)| {
+            let of_split = |name: &String| split_of.get(name) == Some(&index);
+            let own: Vec<&EdgeVerdict> = verdicts
+                .iter()
+                .filter(|v| of_split(&v.edge.from_segment) && of_split(&v.edge.to_segment))
+                .collect();
+            let pairs: Vec<&(String, String)> =
+                overlapping.iter().filter(|(a, _)| of_split(a)).collect();
+            SplitScore {
+                split: split.clone(),
+                segments: names.iter().filter(|n| of_split(n)).count(),
+                loop_edges: own.len(),
+                true_edges: own.iter().filter(|v| v.correct).count(),
+                overlapping_pairs: pairs.len(),
+                pairs_found: pairs.iter().filter(|p| true_pairs.contains(**p)).count(),
+                cross_log_edges: verdicts
+                    .iter()
+                    .filter(|v| {
+                        v.cross_log
+                            && (of_split(&v.edge.from_segment) || of_split(&v.edge.to_segment))
+                    })
+                    .count(),
+            }
+        })
+        .collect();
     // One graph per group; its error after alignment.
     let started = Instant::now();
     let mut group_ate_m = Vec::new();
@@ -412,8 +524,15 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
     }
     let optimisation_secs = started.elapsed().as_secs_f64();
     // Order invariance: replay arrivals, pairs reused.
+    let started = Instant::now();
     let known = assembler.pairs().clone();
     let mut orders_same = 0;
+    let bar = progress_bar(
+        usize::try_from(args.orders).unwrap_or(usize::MAX),
+        "orders",
+        "order invariance",
+        !args.json,
+    );
     for seed in 1..=args.orders {
         let mut replay = Assembler::new(params.clone()).map_err(|e| bad_input(e.to_string()))?;
         for i in arrival_order(segments.len(), Order::Random, seed) {
@@ -422,10 +541,13 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         if replay.groups()? == groups {
             orders_same += 1;
         }
+        bar.inc(1);
     }
+    bar.finish_and_clear();
+    let order_invariance_secs = started.elapsed().as_secs_f64();
     let ratio = |n: usize, d: usize| (d > 0).then(|| n as f64 / d as f64);
     Ok(AssembleScore {
-        split: args.split.clone(),
+        splits: args.split.clone(),
         segments: names.len(),
         scans: segments.iter().map(|s| s.poses.len()).sum(),
         loop_edges: verdicts.len(),
@@ -439,6 +561,9 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         pair_recall: ratio(pairs_found, overlapping.len()),
         edge_coverage: ratio(covered, overlap_samples),
         false_pairs,
+        cross_log_edges: verdicts.iter().filter(|v| v.cross_log).count(),
+        mixed_groups,
+        per_split,
         groups_correct: truth_groups == groups,
         truth_groups,
         groups,
@@ -448,5 +573,6 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
         trajectory_secs,
         association_secs,
         optimisation_secs,
+        order_invariance_secs,
     })
 }

@@ -365,3 +365,87 @@ fn bad_segments_exit_with_code_2_and_name_the_file() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Splits public log `name` into `segments` noisy segments under `dir`; `None` without the
+/// shared data.
+fn split_log(name: &str, segments: usize, dir: &Path) -> Option<()> {
+    let log = mapmerge_testkit::shared_data(&format!("carmen/{name}-corrected.log.xz"))?;
+    let segments = segments.to_string();
+    ok_json(&[
+        "split",
+        p(&log),
+        "--segments",
+        &segments,
+        "--odometry-noise",
+        "default",
+        "--seed",
+        "0",
+        "-o",
+        p(dir),
+        "--json",
+    ]);
+    Some(())
+}
+
+/// Issue 16, part 3: segments of two buildings that share no place, pooled in one assembly,
+/// are never joined: no edge between the logs, no group mixing them, and each log's own
+/// overlaps are still found.
+#[test]
+fn pooled_segments_of_two_buildings_are_never_joined() {
+    let dir = scratch("assemble-pool");
+    let (seattle, orebro) = (dir.join("seattle"), dir.join("orebro"));
+    if split_log("seattle", 3, &seattle).is_none() || split_log("orebro", 3, &orebro).is_none() {
+        return;
+    }
+    let score = ok_json(&[
+        "eval",
+        "assemble",
+        "--split",
+        p(&seattle),
+        "--split",
+        p(&orebro),
+        "--arrival-seed",
+        "1",
+        "--orders",
+        "2",
+        "--json",
+    ]);
+    assert_eq!(score["segments"], 6, "{score}");
+    assert_eq!(score["cross_log_edges"], 0, "{score}");
+    assert_eq!(score["mixed_groups"], 0, "{score}");
+    assert_eq!(score["orders_same"], score["orders_tested"], "{score}");
+    let per_split = score["per_split"].as_array().unwrap();
+    assert_eq!(per_split.len(), 2, "{score}");
+    for split in per_split {
+        assert_eq!(split["segments"], 3, "{score}");
+        assert!(split["loop_edges"].as_u64().unwrap() > 0, "{score}");
+        assert_eq!(split["true_edges"], split["loop_edges"], "{score}");
+    }
+    // Every truth group lies within one log.
+    for group in score["truth_groups"].as_array().unwrap() {
+        let logs: std::collections::BTreeSet<&str> = group
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|name| name.as_str().unwrap().split('_').next().unwrap())
+            .collect();
+        assert_eq!(logs.len(), 1, "{score}");
+    }
+    // The same log twice: its segment names collide, which is bad input.
+    let twice = run(&[
+        "eval",
+        "assemble",
+        "--split",
+        p(&seattle),
+        "--split",
+        p(&seattle),
+        "--json",
+    ]);
+    assert_eq!(twice.status.code(), Some(2));
+    assert!(
+        String::from_utf8_lossy(&twice.stderr).contains("seattle_00"),
+        "{}",
+        String::from_utf8_lossy(&twice.stderr)
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -9,8 +9,9 @@
 //! 3. merge candidates: place recognition of the newest keyframe in each inactive graph
 //!    (Holoch et al., Sec. III-A), returned as observations for the caller to decide on.
 //!
-//! One place index serves 1 and 3: every keyframe of the atlas is described once (Scan
-//! Context, Kim & Kim 2018) — a current-epoch keyframe when its submap is finished, the rest
+//! One place index serves 1 and 3: every keyframe of the atlas is described once (a
+//! `PlaceSignature`: Scan Context, Kim & Kim 2018, plus the ring spectrum when
+//! `loops.place.appearance` is set) — a current-epoch keyframe when its submap is finished, the rest
 //! when its epoch ends or its graph is imported — and each search filters the candidates by
 //! the graph they belong to.
 
@@ -19,8 +20,8 @@ use std::time::Instant;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_place::{
-    verify_candidates, GeometricVerifier, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
-    PlaceParams, ScanContext, Verification,
+    verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe, KeyframeId,
+    PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, SignatureExtractor, Verification,
 };
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId};
 use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
@@ -250,7 +251,9 @@ struct IndexedKeyframe {
 /// The constraint builder's state (owned by the atlas).
 pub(crate) struct ConstraintBuilder {
     matcher: ScanMatcher,
-    index: PlaceIndex<ScanContext>,
+    /// Describes keyframes for the index (`loops.place`'s descriptor and appearance).
+    extractor: SignatureExtractor,
+    index: PlaceIndex<PlaceSignature>,
     /// Indexed keyframes by insertion ordinal.
     indexed: Vec<IndexedKeyframe>,
     ordinal_of: HashMap<KeyframeId, usize>,
@@ -282,6 +285,7 @@ impl ConstraintBuilder {
         Ok(Self {
             matcher: ScanMatcher::new(params.matcher)
                 .map_err(|e| AtlasError::Config(e.to_string()))?,
+            extractor: SignatureExtractor::new(&params.place),
             index: PlaceIndex::new(params.place.index.clone()),
             indexed: Vec::new(),
             ordinal_of: HashMap::new(),
@@ -320,7 +324,7 @@ impl ConstraintBuilder {
         &mut self,
         node: NodeId,
         points: &std::sync::Arc<[mapmerge_scan::Point2]>,
-        descriptor: ScanContext,
+        descriptor: PlaceSignature,
         submap: Option<NodeId>,
     ) {
         let id = KeyframeId(node.0);
@@ -415,17 +419,17 @@ impl<B: BackupStore> Atlas<B> {
 
     /// The place index's descriptors of `nodes` of the active graph: of each keyframe's
     /// points, or of its local map with `index_local_maps` (see [`crate::KeyframeParams`]).
-    fn describe(&self, nodes: &[NodeId]) -> Vec<(NodeId, ScanContext)> {
-        let params = &self.params.loops.place.descriptor;
+    fn describe(&self, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
+        let extractor = &self.constraints.extractor;
         if self.params.index_local_maps {
             local_map_keyframes(&self.active, &self.keyframes, &self.params.keyframes, nodes)
                 .into_iter()
-                .map(|(node, k)| (node, ScanContext::new(&k.points_in_keyframe, params)))
+                .map(|(node, k)| (node, extractor.describe(&k.points_in_keyframe)))
                 .collect()
         } else {
             nodes
                 .iter()
-                .filter_map(|n| Some((*n, ScanContext::new(self.keyframes.get(*n)?, params))))
+                .filter_map(|n| Some((*n, extractor.describe(self.keyframes.get(*n)?))))
                 .collect()
         }
     }
@@ -634,7 +638,7 @@ impl<B: BackupStore> Atlas<B> {
         let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
         let candidates: Vec<PlaceCandidate> = retrieved
             .iter()
-            .filter(|c| c.descriptor_distance <= loops_params.place.max_descriptor_distance)
+            .filter(|c| loops_params.place.admits(c))
             .filter_map(|candidate| {
                 let ordinal = *c.ordinal_of.get(&candidate.keyframe)?;
                 let keyframe = &c.indexed.get(ordinal)?.keyframe;
@@ -950,7 +954,7 @@ impl<B: BackupStore> Atlas<B> {
                 });
         let nodes: Vec<(NodeId, f64, usize)> = retrieved
             .iter()
-            .filter(|r| r.descriptor_distance <= p.place.max_descriptor_distance)
+            .filter(|r| p.place.admits(r))
             .filter_map(|r| {
                 Some((
                     NodeId(r.keyframe.0),
@@ -994,7 +998,7 @@ struct PlaceQuery {
     /// Its pose in the active graph.
     pose: Se2,
     /// Its descriptor (the place index's kind).
-    descriptor: ScanContext,
+    descriptor: PlaceSignature,
     /// Its local map, for verification.
     keyframe: Keyframe,
 }

@@ -14,8 +14,8 @@
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{
-    verify_candidates, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams,
-    PlaceVerifierParams, ScanContext, ScanMatchVerifier,
+    verify_candidates, DescriptorExtractor, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
+    PlaceParams, PlaceSignature, PlaceVerifierParams, ScanMatchVerifier, SignatureExtractor,
 };
 use mapmerge_scan::{voxel_downsample, Point2};
 use serde::{Deserialize, Serialize};
@@ -98,7 +98,8 @@ pub struct BetterHypothesisDetector {
     verifier: ScanMatchVerifier,
     snapshot: Option<OtherSnapshot>,
     keyframes: Vec<Keyframe>,
-    index: PlaceIndex,
+    extractor: SignatureExtractor,
+    index: PlaceIndex<PlaceSignature>,
     vertices: usize,
     info: BetterHypothesisInfo,
 }
@@ -164,6 +165,7 @@ impl BetterHypothesisDetector {
             .or_else(|_| PlaceVerifierParams::default().verifier())
             .unwrap_or_default();
         Self {
+            extractor: SignatureExtractor::new(&params.place),
             index: PlaceIndex::new(params.place.index.clone()),
             params,
             verifier,
@@ -195,10 +197,8 @@ impl BetterHypothesisDetector {
         self.keyframes.clear();
         for i in 0..other.len() {
             let points = local_map(other, i, &self.params);
-            self.index.insert(
-                KeyframeId(i as u64),
-                ScanContext::new(&points, &self.params.place.descriptor),
-            );
+            self.index
+                .insert(KeyframeId(i as u64), self.extractor.describe(&points));
             self.keyframes.push(Keyframe::new(i as u64, points));
         }
         self.vertices = 0;
@@ -215,13 +215,13 @@ impl BetterHypothesisDetector {
             return;
         }
         self.info.queries += 1;
-        let descriptor = ScanContext::new(&points, &self.params.place.descriptor);
+        let descriptor = self.extractor.describe(&points);
         let query = Keyframe::new(newest.node.0, points);
         let candidates: Vec<PlaceCandidate> = self
             .index
             .query(&descriptor, self.params.place.candidates_per_query)
             .iter()
-            .filter(|c| c.descriptor_distance <= self.params.place.max_descriptor_distance)
+            .filter(|c| self.params.place.admits(c))
             .filter_map(|c| {
                 let ordinal = usize::try_from(c.keyframe.0).ok()?;
                 Some(PlaceCandidate {

@@ -21,6 +21,13 @@ pub trait PlaceDescriptor: Send + Sync {
 
     /// Full comparison of `self` (the query) against `candidate`, with the yaw estimate.
     fn compare(&self, candidate: &Self) -> DescriptorMatch;
+
+    /// A second, translation-invariant description of the place for a second retrieval list
+    /// ([`crate::PlaceIndex`] fuses both): a unit vector compared by cosine distance, or
+    /// empty when the descriptor has none (the default).
+    fn appearance(&self) -> &[f32] {
+        &[]
+    }
 }
 
 /// Builds descriptors from keyframe points (the extractor holds the descriptor's parameters).

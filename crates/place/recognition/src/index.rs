@@ -39,8 +39,12 @@ pub struct Candidate {
     pub keyframe: KeyframeId,
     /// Euclidean distance between the retrieval (ring) keys.
     pub ring_key_distance: f64,
-    /// Full descriptor distance (Scan Context: Eq. 6, in `[0, 1]`); candidates are ranked by it.
+    /// Full descriptor distance (Scan Context: Eq. 6, in `[0, 1]`); the first list is ranked
+    /// by it.
     pub descriptor_distance: f64,
+    /// Cosine distance of the appearance vectors ([`PlaceDescriptor::appearance`], in
+    /// `[0, 2]`); the second list is ranked by it. Infinite when either has none.
+    pub appearance_distance: f64,
     /// Estimated yaw of the query in the candidate's frame (rad): the rotation guess for
     /// `candidate_from_query`.
     pub yaw_rad: f64,
@@ -55,10 +59,18 @@ struct Entry<D> {
 
 /// Place-recognition index over many keyframes: incremental insertion into a kiddo k-d tree
 /// of retrieval keys; queries take the ring-key neighbours and rank them by the full
-/// descriptor distance.
+/// descriptor distance. Descriptors with an appearance vector
+/// ([`PlaceDescriptor::appearance`]) also give a second list, the nearest appearances by
+/// cosine distance (brute force over contiguous rows: 20,000 keyframes × 256 values is about
+/// a millisecond), fused with the first.
 pub struct PlaceIndex<D: PlaceDescriptor = ScanContext> {
     params: IndexParams,
     entries: Vec<Entry<D>>,
+    /// Appearance rows, `appearance_dim` values per entry in insertion order (zeros for an
+    /// entry without one: never retrieved by appearance).
+    appearance_rows: Vec<f32>,
+    /// Length of the appearance vectors (that of the first non-empty one; 0 while none).
+    appearance_dim: usize,
     tree: MutableKdTree<f32, TREE_DIMS>,
     /// Ordinals the tree refused (too many identical keys to split a bucket); searched by
     /// brute force.
@@ -99,6 +111,11 @@ fn tree_key(key: &[f32]) -> [f32; TREE_DIMS] {
     out
 }
 
+/// Cosine distance `1 − a·b` of two unit vectors (the appearance rows and queries).
+fn unit_cosine_distance(a: &[f32], b: &[f32]) -> f32 {
+    1.0 - a.iter().zip(b).map(|(x, y)| x * y).sum::<f32>()
+}
+
 /// Squared Euclidean distance between two tree keys.
 fn squared_distance(a: &[f32; TREE_DIMS], b: &[f32; TREE_DIMS]) -> f32 {
     a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum()
@@ -116,6 +133,8 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         Self {
             params,
             entries: Vec::new(),
+            appearance_rows: Vec::new(),
+            appearance_dim: 0,
             tree: MutableKdTree::default(),
             overflow: Vec::new(),
         }
@@ -146,13 +165,28 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         if self.tree.add(&key, ordinal).is_err() {
             self.overflow.push(ordinal);
         }
+        let appearance = descriptor.appearance();
+        if self.appearance_dim == 0 && !appearance.is_empty() {
+            self.appearance_dim = appearance.len();
+            self.appearance_rows = vec![0.0; self.entries.len() * appearance.len()];
+        }
+        if self.appearance_dim > 0 {
+            if appearance.len() == self.appearance_dim {
+                self.appearance_rows.extend_from_slice(appearance);
+            } else {
+                let len = self.appearance_rows.len();
+                self.appearance_rows.resize(len + self.appearance_dim, 0.0);
+            }
+        }
         self.entries.push(Entry {
             id: keyframe,
             descriptor,
         });
     }
 
-    /// The `k` best candidates for `descriptor` among all indexed keyframes, best first.
+    /// The `k` best candidates for `descriptor` among all indexed keyframes, best first; with
+    /// appearance vectors, the `k` best of each list (at most `2k`), ordered by their better
+    /// rank in either list (ties: Scan Context's first).
     pub fn query(&self, descriptor: &D, k: usize) -> Vec<Candidate> {
         self.query_filtered(descriptor, k, |_, _| true)
     }
@@ -220,19 +254,24 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         neighbours.dedup_by_key(|n| n.1);
         neighbours.truncate(wanted);
         // Kim & Kim, Eq. 6 on every ring-key neighbour, then rank by it.
+        let query_appearance = descriptor.appearance();
+        let candidate_of = |ordinal: usize, ring_key_distance: f64| -> Option<Candidate> {
+            let entry = self.entries.get(ordinal)?;
+            let m = descriptor.compare(&entry.descriptor);
+            Some(Candidate {
+                keyframe: entry.id,
+                ring_key_distance,
+                descriptor_distance: m.distance,
+                appearance_distance: self.appearance_distance(query_appearance, ordinal),
+                yaw_rad: m.yaw_rad,
+            })
+        };
         let mut candidates: Vec<(usize, Candidate)> = neighbours
             .into_iter()
             .filter_map(|(squared, ordinal)| {
-                let entry = self.entries.get(ordinal)?;
-                let m = descriptor.compare(&entry.descriptor);
                 Some((
                     ordinal,
-                    Candidate {
-                        keyframe: entry.id,
-                        ring_key_distance: f64::from(squared.max(0.0)).sqrt(),
-                        descriptor_distance: m.distance,
-                        yaw_rad: m.yaw_rad,
-                    },
+                    candidate_of(ordinal, f64::from(squared.max(0.0)).sqrt())?,
                 ))
             })
             .collect();
@@ -242,7 +281,69 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
                 .then(a.0.cmp(&b.0))
         });
         candidates.truncate(k);
-        candidates.into_iter().map(|(_, c)| c).collect()
+        // The second list: nearest appearances among the kept keyframes.
+        let by_appearance = self.nearest_appearances(query_appearance, k, &kept);
+        if by_appearance.is_empty() {
+            return candidates.into_iter().map(|(_, c)| c).collect();
+        }
+        // Fuse: (better rank, list, ordinal) orders the union.
+        let mut fused: Vec<((usize, usize, usize), Candidate)> = candidates
+            .into_iter()
+            .enumerate()
+            .map(|(rank, (ordinal, c))| ((rank, 0, ordinal), c))
+            .collect();
+        for (rank, (_, ordinal)) in by_appearance.into_iter().enumerate() {
+            if let Some(existing) = fused.iter_mut().find(|(key, _)| key.2 == ordinal) {
+                existing.0 = existing.0.min((rank, 1, ordinal));
+            } else if let Some(c) = self.entries.get(ordinal).and_then(|e| {
+                let squared = squared_distance(&key, &tree_key(e.descriptor.retrieval_key()));
+                candidate_of(ordinal, f64::from(squared.max(0.0)).sqrt())
+            }) {
+                fused.push(((rank, 1, ordinal), c));
+            }
+        }
+        fused.sort_by_key(|(key, _)| *key);
+        fused.into_iter().map(|(_, c)| c).collect()
+    }
+
+    /// Cosine distance between `query` and the appearance row of `ordinal` (rows and queries
+    /// are unit vectors or zeros); infinite when either is missing.
+    fn appearance_distance(&self, query: &[f32], ordinal: usize) -> f64 {
+        let dim = self.appearance_dim;
+        match self.appearance_rows.get(ordinal * dim..(ordinal + 1) * dim) {
+            Some(row) if dim > 0 && query.len() == dim && row.iter().any(|&v| v != 0.0) => {
+                f64::from(unit_cosine_distance(row, query))
+            }
+            _ => f64::INFINITY,
+        }
+    }
+
+    /// The `k` kept ordinals whose appearance rows are nearest to `query`: `(distance,
+    /// ordinal)`, nearest first; empty without appearance vectors.
+    fn nearest_appearances(
+        &self,
+        query: &[f32],
+        k: usize,
+        kept: &impl Fn(usize) -> bool,
+    ) -> Vec<(f32, usize)> {
+        let dim = self.appearance_dim;
+        if k == 0 || dim == 0 || query.len() != dim || query.iter().all(|&v| v == 0.0) {
+            return Vec::new();
+        }
+        let mut nearest: Vec<(f32, usize)> = self
+            .appearance_rows
+            .chunks_exact(dim)
+            .enumerate()
+            .filter(|(ordinal, row)| row.iter().any(|&v| v != 0.0) && kept(*ordinal))
+            .map(|(ordinal, row)| (unit_cosine_distance(row, query), ordinal))
+            .filter(|(d, _)| d.is_finite())
+            .collect();
+        if nearest.len() > k {
+            nearest.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            nearest.truncate(k);
+        }
+        nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        nearest
     }
 }
 
@@ -322,6 +423,106 @@ mod tests {
         let found = index.query(&empty, 4);
         assert_eq!(found.len(), 4);
         assert_eq!(index.len(), 500);
+    }
+
+    /// A toy descriptor: a one-number key (its distance is the "Scan Context" distance) and
+    /// an explicit appearance vector.
+    #[derive(Clone, Debug)]
+    struct Toy {
+        key: [f32; 1],
+        appearance: Vec<f32>,
+    }
+
+    impl PlaceDescriptor for Toy {
+        fn retrieval_key(&self) -> &[f32] {
+            &self.key
+        }
+        fn compare(&self, candidate: &Self) -> crate::DescriptorMatch {
+            crate::DescriptorMatch {
+                distance: f64::from((self.key[0] - candidate.key[0]).abs()),
+                yaw_rad: 0.0,
+            }
+        }
+        fn appearance(&self) -> &[f32] {
+            &self.appearance
+        }
+    }
+
+    fn unit(angle: f32) -> Vec<f32> {
+        vec![angle.cos(), angle.sin()]
+    }
+
+    #[test]
+    fn fuses_the_appearance_list_with_the_first() {
+        let mut index: PlaceIndex<Toy> = PlaceIndex::default();
+        // Keys 0..50 (key i at i/100); appearances all far from the query's except keyframe 40.
+        for i in 0..50u64 {
+            let angle = if i == 40 { 0.05 } else { 1.0 + i as f32 * 0.01 };
+            index.insert(
+                KeyframeId(i),
+                Toy {
+                    key: [i as f32 / 100.0],
+                    appearance: unit(angle),
+                },
+            );
+        }
+        let query = Toy {
+            key: [0.0],
+            appearance: unit(0.0),
+        };
+        let found = index.query(&query, 3);
+        let ids: Vec<u64> = found.iter().map(|c| c.keyframe.0).collect();
+        // Rank 0 of each list first (Scan Context's before the appearance's), then rank 1 …
+        assert_eq!(ids[0], 0);
+        assert_eq!(ids[1], 40, "{ids:?}");
+        assert!(ids.len() <= 6 && ids.len() >= 4, "{ids:?}");
+        let mut unique = ids.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), ids.len(), "no keyframe twice: {ids:?}");
+        let forty = found.iter().find(|c| c.keyframe.0 == 40).unwrap();
+        assert!(forty.appearance_distance < 0.01);
+        assert!((forty.descriptor_distance - 0.4).abs() < 1e-6);
+        // The filter applies to both lists.
+        let filtered = index.query_filtered(&query, 3, |_, id| id.0 != 40);
+        assert!(filtered.iter().all(|c| c.keyframe.0 != 40));
+        // Without an appearance in the query: the first list alone.
+        let plain = Toy {
+            key: [0.0],
+            appearance: Vec::new(),
+        };
+        let found = index.query(&plain, 3);
+        assert_eq!(found.len(), 3);
+        assert!(found.iter().all(|c| c.appearance_distance.is_infinite()));
+    }
+
+    #[test]
+    fn entries_without_appearance_are_never_retrieved_by_it() {
+        let mut index: PlaceIndex<Toy> = PlaceIndex::default();
+        index.insert(
+            KeyframeId(0),
+            Toy {
+                key: [0.9],
+                appearance: Vec::new(),
+            },
+        );
+        index.insert(
+            KeyframeId(1),
+            Toy {
+                key: [0.5],
+                appearance: unit(0.0),
+            },
+        );
+        let query = Toy {
+            key: [0.0],
+            appearance: unit(0.0),
+        };
+        let found = index.query(&query, 1);
+        let ids: Vec<u64> = found.iter().map(|c| c.keyframe.0).collect();
+        assert_eq!(ids, vec![1]);
+        assert!(index
+            .appearance_distance(&query.appearance, 0)
+            .is_infinite());
     }
 
     #[test]

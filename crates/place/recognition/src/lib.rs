@@ -17,6 +17,12 @@
 //!   sets (what the two functions above build on each call).
 //! - [`verify_candidates`] (and [`verify_candidates_by`] with the caller's same-place rule):
 //!   the per-query step for a caller that keeps its own index, e.g. a SLAM front-end.
+//! - [`PlaceSignature`] (built by [`SignatureExtractor`] from [`PlaceParams`]): what every
+//!   place search indexes, Scan Context plus, when `PlaceParams::appearance` is set, the ring
+//!   spectrum for a second retrieval list that [`PlaceIndex`] fuses with the first.
+//! - [`RingSpectrumDescriptor`] (and its 3D sibling in [`submap_descriptor`]): a
+//!   translation- and rotation-invariant submap descriptor behind [`SubmapDescriptor`],
+//!   compared by cosine distance.
 //! - [`ScanMatchVerifier`]: the production verifier; [`ScanMatchVerifier::with_evidence`]
 //!   scores alignments by their [`Evidence`], which is what searches without a pose prior need
 //!   (`examples/place_benchmark.rs` measures precision and recall on the public logs).
@@ -53,6 +59,8 @@ mod keyframe;
 mod loops;
 mod scan_context;
 mod scan_match_verifier;
+mod signature;
+pub mod submap_descriptor;
 mod verify;
 
 pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
@@ -66,4 +74,9 @@ pub use loops::{
 };
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::{PlaceVerifierParams, ScanMatchVerifier};
+pub use signature::{PlaceSignature, SignatureExtractor};
+pub use submap_descriptor::{
+    cosine_distance, DescriptorRows, RingSpectrumDescriptor, RingSpectrumParams, SubmapDescriptor,
+    YawEstimate,
+};
 pub use verify::{GeometricVerifier, Verification};

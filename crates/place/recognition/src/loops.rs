@@ -10,9 +10,11 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::DescriptorExtractor;
-use crate::index::{IndexParams, PlaceIndex};
+use crate::index::{Candidate, IndexParams, PlaceIndex};
 use crate::keyframe::{Keyframe, KeyframeId};
 use crate::scan_context::ScanContextParams;
+use crate::signature::SignatureExtractor;
+use crate::submap_descriptor::RingSpectrumParams;
 use crate::verify::{GeometricVerifier, Verification};
 
 /// Parameters of [`find_loop_candidates`].
@@ -31,6 +33,14 @@ pub struct PlaceParams {
     /// Scan Context distances lie in `[0, 1]`). Lower saves verifications but misses places
     /// seen from further away.
     pub max_descriptor_distance: f64,
+    /// The ring spectrum that gives a second retrieval list (default: none, Scan Context
+    /// alone). With it, [`crate::PlaceIndex`] returns the `candidates_per_query` best of each
+    /// list.
+    pub appearance: Option<RingSpectrumParams>,
+    /// Candidates of the second list whose cosine distance exceeds this are not verified
+    /// unless their Scan Context distance passes `max_descriptor_distance` (default: 1, the
+    /// distance of uncorrelated spectra).
+    pub max_appearance_distance: f64,
     /// A verification is accepted when its score reaches this (default: 0.5, in the
     /// verifier's units).
     pub min_score: f64,
@@ -54,6 +64,8 @@ impl Default for PlaceParams {
             index: IndexParams::default(),
             candidates_per_query: 5,
             max_descriptor_distance: 0.6,
+            appearance: None,
+            max_appearance_distance: 1.0,
             min_score: 0.5,
             distinct_index_gap: 10,
             same_place_m: 1.0,
@@ -82,8 +94,9 @@ pub struct VerifiedLoop {
     pub covariance: Matrix3<f64>,
 }
 
-/// Loop candidates between two keyframe sets with the default Scan Context descriptor
-/// (`params.descriptor`): at most one [`VerifiedLoop`] per keyframe of `keyframes_a`, in the
+/// Loop candidates between two keyframe sets described as `params` says (Scan Context with
+/// `params.descriptor`, and the ring spectrum's second list with `params.appearance`): at
+/// most one [`VerifiedLoop`] per keyframe of `keyframes_a`, in the
 /// order of `keyframes_a`. The rotation guess handed to the verifier is the descriptor's yaw
 /// with zero translation.
 pub fn find_loop_candidates(
@@ -93,7 +106,7 @@ pub fn find_loop_candidates(
     params: &PlaceParams,
 ) -> Vec<VerifiedLoop> {
     search(
-        &params.descriptor,
+        &SignatureExtractor::new(params),
         keyframes_a,
         keyframes_b,
         None,
@@ -117,7 +130,7 @@ pub fn find_loop_candidates_with_poses(
     params: &PlaceParams,
 ) -> Vec<VerifiedLoop> {
     search(
-        &params.descriptor,
+        &SignatureExtractor::new(params),
         keyframes_a,
         keyframes_b,
         Some(map_from_b),
@@ -153,6 +166,12 @@ pub struct PlaceCandidate<'a> {
 }
 
 impl PlaceParams {
+    /// Whether a retrieved candidate is close enough in either list to be verified.
+    pub fn admits(&self, candidate: &Candidate) -> bool {
+        candidate.descriptor_distance <= self.max_descriptor_distance
+            || candidate.appearance_distance <= self.max_appearance_distance
+    }
+
     /// The default same-place rule of [`verify_candidates`]: verified candidates `x` and `y`
     /// show the same place of B when the poses of the query they imply in B's map agree
     /// within `same_place_m` and `same_place_rad` (both with `map_from_keyframe`), else when
@@ -176,8 +195,8 @@ impl PlaceParams {
     }
 }
 
-/// Verifies the retrieved `candidates` of `query` (those within
-/// `params.max_descriptor_distance` should be passed; the guess is the descriptor's yaw with
+/// Verifies the retrieved `candidates` of `query` (those [`PlaceParams::admits`] should be
+/// passed; the guess is the descriptor's yaw with
 /// zero translation) and accepts the best when its score reaches `params.min_score`, with a
 /// confidence against the best rival showing a distinct place (see [`VerifiedLoop`]). The
 /// step shared by [`find_loop_candidates`] and incremental SLAM, which keeps its own index.
@@ -260,7 +279,7 @@ fn search<E: DescriptorExtractor>(
 /// inactive map that every new keyframe of a live robot is looked up in): what
 /// [`find_loop_candidates_with_poses`] builds on each call.
 /// It borrows the keyframes for a one-off search and owns them when kept (`'static`).
-pub struct PlaceDatabase<'k, D: crate::descriptor::PlaceDescriptor = crate::ScanContext> {
+pub struct PlaceDatabase<'k, D: crate::descriptor::PlaceDescriptor = crate::PlaceSignature> {
     keyframes: Cow<'k, [Keyframe]>,
     map_from_keyframe: Option<Cow<'k, [Se2]>>,
     index: PlaceIndex<D>,
@@ -319,7 +338,7 @@ impl<'k, D: crate::descriptor::PlaceDescriptor> PlaceDatabase<'k, D> {
                     .index
                     .query(&descriptor, params.candidates_per_query)
                     .iter()
-                    .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
+                    .filter(|c| params.admits(c))
                     .filter_map(|c| {
                         let ordinal = *self.ordinal_of.get(&c.keyframe)?;
                         Some(PlaceCandidate {

@@ -32,14 +32,14 @@
 //! queries with a revisit; precision = true accepted / accepted.
 #![allow(dead_code)]
 
-use std::collections::VecDeque;
 use std::path::Path;
 use std::time::Instant;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{
-    verify_candidates_by, Evidence, EvidenceParams, GeometricVerifier, Keyframe, KeyframeId,
-    PlaceCandidate, PlaceIndex, PlaceParams, ScanContext, ScanMatchVerifier, Verification,
+    verify_candidates_by, DescriptorExtractor, Evidence, EvidenceParams, GeometricVerifier,
+    Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature,
+    RingSpectrumParams, ScanMatchVerifier, SignatureExtractor, Verification,
 };
 use mapmerge_scan::{transform_points, voxel_downsample, BeamFilter, LaserScan, Point2};
 use mapmerge_scanmatch::{ScanMatchParams, SearchWindow};
@@ -61,6 +61,14 @@ pub struct BenchConfig {
     /// A keyframe's points are its scan plus the scans of the last this much travel (m); 0 =
     /// the scan alone (default: 6).
     pub local_map_m: f64,
+    /// … and the scans of the next this much travel (m): a window around the keyframe, as a
+    /// front-end that describes a keyframe once it has moved on (default: 0).
+    pub local_map_ahead_m: f64,
+    /// Describe a keyframe by its local map; false (default) describes it by its scan alone,
+    /// and the local map is only verified. On the tuning logs (`examples/retrieval_study.rs`)
+    /// trailing local maps retrieved worse than the scan: the last metres of path differ
+    /// between two visits of one place (top-10 union 84 % for the scan, 77 % for a 6 m map).
+    pub describe_local_map: bool,
     /// Voxel size the local map is thinned with (m) (default: 0.1).
     pub local_map_voxel_m: f64,
     /// Within one log, a query sees keyframes at least this much travel earlier (m)
@@ -78,7 +86,8 @@ pub struct BenchConfig {
     /// Retrieval, verification and score threshold (see [`default_place_params`]).
     pub place: PlaceParams,
     /// An accepted loop also needs this confidence: the best rival place scores at most
-    /// 80 % of it (default: 0.2).
+    /// 75 % of it (default: 0.25; chosen on the tuning logs, where 0.2 let one loop onto a
+    /// corridor section 112 m away through, infinite-corridor, confidence 0.21).
     pub min_confidence: f64,
     /// How verification scores an alignment (default: [`EvidenceParams::default`]).
     pub evidence: EvidenceParams,
@@ -89,18 +98,25 @@ pub struct BenchConfig {
     pub window_angular_rad: f64,
 }
 
-/// The place-recognition parameters of the benchmark's default configuration: the 10 best
-/// candidates within Scan Context distance 0.6 (99 % of the true places verified with 1.0 lie
-/// within it) are verified, and the best needs an evidence score of 0.85.
+/// The place-recognition parameters of the benchmark's default configuration: the 5 best
+/// candidates of Scan Context within distance 0.6 (99 % of the true places verified with 1.0
+/// lie within it) and the 5 best of the 20 m ring spectrum (issue 16: chosen on the tuning
+/// logs, where the union of both top-5 lists held a true revisit for 80.5 % of the revisits
+/// against 70.2 % for Scan Context's top 10) are verified, and the best needs an evidence
+/// score of 0.85.
 ///
-/// Tuned once for all 13 public logs with the simulator as a check: with every candidate's
-/// evidence recorded (`--dump`), the lowest score threshold without a false loop on any log
-/// was 0.825 at confidence 0.2 (0.85 at 0.1); 0.85 keeps one step of margin. Five candidates
-/// instead of ten save 40 % of the verifications and lose 10 of the 487 recalled revisits.
+/// The score threshold predates the split of the logs (issue 16, part 1): it was tuned on
+/// all 13 logs (the lowest threshold without a false loop on any log was 0.825 at confidence
+/// 0.2), so the held-out logs have been seen by it; everything chosen since is chosen on the
+/// tuning logs only (scripts/log_split.sh).
 pub fn default_place_params() -> PlaceParams {
     PlaceParams {
-        candidates_per_query: 10,
+        candidates_per_query: 5,
         max_descriptor_distance: 0.6,
+        appearance: Some(RingSpectrumParams {
+            max_radius_m: 20.0,
+            ..RingSpectrumParams::default()
+        }),
         min_score: 0.85,
         ..PlaceParams::default()
     }
@@ -113,6 +129,8 @@ impl Default for BenchConfig {
             keyframe_step_rad: 15f64.to_radians(),
             max_range_m: 20.0,
             local_map_m: 6.0,
+            local_map_ahead_m: 0.0,
+            describe_local_map: false,
             local_map_voxel_m: 0.1,
             min_path_gap_m: 10.0,
             true_loop_m: 0.5,
@@ -120,7 +138,7 @@ impl Default for BenchConfig {
             revisit_m: 1.0,
             revisit_min_overlap: 5.0 / 6.0,
             place: default_place_params(),
-            min_confidence: 0.2,
+            min_confidence: 0.25,
             evidence: EvidenceParams::default(),
             window_linear_m: 2.0,
             window_angular_rad: 15f64.to_radians(),
@@ -133,6 +151,8 @@ impl Default for BenchConfig {
 pub struct BenchKeyframe {
     /// Id and points (robot frame): the scan, or the local map (see `local_map_m`).
     pub keyframe: Keyframe,
+    /// The keyframe's own scan (robot frame).
+    pub scan_points: Vec<Point2>,
     /// Reference pose (corrected or true) in the log's or the world's frame.
     pub world_from_keyframe: Se2,
     /// Travel along the reference poses since the start of its log (m).
@@ -153,52 +173,56 @@ pub fn keyframes_along<'a>(
         max_range_m: config.max_range_m,
         ..BeamFilter::default()
     };
-    let mut keyframes: Vec<BenchKeyframe> = Vec::new();
-    let mut path_m = 0.0;
-    let mut previous: Option<Se2> = None;
-    // Recent scans `(path, world_from_robot, points_in_robot)` for the local map.
-    let mut recent: VecDeque<(f64, Se2, Vec<Point2>)> = VecDeque::new();
+    // Every scan: (run, path m, world_from_robot, points_in_robot); a kidnap starts a new run.
+    let mut scans: Vec<(usize, f64, Se2, Vec<Point2>)> = Vec::new();
+    let (mut run, mut path_m) = (0usize, 0.0);
     for (scan, pose) in records {
-        if let Some(previous) = previous {
+        if let Some((_, _, previous, _)) = scans.last() {
             let step_m = (pose.translation() - previous.translation()).norm();
             if step_m > MAX_STEP_M {
-                recent.clear();
+                run += 1;
             } else {
                 path_m += step_m;
             }
         }
-        previous = Some(pose);
-        let points_in_robot = scan.points_in_robot(&filter);
-        while recent
-            .front()
-            .is_some_and(|(start_m, _, _)| *start_m < path_m - config.local_map_m)
-        {
-            recent.pop_front();
-        }
+        scans.push((run, path_m, pose, scan.points_in_robot(&filter)));
+    }
+    let mut keyframes: Vec<BenchKeyframe> = Vec::new();
+    let windowed = config.local_map_m > 0.0 || config.local_map_ahead_m > 0.0;
+    for (k, (run, path_m, pose, points_in_robot)) in scans.iter().enumerate() {
         let due = keyframes.last().is_none_or(|last| {
-            let motion = last.world_from_keyframe.between(&pose);
+            let motion = last.world_from_keyframe.between(pose);
             motion.translation().norm() >= config.keyframe_step_m
                 || motion.theta_rad.abs() >= config.keyframe_step_rad
         });
-        if due {
-            let mut points = points_in_robot.clone();
-            if config.local_map_m > 0.0 {
-                let robot_from_world = pose.inverse();
-                for (_, world_from_other, other_points) in &recent {
-                    let robot_from_other = robot_from_world.compose(world_from_other);
-                    points.extend(transform_points(&robot_from_other, other_points));
-                }
-                points = voxel_downsample(&points, config.local_map_voxel_m);
+        if !due {
+            continue;
+        }
+        let mut points = points_in_robot.clone();
+        if windowed {
+            // The scans of the same run from `local_map_m` behind to `local_map_ahead_m` ahead.
+            let robot_from_world = pose.inverse();
+            let in_window = |(r, p, _, _): &&(usize, f64, Se2, Vec<Point2>)| {
+                r == run
+                    && *p >= path_m - config.local_map_m
+                    && *p <= path_m + config.local_map_ahead_m
+            };
+            // Oldest first, as the scans were recorded.
+            let first = k - scans[..k].iter().rev().take_while(|s| in_window(s)).count();
+            let before = scans[first..k].iter();
+            let after = scans[k + 1..].iter().take_while(|s| in_window(s));
+            for (_, _, world_from_other, other_points) in before.chain(after) {
+                let robot_from_other = robot_from_world.compose(world_from_other);
+                points.extend(transform_points(&robot_from_other, other_points));
             }
-            keyframes.push(BenchKeyframe {
-                keyframe: Keyframe::new(id_base + keyframes.len() as u64, points),
-                world_from_keyframe: pose,
-                path_m,
-            });
+            points = voxel_downsample(&points, config.local_map_voxel_m);
         }
-        if config.local_map_m > 0.0 {
-            recent.push_back((path_m, pose, points_in_robot));
-        }
+        keyframes.push(BenchKeyframe {
+            keyframe: Keyframe::new(id_base + keyframes.len() as u64, points),
+            scan_points: points_in_robot.clone(),
+            world_from_keyframe: *pose,
+            path_m: *path_m,
+        });
     }
     keyframes
 }
@@ -388,6 +412,8 @@ pub struct BenchReport {
     pub recalled_in_look_alike_rooms: usize,
     /// Mean retrieval plus verification time per query (ms, one thread per query).
     pub ms_per_query: f64,
+    /// Median of the same (ms): the issue's target is on the median.
+    pub ms_per_query_median: f64,
     /// Wall time of the whole evaluation (s).
     pub seconds: f64,
 }
@@ -496,16 +522,22 @@ fn evaluate(
         (1.0 - config.revisit_min_overlap) * fov_rad
     };
     // 1. Describe (in parallel: independent of each other).
+    let extractor = SignatureExtractor::new(params);
     let describe = |k: &BenchKeyframe| {
         let t = Instant::now();
-        let d = ScanContext::new(&k.keyframe.points_in_keyframe, &params.descriptor);
+        let d = extractor.describe(if config.describe_local_map {
+            &k.keyframe.points_in_keyframe
+        } else {
+            &k.scan_points
+        });
         (d, t.elapsed().as_secs_f64())
     };
-    let indexed_descriptors: Vec<(ScanContext, f64)> = indexed.par_iter().map(describe).collect();
-    let query_descriptors: Vec<(ScanContext, f64)> =
+    let indexed_descriptors: Vec<(PlaceSignature, f64)> =
+        indexed.par_iter().map(describe).collect();
+    let query_descriptors: Vec<(PlaceSignature, f64)> =
         queries.par_iter().map(|(k, _, _)| describe(k)).collect();
     // 2. Retrieval from an index grown in order: a query sees only its visible prefix.
-    let mut index: PlaceIndex = PlaceIndex::new(params.index.clone());
+    let mut index: PlaceIndex<PlaceSignature> = PlaceIndex::new(params.index.clone());
     let mut plans: Vec<Plan> = Vec::with_capacity(queries.len());
     for ((_, visible, _), (descriptor, describe_secs)) in queries.iter().zip(&query_descriptors) {
         while index.len() < *visible {
@@ -542,7 +574,7 @@ fn evaluate(
     let candidates_of = |plan: &Plan| -> Vec<PlaceCandidate> {
         plan.candidates
             .iter()
-            .filter(|c| c.descriptor_distance <= params.max_descriptor_distance)
+            .filter(|c| params.admits(c))
             .filter_map(|c| {
                 let ordinal = ordinal_of(c.keyframe)?;
                 Some(PlaceCandidate {
@@ -718,6 +750,9 @@ fn evaluate(
         report.recalled as f64 / report.revisits as f64
     };
     report.ms_per_query = 1e3 * total_secs / report.queries.max(1) as f64;
+    let mut seconds: Vec<f64> = records.iter().map(|r| r.seconds).collect();
+    seconds.sort_by(f64::total_cmp);
+    report.ms_per_query_median = seconds.get(seconds.len() / 2).map_or(0.0, |s| 1e3 * s);
     report.seconds = started.elapsed().as_secs_f64();
     Ok((report, records))
 }
