@@ -19,21 +19,8 @@ const TRUE_EDGE_DEG: f64 = 10.0;
 /// Splits the intel log into 4 noisy segments under `dir/split`; the segment logs, sorted.
 /// `None` (skipped with a message) without the shared data.
 fn split_intel(dir: &Path) -> Option<Vec<PathBuf>> {
-    let log = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz")?;
     let split = dir.join("split");
-    let report = ok_json(&[
-        "split",
-        p(&log),
-        "--segments",
-        "4",
-        "--odometry-noise",
-        "default",
-        "--seed",
-        "1",
-        "-o",
-        p(&split),
-        "--json",
-    ]);
+    let report = split_log("intel", 4, 1, &split)?;
     let mut segments: Vec<PathBuf> = report["segments"]
         .as_array()
         .unwrap()
@@ -43,6 +30,26 @@ fn split_intel(dir: &Path) -> Option<Vec<PathBuf>> {
     segments.sort();
     assert_eq!(segments.len(), 4, "{report}");
     Some(segments)
+}
+
+/// Splits public log `name` into `segments` segments with seeded noisy odometry under `dir`;
+/// `split`'s report, `None` (skipped with a message) without the shared data.
+fn split_log(name: &str, segments: usize, seed: u64, dir: &Path) -> Option<serde_json::Value> {
+    let log = mapmerge_testkit::shared_data(&format!("carmen/{name}-corrected.log.xz"))?;
+    let (segments, seed) = (segments.to_string(), seed.to_string());
+    Some(ok_json(&[
+        "split",
+        p(&log),
+        "--segments",
+        &segments,
+        "--odometry-noise",
+        "default",
+        "--seed",
+        &seed,
+        "-o",
+        p(dir),
+        "--json",
+    ]))
 }
 
 /// The file stem `split` gives a segment (`intel_00.log` → `intel_00`).
@@ -366,27 +373,6 @@ fn bad_segments_exit_with_code_2_and_name_the_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Splits public log `name` into `segments` noisy segments under `dir`; `None` without the
-/// shared data.
-fn split_log(name: &str, segments: usize, dir: &Path) -> Option<()> {
-    let log = mapmerge_testkit::shared_data(&format!("carmen/{name}-corrected.log.xz"))?;
-    let segments = segments.to_string();
-    ok_json(&[
-        "split",
-        p(&log),
-        "--segments",
-        &segments,
-        "--odometry-noise",
-        "default",
-        "--seed",
-        "0",
-        "-o",
-        p(dir),
-        "--json",
-    ]);
-    Some(())
-}
-
 /// Issue 16, part 3: segments of two buildings that share no place, pooled in one assembly,
 /// are never joined: no edge between the logs, no group mixing them, and each log's own
 /// overlaps are still found.
@@ -394,7 +380,9 @@ fn split_log(name: &str, segments: usize, dir: &Path) -> Option<()> {
 fn pooled_segments_of_two_buildings_are_never_joined() {
     let dir = scratch("assemble-pool");
     let (seattle, orebro) = (dir.join("seattle"), dir.join("orebro"));
-    if split_log("seattle", 3, &seattle).is_none() || split_log("orebro", 3, &orebro).is_none() {
+    if split_log("seattle", 3, 0, &seattle).is_none()
+        || split_log("orebro", 3, 0, &orebro).is_none()
+    {
         return;
     }
     let score = ok_json(&[
