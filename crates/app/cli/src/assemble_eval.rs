@@ -138,7 +138,8 @@ pub struct SplitScore {
     pub true_edges: usize,
     pub overlapping_pairs: usize,
     pub pairs_found: usize,
-    /// Edges from this folder's segments to another folder's.
+    /// Edges from this folder's segments to another folder's (an edge between two folders
+    /// counts in both).
     pub cross_log_edges: usize,
 }
 
