@@ -209,13 +209,18 @@ fn a_conditional_merge_lives_in_g_prime_only() {
     assert!(seen_conditional, "no conditional merge on this seed");
 }
 
-#[test]
-fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
+/// Two kidnap-free sessions of `duration_secs` each in the office world, seed 5.
+fn two_office_sessions(duration_secs: f64) -> mapmerge_sim::Dataset {
     let mut params = SimParams::default().with_preset_name("office").unwrap();
     params.sessions = 2;
-    params.duration_secs = 60.0;
+    params.duration_secs = duration_secs;
     params.kidnap.max_per_session = 0;
-    let dataset = simulate(&params, 5).unwrap();
+    simulate(&params, 5).unwrap()
+}
+
+#[test]
+fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
+    let dataset = two_office_sessions(60.0);
     let mut engine = Engine::new(EngineParams::default()).unwrap();
     let feed = |engine: &mut Engine, scans: &[mapmerge_scan::ScanRecord]| {
         let mut odometry = Se2::identity();
@@ -279,11 +284,7 @@ fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
 
 #[test]
 fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_are_recorded() {
-    let mut params = SimParams::default().with_preset_name("office").unwrap();
-    params.sessions = 2;
-    params.duration_secs = 40.0;
-    params.kidnap.max_per_session = 0;
-    let dataset = simulate(&params, 5).unwrap();
+    let dataset = two_office_sessions(40.0);
     // A model that never calls a merge invalid, whatever its components read.
     let never = LearnedModel {
         methods: vec!["change_detection".into(), "gridmap".into()],

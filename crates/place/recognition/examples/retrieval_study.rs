@@ -27,8 +27,8 @@ use std::time::Instant;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup};
 use mapmerge_place::{
-    cosine_distance, PlaceDescriptor, PlaceIndex, RingSpectrumDescriptor, RingSpectrumParams,
-    ScanContext, SubmapDescriptor,
+    DescriptorExtractor, PlaceIndex, PlaceParams, PlaceSignature, RingSpectrumDescriptor,
+    RingSpectrumParams, SignatureExtractor, SubmapDescriptor,
 };
 use place_eval::BenchConfig;
 use rayon::prelude::*;
@@ -56,9 +56,10 @@ struct Study {
     /// (within `window_linear_m` and the view overlap, yaw guess within `window_angular_rad`):
     /// a candidate from which verification can find the true pose.
     fused_within_reach: Vec<usize>,
-    /// Mean ms per query: describing with the spectrum, and its brute-force top-k.
-    spectrum_describe_ms: f64,
-    spectrum_query_ms: f64,
+    /// Mean ms per keyframe: describing it (Scan Context and spectrum), and retrieving both
+    /// lists from the index (the spectrum's by brute force).
+    describe_ms: f64,
+    query_ms: f64,
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -83,12 +84,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         n.to_string_lossy().replace("-corrected.log.xz", "")
     });
     let revisit_rad = (1.0 - config.revisit_min_overlap) * fov_rad;
-    // The spectrum of the benchmark's configuration unless `--spectrum` says otherwise.
-    let spectrum = RingSpectrumDescriptor::new(
-        &spectrum_params
-            .or_else(|| config.place.appearance.clone())
-            .unwrap_or_default(),
-    );
+    // The benchmark's place parameters, with `--spectrum` in place of its appearance.
+    let place = PlaceParams {
+        appearance: Some(
+            spectrum_params
+                .or_else(|| config.place.appearance.clone())
+                .unwrap_or_default(),
+        ),
+        ..config.place.clone()
+    };
+    let spectrum =
+        RingSpectrumDescriptor::new(place.appearance.as_ref().unwrap_or(&Default::default()));
+    let extractor = SignatureExtractor::new(&place);
     // What describes a keyframe: its local map or its scan, as the benchmark does.
     let described = |k: &place_eval::BenchKeyframe| -> Vec<mapmerge_scan::Point2> {
         if config.describe_local_map {
@@ -97,14 +104,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             k.scan_points.clone()
         }
     };
-    let contexts: Vec<ScanContext> = keyframes
-        .par_iter()
-        .map(|k| ScanContext::new(&described(k), &config.place.descriptor))
-        .collect();
     let started = Instant::now();
-    let rows: Vec<Vec<f32>> = keyframes
+    let signatures: Vec<PlaceSignature> = keyframes
         .par_iter()
-        .map(|k| spectrum.describe(&described(k)))
+        .map(|k| extractor.describe(&described(k)))
         .collect();
     let describe_ms = 1e3 * started.elapsed().as_secs_f64() * rayon::current_num_threads() as f64
         / keyframes.len().max(1) as f64;
@@ -121,17 +124,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         fused: vec![0; KS.len()],
         fused_by_rank: vec![0; KS.len()],
         fused_within_reach: vec![0; KS.len()],
-        spectrum_describe_ms: describe_ms,
+        describe_ms,
         ..Study::default()
     };
-    let mut index: PlaceIndex = PlaceIndex::new(config.place.index.clone());
+    let mut index: PlaceIndex<PlaceSignature> = PlaceIndex::new(place.index.clone());
     let mut query_secs = 0.0;
     for (q, query) in keyframes.iter().enumerate() {
         let visible =
             keyframes.partition_point(|k| k.path_m <= query.path_m - config.min_path_gap_m);
         while index.len() < visible {
             let next = index.len();
-            index.insert(keyframes[next].keyframe.id, contexts[next].clone());
+            index.insert(keyframes[next].keyframe.id, signatures[next].clone());
         }
         if visible == 0 {
             continue;
@@ -150,62 +153,52 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         }
         study.revisits += 1;
-        // Scan Context's list: rank of the first true candidate.
-        let sc_list = index.query(&contexts[q], kmax);
-        let sc_rank = sc_list.iter().position(|c| {
-            let ordinal = c.keyframe.0 as usize;
-            is_revisit(ordinal) && yaw_ok(truth_of(ordinal).theta_rad, c.yaw_rad)
-        });
-        // The spectrum's list, brute force.
+        // Both lists of the production index (ids are ordinals here), each with Scan
+        // Context's yaw.
         let t = Instant::now();
-        let mut ranked: Vec<(f32, usize)> = (0..visible)
-            .map(|o| (cosine_distance(&rows[q], &rows[o]), o))
-            .collect();
-        let top = kmax.min(ranked.len());
-        ranked.select_nth_unstable_by(top - 1, |a, b| a.0.total_cmp(&b.0));
-        ranked.truncate(top);
-        ranked.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (sc_list, spectrum_list) =
+            index.query_lists_filtered(&signatures[q], kmax, |_, _| true);
         query_secs += t.elapsed().as_secs_f64();
-        let rank_by = |yaw: &dyn Fn(usize) -> Option<f64>| {
-            ranked.iter().position(|&(_, o)| {
-                is_revisit(o) && yaw(o).is_some_and(|y| yaw_ok(truth_of(o).theta_rad, y))
-            })
-        };
-        let by_context = rank_by(&|o| Some(contexts[q].compare(&contexts[o]).yaw_rad));
-        let reachable = |o: usize, yaw_rad: f64| {
-            let t = truth_of(o);
-            t.translation().norm() <= config.window_linear_m
-                && t.theta_rad.abs() <= revisit_rad
-                && wrap_angle_rad(yaw_rad - t.theta_rad).abs() <= config.window_angular_rad
-        };
-        let reach_sc = sc_list
-            .iter()
-            .position(|c| reachable(c.keyframe.0 as usize, c.yaw_rad));
-        let reach_spectrum = ranked
-            .iter()
-            .position(|&(_, o)| reachable(o, contexts[q].compare(&contexts[o]).yaw_rad));
-        let by_polar = rank_by(&|o| {
+        let ordinal = |c: &mapmerge_place::Candidate| c.keyframe.0 as usize;
+        let rank_in =
+            |list: &[mapmerge_place::Candidate],
+             yaw: &dyn Fn(&mapmerge_place::Candidate) -> Option<f64>| {
+                list.iter().position(|c| {
+                    is_revisit(ordinal(c))
+                        && yaw(c).is_some_and(|y| yaw_ok(truth_of(ordinal(c)).theta_rad, y))
+                })
+            };
+        let sc_rank = rank_in(&sc_list, &|c| Some(c.yaw_rad));
+        let by_context = rank_in(&spectrum_list, &|c| Some(c.yaw_rad));
+        let by_polar = rank_in(&spectrum_list, &|c| {
             spectrum
-                .relative_yaw(&described(query), &described(&keyframes[o]))
+                .relative_yaw(&described(query), &described(&keyframes[ordinal(c)]))
                 .map(|y| y.yaw_rad)
         });
+        let reachable = |c: &mapmerge_place::Candidate| {
+            let t = truth_of(ordinal(c));
+            t.translation().norm() <= config.window_linear_m
+                && t.theta_rad.abs() <= revisit_rad
+                && wrap_angle_rad(c.yaw_rad - t.theta_rad).abs() <= config.window_angular_rad
+        };
+        let reach_sc = sc_list.iter().position(reachable);
+        let reach_spectrum = spectrum_list.iter().position(reachable);
         // Reciprocal-rank fusion: score Σ 1 / (60 + rank) over the lists holding a keyframe.
-        let mut fusion: std::collections::BTreeMap<usize, f64> = Default::default();
-        for (rank, c) in sc_list.iter().enumerate() {
-            *fusion.entry(c.keyframe.0 as usize).or_default() += 1.0 / (60.0 + rank as f64);
+        let mut fusion: std::collections::BTreeMap<usize, (f64, f64)> = Default::default();
+        for list in [&sc_list, &spectrum_list] {
+            for (rank, c) in list.iter().enumerate() {
+                fusion.entry(ordinal(c)).or_insert((0.0, c.yaw_rad)).0 +=
+                    1.0 / (60.0 + rank as f64);
+            }
         }
-        for (rank, &(_, o)) in ranked.iter().enumerate() {
-            *fusion.entry(o).or_default() += 1.0 / (60.0 + rank as f64);
-        }
-        let mut fused: Vec<(f64, usize)> = fusion.into_iter().map(|(o, s)| (s, o)).collect();
+        let mut fused: Vec<(f64, usize, f64)> = fusion
+            .into_iter()
+            .map(|(o, (s, yaw))| (s, o, yaw))
+            .collect();
         fused.sort_by(|a, b| b.0.total_cmp(&a.0));
-        let fused_rank = fused.iter().position(|&(_, o)| {
-            is_revisit(o)
-                && yaw_ok(
-                    truth_of(o).theta_rad,
-                    contexts[q].compare(&contexts[o]).yaw_rad,
-                )
-        });
+        let fused_rank = fused
+            .iter()
+            .position(|&(_, o, yaw)| is_revisit(o) && yaw_ok(truth_of(o).theta_rad, yaw));
         for (i, &k) in KS.iter().enumerate() {
             study.fused_by_rank[i] += usize::from(fused_rank.is_some_and(|r| r < k));
             let within = |r: Option<usize>| r.is_some_and(|r| r < k);
@@ -216,7 +209,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             study.fused_within_reach[i] += usize::from(within(reach_sc) || within(reach_spectrum));
         }
     }
-    study.spectrum_query_ms = 1e3 * query_secs / study.revisits.max(1) as f64;
+    study.query_ms = 1e3 * query_secs / study.revisits.max(1) as f64;
     println!("{}", serde_json::to_string(&study)?);
     Ok(())
 }

@@ -71,6 +71,9 @@ pub struct PlaceIndex<D: PlaceDescriptor = ScanContext> {
     appearance_rows: Vec<f32>,
     /// Length of the appearance vectors (that of the first non-empty one; 0 while none).
     appearance_dim: usize,
+    /// Whether entry `i` has an appearance row of `appearance_dim` values that is not all
+    /// zeros (set once at insertion, so queries skip the others without reading them).
+    has_appearance: Vec<bool>,
     tree: MutableKdTree<f32, TREE_DIMS>,
     /// Ordinals the tree refused (too many identical keys to split a bucket); searched by
     /// brute force.
@@ -135,6 +138,7 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
             entries: Vec::new(),
             appearance_rows: Vec::new(),
             appearance_dim: 0,
+            has_appearance: Vec::new(),
             tree: MutableKdTree::default(),
             overflow: Vec::new(),
         }
@@ -170,14 +174,16 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
             self.appearance_dim = appearance.len();
             self.appearance_rows = vec![0.0; self.entries.len() * appearance.len()];
         }
-        if self.appearance_dim > 0 {
-            if appearance.len() == self.appearance_dim {
-                self.appearance_rows.extend_from_slice(appearance);
-            } else {
-                let len = self.appearance_rows.len();
-                self.appearance_rows.resize(len + self.appearance_dim, 0.0);
-            }
+        let usable = self.appearance_dim > 0
+            && appearance.len() == self.appearance_dim
+            && appearance.iter().any(|&v| v != 0.0);
+        if usable {
+            self.appearance_rows.extend_from_slice(appearance);
+        } else if self.appearance_dim > 0 {
+            let len = self.appearance_rows.len();
+            self.appearance_rows.resize(len + self.appearance_dim, 0.0);
         }
+        self.has_appearance.push(usable);
         self.entries.push(Entry {
             id: keyframe,
             descriptor,
@@ -211,8 +217,49 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         k: usize,
         keep: impl Fn(usize, KeyframeId) -> bool,
     ) -> Vec<Candidate> {
+        let (by_descriptor, by_appearance) = self.lists(descriptor, k, keep);
+        // Fuse: (better rank, list, ordinal) orders the union.
+        let mut fused: Vec<((usize, usize, usize), Candidate)> = by_descriptor
+            .into_iter()
+            .enumerate()
+            .map(|(rank, (ordinal, c))| ((rank, 0, ordinal), c))
+            .collect();
+        for (rank, (ordinal, c)) in by_appearance.into_iter().enumerate() {
+            if let Some(existing) = fused.iter_mut().find(|(key, _)| key.2 == ordinal) {
+                existing.0 = existing.0.min((rank, 1, ordinal));
+            } else {
+                fused.push(((rank, 1, ordinal), c));
+            }
+        }
+        fused.sort_by_key(|(key, _)| *key);
+        fused.into_iter().map(|(_, c)| c).collect()
+    }
+
+    /// The two lists [`PlaceIndex::query_filtered`] fuses, each best first: the `k` best by
+    /// the full descriptor distance among the ring-key neighbours, and the `k` nearest
+    /// appearances (empty without appearance vectors). For measuring each list alone.
+    pub fn query_lists_filtered(
+        &self,
+        descriptor: &D,
+        k: usize,
+        keep: impl Fn(usize, KeyframeId) -> bool,
+    ) -> (Vec<Candidate>, Vec<Candidate>) {
+        let (a, b) = self.lists(descriptor, k, keep);
+        let drop_ordinal =
+            |list: Vec<(usize, Candidate)>| list.into_iter().map(|(_, c)| c).collect();
+        (drop_ordinal(a), drop_ordinal(b))
+    }
+
+    /// Both lists with the insertion ordinal of each candidate.
+    #[allow(clippy::type_complexity)]
+    fn lists(
+        &self,
+        descriptor: &D,
+        k: usize,
+        keep: impl Fn(usize, KeyframeId) -> bool,
+    ) -> (Vec<(usize, Candidate)>, Vec<(usize, Candidate)>) {
         if k == 0 || self.entries.is_empty() {
-            return Vec::new();
+            return (Vec::new(), Vec::new());
         }
         let wanted = self.params.ring_key_neighbours.max(k);
         let key = tree_key(descriptor.retrieval_key());
@@ -282,28 +329,19 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         });
         candidates.truncate(k);
         // The second list: nearest appearances among the kept keyframes.
-        let by_appearance = self.nearest_appearances(query_appearance, k, &kept);
-        if by_appearance.is_empty() {
-            return candidates.into_iter().map(|(_, c)| c).collect();
-        }
-        // Fuse: (better rank, list, ordinal) orders the union.
-        let mut fused: Vec<((usize, usize, usize), Candidate)> = candidates
+        let by_appearance = self
+            .nearest_appearances(query_appearance, k, &kept)
             .into_iter()
-            .enumerate()
-            .map(|(rank, (ordinal, c))| ((rank, 0, ordinal), c))
+            .filter_map(|(_, ordinal)| {
+                let entry = self.entries.get(ordinal)?;
+                let squared = squared_distance(&key, &tree_key(entry.descriptor.retrieval_key()));
+                Some((
+                    ordinal,
+                    candidate_of(ordinal, f64::from(squared.max(0.0)).sqrt())?,
+                ))
+            })
             .collect();
-        for (rank, (_, ordinal)) in by_appearance.into_iter().enumerate() {
-            if let Some(existing) = fused.iter_mut().find(|(key, _)| key.2 == ordinal) {
-                existing.0 = existing.0.min((rank, 1, ordinal));
-            } else if let Some(c) = self.entries.get(ordinal).and_then(|e| {
-                let squared = squared_distance(&key, &tree_key(e.descriptor.retrieval_key()));
-                candidate_of(ordinal, f64::from(squared.max(0.0)).sqrt())
-            }) {
-                fused.push(((rank, 1, ordinal), c));
-            }
-        }
-        fused.sort_by_key(|(key, _)| *key);
-        fused.into_iter().map(|(_, c)| c).collect()
+        (candidates, by_appearance)
     }
 
     /// Cosine distance between `query` and the appearance row of `ordinal` (rows and queries
@@ -311,7 +349,7 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
     fn appearance_distance(&self, query: &[f32], ordinal: usize) -> f64 {
         let dim = self.appearance_dim;
         match self.appearance_rows.get(ordinal * dim..(ordinal + 1) * dim) {
-            Some(row) if dim > 0 && query.len() == dim && row.iter().any(|&v| v != 0.0) => {
+            Some(row) if query.len() == dim && self.has_appearance.get(ordinal) == Some(&true) => {
                 f64::from(unit_cosine_distance(row, query))
             }
             _ => f64::INFINITY,
@@ -334,7 +372,9 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
             .appearance_rows
             .chunks_exact(dim)
             .enumerate()
-            .filter(|(ordinal, row)| row.iter().any(|&v| v != 0.0) && kept(*ordinal))
+            .filter(|(ordinal, _)| {
+                self.has_appearance.get(*ordinal) == Some(&true) && kept(*ordinal)
+            })
             .map(|(ordinal, row)| (unit_cosine_distance(row, query), ordinal))
             .filter(|(d, _)| d.is_finite())
             .collect();
@@ -483,6 +523,18 @@ mod tests {
         let forty = found.iter().find(|c| c.keyframe.0 == 40).unwrap();
         assert!(forty.appearance_distance < 0.01);
         assert!((forty.descriptor_distance - 0.4).abs() < 1e-6);
+        // The two lists alone: k each, and their union is the fused list.
+        let (first, second) = index.query_lists_filtered(&query, 3, |_, _| true);
+        assert_eq!(
+            first.iter().map(|c| c.keyframe.0).collect::<Vec<_>>(),
+            vec![0, 1, 2]
+        );
+        assert_eq!(second[0].keyframe.0, 40);
+        assert_eq!(second.len(), 3);
+        let mut union: Vec<u64> = first.iter().chain(&second).map(|c| c.keyframe.0).collect();
+        union.sort_unstable();
+        union.dedup();
+        assert_eq!(union, unique);
         // The filter applies to both lists.
         let filtered = index.query_filtered(&query, 3, |_, id| id.0 != 40);
         assert!(filtered.iter().all(|c| c.keyframe.0 != 40));
