@@ -48,18 +48,22 @@ print("1 m and 30° (sim: any heading, 360° lidar). *retrieved*: revisits with 
 print("30° among the retrieved candidates, descriptor yaw within 20°; *verified*: revisits with a")
 print("candidate verified to the true pose (the ceiling of any acceptance rule). *refused*: queries whose")
 print("best verified candidate missed the score or the confidence threshold, how many of those were")
-print("wrong, and how many of the wrong ones put the query into a look-alike room (sim).\n")
+print("wrong, and how many of the wrong ones put the query into a look-alike room (sim). *Uniqueness*:")
+print("refusals because a distinct placement fits nearly as well, the query turned by 180° (refused by")
+print("score, would have passed without the turned fit) and a rival place (refused by confidence), each")
+print("with how many of them were wrong.\n")
 held_out, tuning = set(sys.argv[3].split()), set(sys.argv[4].split())
 set_of = lambda name: "held-out" if name in held_out else "tuning" if name in tuning else "–"
-print("| log | set | keyframes | queries | revisits | accepted | true | precision | recall | retrieved | verified | refused by score: all / wrong / look-alike | refused by confidence: all / wrong / look-alike | ms per query (median) |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-keys = ["revisits", "accepted", "true", "recalled", "retrieved", "verified"]
+print("| log | set | keyframes | queries | revisits | accepted | true | precision | recall | retrieved | verified | refused by score: all / wrong / look-alike | refused by confidence: all / wrong / look-alike | uniqueness: turned / rival place (wrong) | ms per query (median) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+keys = ["revisits", "accepted", "true", "recalled", "retrieved", "verified", "refused_by_flip", "refused_by_flip_wrong", "refused_by_confidence", "refused_by_confidence_wrong"]
 for r in runs:
     by_score = f"{r['refused_by_score']} / {r['refused_by_score_wrong']} / {r['refused_by_score_look_alike']}"
     refused = f"{by_score} | {r['refused_by_confidence']} / {r['refused_by_confidence_wrong']} / {r['refused_by_confidence_look_alike']}"
     median = f" ({r['ms_per_query_median']:.0f})" if 'ms_per_query_median' in r else ""
+    unique = f"{r['refused_by_flip']} ({r['refused_by_flip_wrong']}) / {r['refused_by_confidence']} ({r['refused_by_confidence_wrong']})"
     print(f"| {r['name']} | {set_of(r['name'])} | {r['keyframes']} | {r['queries']} | {r['revisits']} | {r['accepted']} | {r['true']} "
-          f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['retrieved']} | {r['verified']} | {refused} | {r['ms_per_query']:.0f}{median} |")
+          f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['retrieved']} | {r['verified']} | {refused} | {unique} | {r['ms_per_query']:.0f}{median} |")
 for label, names in [("**held-out logs**", held_out), ("**tuning logs**", tuning), ("**all public logs**", held_out | tuning)]:
     tot = {k: sum(r[k] for r in runs if r['name'] in names) for k in keys}
     if not tot['revisits']:
@@ -67,7 +71,7 @@ for label, names in [("**held-out logs**", held_out), ("**tuning logs**", tuning
     p = tot['true'] / tot['accepted'] if tot['accepted'] else 1.0
     share = lambda k: f"{tot[k]} ({100 * tot[k] / tot['revisits']:.1f} %)"
     print(f"| {label} | | | | {tot['revisits']} | {tot['accepted']} | {tot['true']} | {p:.3f} | "
-          f"{tot['recalled'] / tot['revisits']:.3f} | {share('retrieved')} | {share('verified')} | | | |")
+          f"{tot['recalled'] / tot['revisits']:.3f} | {share('retrieved')} | {share('verified')} | | | {tot['refused_by_flip']} ({tot['refused_by_flip_wrong']}) / {tot['refused_by_confidence']} ({tot['refused_by_confidence_wrong']}) | |")
 sims = [r for r in runs if r['name'].startswith('sim')]
 for r in sims:
     print(f"\n{r['name']}: {r['revisits_in_look_alike_rooms']} of the {r['revisits']} revisits are in rooms with "

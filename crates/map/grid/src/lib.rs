@@ -11,6 +11,7 @@
 //! ```
 
 mod error;
+mod free_space;
 mod geometry;
 mod local_maps;
 mod morphology;
@@ -19,6 +20,7 @@ mod raycast;
 mod resample;
 
 pub use error::GridError;
+pub use free_space::FreeSpace;
 pub use geometry::{Cell, GridGeometry};
 pub use local_maps::{LocalMap, LocalMapParams, LocalMaps, RenderInfo};
 pub use morphology::{CellMask, DistanceField};

@@ -19,12 +19,24 @@
 //! The free space is the query keyframe's own: the nearest return per 1° bearing from its
 //! origin. For a single scan that is exact; for a local map (points seen from several poses
 //! along the path) it is an approximation that holds where the path passed in the open.
+//!
+//! **Whole maps** (issue 16, part 3). When both keyframes carry the free space their beams
+//! crossed ([`Keyframe::with_free_space`]), the two local maps are compared over their whole
+//! overlap instead: each map's points are checked against the other map, agreeing near one of
+//! its returns and disagreeing in its free space, and points where the other map knows nothing
+//! count for neither (Birk & Carpin 2006's agreement `agr / (agr + dis)`, over points). The
+//! score is then that agreement, reduced for a small overlap, a good 180° fit and a weak
+//! constraint: a query that saw further than the candidate is no longer held against it,
+//! while a wall where the other map saw through still is.
 
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_grid::FreeSpace;
 use mapmerge_scan::{estimate_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix2;
 use serde::{Deserialize, Serialize};
+
+use crate::Keyframe;
 
 /// Bearing bins of the free-space profile (1° each).
 const BEARING_BINS: usize = 360;
@@ -56,6 +68,10 @@ pub struct EvidenceParams {
     /// not reduced; below it the score shrinks in proportion (default: 3). Higher refuses
     /// more corridor-like places.
     pub full_constraint_m: f64,
+    /// With both keyframes' free space: a placement that puts less than this fraction of the
+    /// query's points where the candidate knows the space is scored down in proportion
+    /// (default: 0.5); the agreement of a small overlap proves little.
+    pub min_overlap_fraction: f64,
     /// Radius of the neighbourhood that gives a point's normal (m) (default: 0.2).
     pub normal_radius_m: f64,
     /// Points whose neighbourhood is less line-like than this count as no structure
@@ -74,6 +90,7 @@ impl Default for EvidenceParams {
             flip_weight: 2.0,
             flip_tolerance: 0.5,
             full_constraint_m: 3.0,
+            min_overlap_fraction: 0.5,
             normal_radius_m: 0.2,
             min_planarity: 0.5,
         }
@@ -96,10 +113,50 @@ pub struct Evidence {
     /// Scan-matcher score with the query turned by 180° over the score of the alignment
     /// (0 when that search found nothing).
     pub flip_ratio: f64,
-    /// The evidence in `[0, 1]`: `(inlier_fraction − violation_weight · violation_fraction −
-    /// flip_weight · max(0, flip_ratio − flip_tolerance)) · min(1, constraint_m /
-    /// full_constraint_m)`.
+    /// Whether both keyframes carried their free space: the score is then the whole-map
+    /// agreement's.
+    pub whole_map: bool,
+    /// With both keyframes' free space: the points of either map that fall where the other
+    /// map knows the space (near one of its returns, or in its free space), both directions
+    /// together …
+    pub overlap_points: usize,
+    /// … the fraction of them near a return of the other map (Birk & Carpin 2006's
+    /// agreement, `agr / (agr + dis)`, over points instead of cells; 0 without free space) …
+    pub agreement: f64,
+    /// … and the fraction of the query's points that fall where the candidate knows the space.
+    pub overlap_fraction: f64,
+    /// The evidence in `[0, 1]`: `support · min(1, constraint_m / full_constraint_m)`, where
+    /// with both keyframes' free space `support = max(0, agreement − flip) · min(1,
+    /// overlap_fraction / min_overlap_fraction)` (the two maps agree wherever both know the
+    /// space), and without `support = inlier_fraction − violation_weight ·
+    /// violation_fraction − flip` (points the candidate never saw count against it);
+    /// `flip = flip_weight · max(0, flip_ratio − flip_tolerance)`.
     pub score: f64,
+}
+
+impl Evidence {
+    /// The score of these parts under `params` (see [`Evidence::score`]).
+    pub fn score_with(&self, params: &EvidenceParams) -> f64 {
+        let flip_penalty = params.flip_weight * (self.flip_ratio - params.flip_tolerance).max(0.0);
+        let support = if self.whole_map {
+            // The two maps agree wherever both know the space.
+            let overlapping = if params.min_overlap_fraction > 0.0 {
+                (self.overlap_fraction / params.min_overlap_fraction).min(1.0)
+            } else {
+                1.0
+            };
+            (self.agreement - flip_penalty).max(0.0) * overlapping
+        } else {
+            // Completeness less the candidate's points in the query's free space.
+            self.inlier_fraction - params.violation_weight * self.violation_fraction - flip_penalty
+        };
+        let constrained = if params.full_constraint_m > 0.0 {
+            (self.constraint_m / params.full_constraint_m).min(1.0)
+        } else {
+            1.0
+        };
+        (support * constrained).clamp(0.0, 1.0)
+    }
 }
 
 /// A 2D k-d tree and nearest-neighbour distances (m).
@@ -128,12 +185,13 @@ fn bearing_bin(p: &Point2) -> usize {
     ((turns * BEARING_BINS as f64) as usize).min(BEARING_BINS - 1)
 }
 
-/// The evidence for `candidate_from_query` aligning `query_points` (query frame) to
-/// `candidate_points` (candidate frame); `flip_ratio` is passed in (it needs a second scan
-/// match) and enters the score. Non-finite points are ignored.
+/// The evidence for `candidate_from_query` aligning `query`'s points (query frame) to
+/// `candidate`'s (candidate frame); `flip_ratio` is passed in (it needs a second scan match)
+/// and enters the score. When both keyframes carry their free space, the two maps are also
+/// compared over their whole overlap ([`Evidence::agreement`]). Non-finite points are ignored.
 pub fn evidence(
-    query_points: &[Point2],
-    candidate_points: &[Point2],
+    query: &Keyframe,
+    candidate: &Keyframe,
     candidate_from_query: &Se2,
     flip_ratio: f64,
     params: &EvidenceParams,
@@ -146,8 +204,12 @@ pub fn evidence(
             .collect();
         voxel_downsample(&kept, params.voxel_m)
     };
-    let query = finite(query_points);
-    let candidate = finite(candidate_points);
+    let free_spaces = query
+        .free_space
+        .as_deref()
+        .zip(candidate.free_space.as_deref());
+    let query = finite(&query.points_in_keyframe);
+    let candidate = finite(&candidate.points_in_keyframe);
     let mut out = Evidence {
         query_points: query.len(),
         flip_ratio,
@@ -161,9 +223,13 @@ pub fn evidence(
     let near_candidate = Nearest::new(&candidate);
     let near_query = Nearest::new(&query);
     // 1. Completeness.
-    let inliers = query_in_candidate
+    let query_to_candidate_m: Vec<f64> = query_in_candidate
         .iter()
-        .filter(|p| near_candidate.distance_m(p) <= params.inlier_m)
+        .map(|p| near_candidate.distance_m(p))
+        .collect();
+    let inliers = query_to_candidate_m
+        .iter()
+        .filter(|&&d| d <= params.inlier_m)
         .count();
     out.inlier_fraction = inliers as f64 / query.len() as f64;
     // 2. Constraint: Σ n nᵀ over line-like matched query points (one per voxel, so each
@@ -211,16 +277,43 @@ pub fn evidence(
     } else {
         0.0
     };
-    // 4. One number.
-    let support = out.inlier_fraction
-        - params.violation_weight * out.violation_fraction
-        - params.flip_weight * (flip_ratio - params.flip_tolerance).max(0.0);
-    let constrained = if params.full_constraint_m > 0.0 {
-        (out.constraint_m / params.full_constraint_m).min(1.0)
-    } else {
-        1.0
-    };
-    out.score = (support * constrained).clamp(0.0, 1.0);
+    // 4. Whole-map agreement: each map's points against the other's returns and free space.
+    if let Some((query_free, candidate_free)) = free_spaces {
+        // (agree, disagree) of `points` against a map's returns (distances given) and free space.
+        let tally =
+            |points: &[Point2], distances_m: &mut dyn Iterator<Item = f64>, free: &FreeSpace| {
+                let (mut agree, mut disagree) = (0usize, 0usize);
+                for (p, d) in points.iter().zip(distances_m) {
+                    if d <= params.inlier_m {
+                        agree += 1;
+                    } else if d > params.violation_clearance_m && free.is_free(p) {
+                        disagree += 1;
+                    }
+                }
+                (agree, disagree)
+            };
+        let (query_agree, query_disagree) = tally(
+            &query_in_candidate,
+            &mut query_to_candidate_m.iter().copied(),
+            candidate_free,
+        );
+        let (candidate_agree, candidate_disagree) = tally(
+            &candidate_in_query,
+            &mut candidate_in_query.iter().map(|p| near_query.distance_m(p)),
+            query_free,
+        );
+        let agree = query_agree + candidate_agree;
+        let known = agree + query_disagree + candidate_disagree;
+        out.overlap_points = known;
+        out.agreement = if known > 0 {
+            agree as f64 / known as f64
+        } else {
+            0.0
+        };
+        out.overlap_fraction = (query_agree + query_disagree) as f64 / query.len() as f64;
+    }
+    out.whole_map = free_spaces.is_some();
+    out.score = out.score_with(params);
     out
 }
 
@@ -229,6 +322,65 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
 
     use super::*;
+
+    /// A keyframe of `points` without free space.
+    fn kf(points: Vec<Point2>) -> Keyframe {
+        Keyframe::new(0, points)
+    }
+
+    /// A keyframe of `points` seen from its origin, with the free space of those rays.
+    fn seen_from_origin(points: Vec<Point2>) -> Keyframe {
+        let rays: Vec<(Point2, Point2)> = points.iter().map(|p| (Point2::zeros(), *p)).collect();
+        Keyframe::new(0, points).with_free_space(FreeSpace::from_rays(0.1, rays).unwrap())
+    }
+
+    #[test]
+    fn whole_maps_agree_over_their_overlap_and_ignore_what_one_never_saw() {
+        let params = EvidenceParams::default();
+        let identity = Se2::new(0.0, 0.0, 0.0);
+        let same = evidence(
+            &seen_from_origin(room()),
+            &seen_from_origin(room()),
+            &identity,
+            0.0,
+            &params,
+        );
+        assert!(same.agreement > 0.99, "{same:?}");
+        assert!(same.overlap_fraction > 0.95, "{same:?}");
+        // The candidate saw only the left part of the room: the rest is unknown to it, which
+        // lowers the overlap but not the agreement.
+        let left: Vec<Point2> = room().into_iter().filter(|p| p.x < 0.5).collect();
+        let partial = evidence(
+            &seen_from_origin(room()),
+            &seen_from_origin(left),
+            &identity,
+            0.0,
+            &params,
+        );
+        assert!(partial.agreement > 0.99, "{partial:?}");
+        assert!(partial.overlap_fraction < 0.7, "{partial:?}");
+        assert!(partial.inlier_fraction < 0.7, "{partial:?}");
+        // A wall where the query saw through disagrees.
+        let mut walled = room();
+        walled.extend(wall((2.0, -2.0), (2.0, 2.0)));
+        let wrong = evidence(
+            &seen_from_origin(room()),
+            &seen_from_origin(walled),
+            &identity,
+            0.0,
+            &params,
+        );
+        assert!(wrong.agreement < 0.95, "{wrong:?}");
+        // Without free space there is no agreement to measure.
+        let none = evidence(
+            &kf(room()),
+            &seen_from_origin(room()),
+            &identity,
+            0.0,
+            &params,
+        );
+        assert_eq!((none.agreement, none.overlap_points), (0.0, 0));
+    }
 
     /// Points every 2 cm along the segment `a`–`b`.
     fn wall(a: (f64, f64), b: (f64, f64)) -> Vec<Point2> {
@@ -257,8 +409,8 @@ mod tests {
     #[test]
     fn a_true_alignment_scores_high() {
         let e = evidence(
-            &room(),
-            &room(),
+            &kf(room()),
+            &kf(room()),
             &Se2::new(0.0, 0.0, 0.0),
             0.0,
             &EvidenceParams::default(),
@@ -276,8 +428,8 @@ mod tests {
             .chain(wall((-8.0, 1.0), (8.0, 1.0)))
             .collect();
         let e = evidence(
-            &corridor,
-            &corridor,
+            &kf(corridor.clone()),
+            &kf(corridor.clone()),
             &Se2::new(0.0, 0.0, 0.0),
             0.0,
             &EvidenceParams::default(),
@@ -293,16 +445,16 @@ mod tests {
         let mut candidate = room();
         candidate.extend(wall((2.0, -2.0), (2.0, 2.0)));
         let e = evidence(
-            &room(),
-            &candidate,
+            &kf(room()),
+            &kf(candidate),
             &Se2::new(0.0, 0.0, 0.0),
             0.0,
             &EvidenceParams::default(),
         );
         assert!(e.violation_fraction > 0.1, "{e:?}");
         let clean = evidence(
-            &room(),
-            &room(),
+            &kf(room()),
+            &kf(room()),
             &Se2::new(0.0, 0.0, 0.0),
             0.0,
             &EvidenceParams::default(),
@@ -314,13 +466,26 @@ mod tests {
     fn a_good_flip_lowers_the_score_and_empty_input_scores_zero() {
         let params = EvidenceParams::default();
         let identity = Se2::new(0.0, 0.0, 0.0);
-        let flipped = evidence(&room(), &room(), &identity, 0.8, &params);
+        let flipped = evidence(&kf(room()), &kf(room()), &identity, 0.8, &params);
         assert!(
             (flipped.score - (1.0 - 2.0 * 0.3)).abs() < 0.02,
             "{flipped:?}"
         );
-        assert_eq!(evidence(&[], &room(), &identity, 0.0, &params).score, 0.0);
+        assert_eq!(
+            evidence(&kf(vec![]), &kf(room()), &identity, 0.0, &params).score,
+            0.0
+        );
         let nan = [Point2::new(f64::NAN, 1.0)];
-        assert_eq!(evidence(&nan, &nan, &identity, 0.0, &params).score, 0.0);
+        assert_eq!(
+            evidence(
+                &kf(nan.to_vec()),
+                &kf(nan.to_vec()),
+                &identity,
+                0.0,
+                &params
+            )
+            .score,
+            0.0
+        );
     }
 }

@@ -2,6 +2,7 @@
 
 use std::sync::Arc;
 
+use mapmerge_grid::FreeSpace;
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
@@ -24,6 +25,13 @@ pub struct Keyframe {
     /// Obstacle points in the keyframe frame (m), shared: a keyframe is made from stored
     /// points without copying them.
     pub points_in_keyframe: Arc<[Point2]>,
+    /// Where the sensor saw through while taking those points (keyframe frame), when the
+    /// keyframe was built with its rays ([`Keyframe::with_free_space`]). Verification then
+    /// compares two keyframes over their whole overlap, free against occupied
+    /// ([`crate::Evidence::agreement`]); without it the free space is approximated from the
+    /// keyframe's origin.
+    #[serde(default)]
+    pub free_space: Option<Arc<FreeSpace>>,
 }
 
 impl Keyframe {
@@ -33,6 +41,13 @@ impl Keyframe {
         Self {
             id: KeyframeId(id),
             points_in_keyframe: points_in_keyframe.into(),
+            free_space: None,
         }
+    }
+
+    /// The same keyframe with the free space its rays crossed.
+    pub fn with_free_space(mut self, free_space: FreeSpace) -> Self {
+        self.free_space = Some(Arc::new(free_space));
+        self
     }
 }

@@ -72,6 +72,8 @@ pub use loops::{
     verify_candidates, verify_candidates_by, PlaceCandidate, PlaceDatabase, PlaceParams,
     VerifiedLoop,
 };
+/// The free space a [`Keyframe`] may carry (re-exported: it is part of the keyframe).
+pub use mapmerge_grid::FreeSpace;
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::{PlaceVerifierParams, ScanMatchVerifier};
 pub use signature::{PlaceSignature, SignatureExtractor};

@@ -140,8 +140,8 @@ impl ScanMatchVerifier {
             .map_or(0.0, |flipped| flipped.score / found.score)
         };
         let proof = evidence(
-            &query.points_in_keyframe,
-            &candidate.points_in_keyframe,
+            query,
+            candidate,
             &found.target_from_query,
             flip_ratio,
             &params,
@@ -229,8 +229,8 @@ mod tests {
             )
             .map_or(0.0, |flipped| flipped.score / found.score);
         evidence(
-            &query.points_in_keyframe,
-            &candidate.points_in_keyframe,
+            query,
+            candidate,
             &found.target_from_query,
             flip_ratio,
             &verifier.evidence.unwrap_or_default(),
