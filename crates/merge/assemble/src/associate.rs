@@ -39,8 +39,16 @@ pub struct VerificationParams {
     /// direction) (default: 0.25). Two submaps of one place seen from different sides share
     /// about half their points, and corridors are weakly constrained, so the score is lower
     /// than a keyframe against its own submap; precision comes from the agreement of several
-    /// edges and from the group graph's residuals.
+    /// edges and from the group graph's residuals. Applies to submaps without free space (3D
+    /// segments, or `SubmapParams::free_space_m = 0`).
     pub min_score: f64,
+    /// The same for two submaps that carry their free space: the score is then their
+    /// whole-map agreement (`mapmerge_place::Evidence::agreement`), on its own scale (default:
+    /// 0.965; chosen on the tuning logs: per log the best wrong edge scored 0.94 and 0.95 kept
+    /// every edge right at 65.3 % pair recall (0.9: 69.5 % with one false pair; the old score
+    /// at 0.25: 68.4 %, 4 false pairs); pooled, freiburg-079 and infinite-corridor still met
+    /// at 0.955–0.960, and 0.965 parts them at the same per-log recall).
+    pub min_whole_map_score: f64,
     /// At most this many matches are verified per pair, spread evenly over the zone inliers
     /// (default: 24; each costs a match target, ~10–30 ms).
     pub max_verifications: usize,
@@ -77,6 +85,7 @@ impl Default for VerificationParams {
             window_m: 3.0,
             window_deg: 180.0,
             min_score: 0.25,
+            min_whole_map_score: 0.965,
             max_verifications: 24,
             min_loops: 2,
             consistency_m: 1.0,
@@ -276,10 +285,17 @@ pub fn associate_pair<D: SubmapDescriptor<Point = Point2>>(
             let yaw = descriptor
                 .relative_yaw(&sb.points_in_centre, &sa.points_in_centre)
                 .map_or(0.0, |y| y.yaw_rad);
-            let query = Keyframe::new(sb.index as u64, sb.points_in_centre.clone());
-            let candidate = Keyframe::new(sa.index as u64, sa.points_in_centre.clone());
+            let mut query = Keyframe::new(sb.index as u64, sb.points_in_centre.clone());
+            query.free_space = sb.free_space.clone();
+            let mut candidate = Keyframe::new(sa.index as u64, sa.points_in_centre.clone());
+            candidate.free_space = sa.free_space.clone();
+            let min_score = if query.free_space.is_some() && candidate.free_space.is_some() {
+                params.verification.min_whole_map_score
+            } else {
+                params.verification.min_score
+            };
             let found = verifier.verify(&query, &candidate, &Se2::new(0.0, 0.0, yaw))?;
-            (found.score >= params.verification.min_score && found.candidate_from_query.is_finite())
+            (found.score >= min_score && found.candidate_from_query.is_finite())
                 .then_some((*m, found))
         })
         .collect();

@@ -48,6 +48,14 @@ pub trait SegmentPoints: Sync {
         out: &mut Vec<Self::Point>,
     );
 
+    /// Position of scan `scan`'s sensor in the robot frame of scan `centre`, in the ground
+    /// plane (m): where its beams start. `None` (the default) when the segment does not say,
+    /// out of range, or for 3D clouds.
+    fn sensor_in_centre(&self, centre: usize, scan: usize) -> Option<Point2> {
+        let _ = (centre, scan);
+        None
+    }
+
     /// Cumulative translation along the trajectory at every scan (m, starting at 0).
     fn travel_m(&self) -> Vec<f64> {
         let mut travel = Vec::with_capacity(self.scan_count());
@@ -204,6 +212,16 @@ impl SegmentPoints for Segment {
         self.poses
             .get(scan)
             .map(|pose| Vector3::new(pose.x_m, pose.y_m, 0.0))
+    }
+
+    fn sensor_in_centre(&self, centre: usize, scan: usize) -> Option<Point2> {
+        let centre_from_sensor = self
+            .poses
+            .get(centre)?
+            .inverse()
+            .compose(self.poses.get(scan)?)
+            .compose(&self.scans.get(scan)?.robot_from_sensor);
+        Some(centre_from_sensor.translation())
     }
 
     fn push_points_in_centre(

@@ -10,6 +10,9 @@
 //! look the same when it is driven in the opposite direction. Travel is measured by
 //! translation only, so turning on the spot starts no new submap.
 
+use std::sync::Arc;
+
+use mapmerge_place::FreeSpace;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -36,6 +39,11 @@ pub struct SubmapParams {
     pub window_m: f64,
     /// Voxel (cell) side of the downsampling (m) (default: 0.1); 0 keeps every point.
     pub voxel_m: f64,
+    /// Cell side (m) of the free space a 2D submap keeps, the cells its scans' beams crossed
+    /// (from each scan's sensor), so that verification compares two submaps over their whole
+    /// overlap (`mapmerge_place::Evidence::agreement`); 0 keeps none (default: 0.1; the
+    /// outdoor preset keeps none).
+    pub free_space_m: f64,
 }
 
 impl Default for SubmapParams {
@@ -45,6 +53,7 @@ impl Default for SubmapParams {
             radius_m: 10.0,
             window_m: 4.0,
             voxel_m: 0.1,
+            free_space_m: 0.1,
         }
     }
 }
@@ -58,6 +67,7 @@ impl SubmapParams {
             radius_m: 50.0,
             window_m: 25.0,
             voxel_m: 0.5,
+            free_space_m: 0.0,
         }
     }
 
@@ -72,7 +82,11 @@ impl SubmapParams {
                 });
             }
         }
-        let non_negative = [("window_m", self.window_m), ("voxel_m", self.voxel_m)];
+        let non_negative = [
+            ("window_m", self.window_m),
+            ("voxel_m", self.voxel_m),
+            ("free_space_m", self.free_space_m),
+        ];
         for (field, value) in non_negative {
             if !(value.is_finite() && value >= 0.0) {
                 return Err(AssembleError::InvalidParams {
@@ -97,6 +111,8 @@ pub trait SubmapPoint: Copy + Send + Sync + std::fmt::Debug + 'static {
     fn horizontal_range_m(&self) -> f64;
     /// Integer voxel coordinates for cells of `cell_m` (`z` cell 0 in 2D).
     fn voxel_key(&self, cell_m: f64) -> [i64; 3];
+    /// The point in the ground plane (m).
+    fn planar(&self) -> Point2;
 }
 
 impl SubmapPoint for Point2 {
@@ -120,6 +136,9 @@ impl SubmapPoint for Point2 {
             0,
         ]
     }
+    fn planar(&self) -> Point2 {
+        *self
+    }
 }
 
 impl SubmapPoint for Point3 {
@@ -142,6 +161,9 @@ impl SubmapPoint for Point3 {
             (self.z / cell_m).floor() as i64,
         ]
     }
+    fn planar(&self) -> Point2 {
+        Point2::new(self.x, self.y)
+    }
 }
 
 /// One submap of a segment.
@@ -159,6 +181,9 @@ pub struct Submap<P, G> {
     pub travel_m: f64,
     /// The points in the centre scan's robot frame, voxel-downsampled (voxel key order).
     pub points_in_centre: Vec<P>,
+    /// The free space the accumulated scans' beams crossed, in the same frame (2D segments
+    /// with `SubmapParams::free_space_m > 0`).
+    pub free_space: Option<Arc<FreeSpace>>,
 }
 
 /// The submaps of a segment of type `S`.
@@ -208,9 +233,27 @@ pub fn build_submaps<S: SegmentPoints>(
             let end = travel_m.partition_point(|&t| t <= centre_travel_m + params.window_m);
             let last = end.saturating_sub(1).max(first);
             let mut points = Vec::new();
+            // Beams (centre frame) from each scan's sensor to its returns.
+            let keep_rays = params.free_space_m > 0.0;
+            let mut rays: Vec<(Point2, Point2)> = Vec::new();
             for scan in first..end {
+                let before = points.len();
                 segment.push_points_in_centre(centre, scan, params.radius_m, &mut points);
+                if let (true, Some(origin), Some(new)) = (
+                    keep_rays,
+                    segment.sensor_in_centre(centre, scan),
+                    points.get(before..),
+                ) {
+                    rays.extend(new.iter().map(|p| (origin, p.planar())));
+                }
             }
+            let free_space = if rays.is_empty() {
+                None
+            } else {
+                FreeSpace::from_rays(params.free_space_m, rays)
+                    .ok()
+                    .map(Arc::new)
+            };
             Some(Submap {
                 index,
                 centre_scan: centre,
@@ -218,6 +261,7 @@ pub fn build_submaps<S: SegmentPoints>(
                 segment_from_centre,
                 travel_m: centre_travel_m,
                 points_in_centre: voxel_downsample(&points, params.voxel_m),
+                free_space,
             })
         })
         .collect();

@@ -165,6 +165,7 @@ pub fn prepare_3d(
                 segment_from_centre: project_pose(&submap.segment_from_centre),
                 travel_m: submap.travel_m,
                 points_in_centre: points,
+                free_space: None,
             }
         })
         .collect();

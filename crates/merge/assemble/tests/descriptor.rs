@@ -263,6 +263,7 @@ fn empty_input_gives_a_zero_descriptor_and_no_yaw() {
             segment_from_centre: (),
             travel_m: 0.0,
             points_in_centre: Vec::new(),
+            free_space: None,
         })
         .collect();
     let rows = describe_submaps(&descriptor, &submaps);

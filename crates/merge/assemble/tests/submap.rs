@@ -153,6 +153,7 @@ fn three_d_submaps_use_the_same_stage() {
         radius_m: 20.0,
         window_m: 5.0,
         voxel_m: 0.5,
+        ..SubmapParams::default()
     };
     let submaps = build_submaps(&segment, &params).unwrap();
     assert_eq!(segment.scan_count(), 40);
@@ -222,4 +223,38 @@ fn descriptors_of_real_submaps_find_revisits() {
     );
     assert!(queries > 50, "{queries}");
     assert!(hits * 10 >= queries * 6, "{hits}/{queries}");
+}
+
+/// With `free_space_m`, a 2D submap keeps the cells its beams crossed: the corridor's axis
+/// around the centre is free, the space behind its walls is not; without it a submap keeps
+/// none, and a bad cell size is refused.
+#[test]
+fn planar_submaps_keep_the_free_space_their_beams_crossed() {
+    let (world_from_robot, scans) = corridor();
+    let stamps = (0..scans.len()).map(|k| k as f64).collect();
+    let segment = Segment::new("corridor", stamps, world_from_robot, scans).unwrap();
+    let with = SubmapParams {
+        free_space_m: 0.1,
+        ..SubmapParams::default()
+    };
+    let submaps = build_submaps(&segment, &with).unwrap();
+    let middle = &submaps[submaps.len() / 2];
+    let free = middle.free_space.as_ref().expect("free space kept");
+    // Centre frame: the robot looks down the corridor (heading wobble ±0.1 rad).
+    assert!(free.is_free(&Point2::new(2.0, 0.0)));
+    assert!(free.is_free(&Point2::new(1.0, 0.8)));
+    assert!(!free.is_free(&Point2::new(2.0, 3.0)), "behind a wall");
+    let without = SubmapParams {
+        free_space_m: 0.0,
+        ..SubmapParams::default()
+    };
+    assert!(build_submaps(&segment, &without)
+        .unwrap()
+        .iter()
+        .all(|s| s.free_space.is_none()));
+    let bad = SubmapParams {
+        free_space_m: f64::NAN,
+        ..SubmapParams::default()
+    };
+    assert!(build_submaps(&segment, &bad).is_err());
 }

@@ -246,6 +246,7 @@ fn params() -> AssembleParams {
             radius_m: RANGE_M,
             window_m: 10.0,
             voxel_m: 0.5,
+            ..SubmapParams::default()
         },
         // The 2D descriptor only seeds the verifier's yaw here, on the planar slices.
         descriptor: RingSpectrumParams {
@@ -435,6 +436,7 @@ fn planar_segment_carries_projected_poses_and_virtual_scans() {
         radius_m: 20.0,
         window_m: 0.5,
         voxel_m: 0.2,
+        ..SubmapParams::default()
     };
     let (prepared, planar) = mapmerge_assemble::prepare_3d(
         &segment,
