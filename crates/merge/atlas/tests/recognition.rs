@@ -131,6 +131,17 @@ fn recognition_with_local_maps_in_the_index_merges_as_well() {
     });
 }
 
+/// Keyframes without their free space: verification scores by the older evidence (inliers,
+/// violations), with the thresholds chosen for it before issue 16.
+#[test]
+fn recognition_without_free_space_merges_as_well() {
+    let mut params = AtlasParams::default();
+    params.keyframes.free_space_m = 0.0;
+    params.recognition.place.min_score = 0.7;
+    params.merge.overlap.min_score = 0.85;
+    merges_onto_the_true_transform(params);
+}
+
 fn merges_onto_the_true_transform(params: AtlasParams) {
     let world = world();
     let mut atlas = Atlas::new(params).unwrap();
