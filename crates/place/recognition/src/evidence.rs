@@ -336,50 +336,35 @@ mod tests {
 
     #[test]
     fn whole_maps_agree_over_their_overlap_and_ignore_what_one_never_saw() {
-        let params = EvidenceParams::default();
-        let identity = Se2::new(0.0, 0.0, 0.0);
-        let same = evidence(
-            &seen_from_origin(room()),
-            &seen_from_origin(room()),
-            &identity,
-            0.0,
-            &params,
-        );
+        // The query is the whole room seen from its origin, aligned at the identity.
+        let against = |candidate: &Keyframe| {
+            evidence(
+                &seen_from_origin(room()),
+                candidate,
+                &Se2::new(0.0, 0.0, 0.0),
+                0.0,
+                &EvidenceParams::default(),
+            )
+        };
+        let same = against(&seen_from_origin(room()));
         assert!(same.agreement > 0.99, "{same:?}");
         assert!(same.overlap_fraction > 0.95, "{same:?}");
         // The candidate saw only the left part of the room: the rest is unknown to it, which
         // lowers the overlap but not the agreement.
         let left: Vec<Point2> = room().into_iter().filter(|p| p.x < 0.5).collect();
-        let partial = evidence(
-            &seen_from_origin(room()),
-            &seen_from_origin(left),
-            &identity,
-            0.0,
-            &params,
-        );
+        let partial = against(&seen_from_origin(left));
         assert!(partial.agreement > 0.99, "{partial:?}");
         assert!(partial.overlap_fraction < 0.7, "{partial:?}");
         assert!(partial.inlier_fraction < 0.7, "{partial:?}");
         // A wall where the query saw through disagrees.
         let mut walled = room();
         walled.extend(wall((2.0, -2.0), (2.0, 2.0)));
-        let wrong = evidence(
-            &seen_from_origin(room()),
-            &seen_from_origin(walled),
-            &identity,
-            0.0,
-            &params,
-        );
+        let wrong = against(&seen_from_origin(walled));
         assert!(wrong.agreement < 0.95, "{wrong:?}");
-        // Without free space there is no agreement to measure.
-        let none = evidence(
-            &kf(room()),
-            &seen_from_origin(room()),
-            &identity,
-            0.0,
-            &params,
-        );
+        // Without the candidate's free space there is no agreement to measure.
+        let none = against(&kf(room()));
         assert_eq!((none.agreement, none.overlap_points), (0.0, 0));
+        assert!(!none.whole_map && same.whole_map);
     }
 
     /// Points every 2 cm along the segment `a`–`b`.
