@@ -11,6 +11,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/log_split.sh
+source scripts/bench_common.sh
 segments=8; overlap=0.1; seed=0; only=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -25,12 +26,7 @@ data="${MAPMERGE_DATA:-../shared/data}"
 out="$(realpath -m "${OUT_DIR:-bench-out}")"
 work="$out/assemble"
 mkdir -p "$work"
-if [[ -z "${MAPMERGE_BIN:-}" ]]; then
-  cargo build --release -q -p mapmerge-cli
-  bin="$(realpath target/release/mapmerge)"
-else
-  bin="$MAPMERGE_BIN"
-fi
+bin="$(mapmerge_bin)"
 logs=("${ALL_LOGS[@]}")
 [[ ${#only[@]} -gt 0 ]] && logs=("${only[@]}")
 : > "$work/scores.jsonl"
