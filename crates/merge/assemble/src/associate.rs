@@ -77,6 +77,12 @@ pub struct VerificationParams {
     /// Standard deviations floored into every loop edge's covariance (m, deg) (default: 0.05,
     /// 1).
     pub loop_min_sigma: (f64, f64),
+    /// The scan matcher's search and ICP see the query submap thinned to one point per cell
+    /// of this size (m); the evidence sees every point (default: 0.2, as the atlas's and the
+    /// place benchmark's verifier, `mapmerge_place::PlaceVerifierParams`; chosen on the
+    /// tuning logs, where the same 62 of 95 pairs and 571 edges, all true, were found as
+    /// with the matcher's own 0.05, in 11.2 s of association instead of 18.8 s).
+    pub search_voxel_m: f64,
 }
 
 impl Default for VerificationParams {
@@ -95,6 +101,7 @@ impl Default for VerificationParams {
             predicted_rank_fraction: 0.25,
             min_predicted_agreement: 0.5,
             loop_min_sigma: (0.05, 1.0),
+            search_voxel_m: 0.2,
         }
     }
 }
@@ -205,11 +212,13 @@ pub struct PairAssociation {
 pub fn pair_verifier(params: &VerificationParams) -> Result<ScanMatchVerifier, AssembleError> {
     let window =
         mapmerge_scanmatch::SearchWindow::new(params.window_m, params.window_deg.to_radians());
-    let verifier = ScanMatchVerifier::new(mapmerge_scanmatch::ScanMatchParams::default(), window)
-        .map_err(|e| AssembleError::InvalidParams {
-        field: "verification",
-        reason: e.to_string(),
-    })?;
+    let mut matcher = mapmerge_scanmatch::ScanMatchParams::default();
+    matcher.correlative.query_voxel_m = params.search_voxel_m;
+    let verifier =
+        ScanMatchVerifier::new(matcher, window).map_err(|e| AssembleError::InvalidParams {
+            field: "verification",
+            reason: e.to_string(),
+        })?;
     Ok(verifier.with_evidence(mapmerge_place::EvidenceParams::default()))
 }
 

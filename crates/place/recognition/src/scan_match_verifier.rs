@@ -8,6 +8,7 @@ use mapmerge_scanmatch::{
     SearchWindow,
 };
 use serde::{Deserialize, Serialize};
+use std::sync::Mutex;
 
 use crate::evidence::{evidence, Evidence, EvidenceParams};
 use crate::{GeometricVerifier, Keyframe, Verification};
@@ -64,18 +65,30 @@ pub struct ScanMatchVerifier {
     matcher: ScanMatcher,
     window: SearchWindow,
     evidence: Option<EvidenceParams>,
+    /// Targets built before, whose memory the next candidates' targets reuse (one per
+    /// thread verifying at a time): a local map's grid and levels are megabytes, and fresh
+    /// ones cost more in page faults than in rasterising.
+    spare_targets: Mutex<Vec<ScanMatchTarget>>,
 }
 
 impl ScanMatchVerifier {
     /// A verifier with the matcher's parameters and the search window around the guess.
+    /// Each candidate's target is built for this window only: its branch-and-bound depth is
+    /// at most what the window needs ([`SearchWindow::branch_and_bound_depth`]; the same
+    /// matches, fewer levels to precompute).
     pub fn new(
-        params: ScanMatchParams,
+        mut params: ScanMatchParams,
         window: SearchWindow,
     ) -> Result<Self, mapmerge_scanmatch::ScanMatchError> {
+        if let Some(depth) = window.branch_and_bound_depth(params.correlative.resolution_m) {
+            let correlative = &mut params.correlative;
+            correlative.branch_and_bound_depth = correlative.branch_and_bound_depth.min(depth);
+        }
         Ok(Self {
             matcher: ScanMatcher::new(params)?,
             window,
             evidence: None,
+            spare_targets: Mutex::new(Vec::new()),
         })
     }
 
@@ -85,23 +98,44 @@ impl ScanMatchVerifier {
         self
     }
 
-    /// The candidate as a match target, and the query matched against it within the window
-    /// around the guess. Building a target costs tens of ms; verification runs on a few
-    /// candidates per query.
+    /// The candidate as a match target (in a spare target's memory when there is one), and
+    /// the query matched against it within the window around the guess. Hand the target
+    /// back with [`ScanMatchVerifier::spare`].
     fn search(
         &self,
         query: &Keyframe,
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
-    ) -> Option<(ScanMatchTarget, Match)> {
-        let target = self.matcher.target(&candidate.points_in_keyframe).ok()?;
-        let found = self.matcher.match_scan(
-            &target,
-            &query.points_in_keyframe,
-            guess_candidate_from_query,
-            &self.window,
-        )?;
-        Some((target, found))
+    ) -> (Option<ScanMatchTarget>, Option<Match>) {
+        let spare = self
+            .spare_targets
+            .lock()
+            .ok()
+            .and_then(|mut spare| spare.pop());
+        let target = match spare {
+            Some(mut target) => self
+                .matcher
+                .retarget(&mut target, &candidate.points_in_keyframe)
+                .is_ok()
+                .then_some(target),
+            None => self.matcher.target(&candidate.points_in_keyframe).ok(),
+        };
+        let found = target.as_ref().and_then(|target| {
+            self.matcher.match_scan(
+                target,
+                &query.points_in_keyframe,
+                guess_candidate_from_query,
+                &self.window,
+            )
+        });
+        (target, found)
+    }
+
+    /// Keeps `target`'s memory for the next candidate.
+    fn spare(&self, target: Option<ScanMatchTarget>) {
+        if let (Some(target), Ok(mut spare)) = (target, self.spare_targets.lock()) {
+            spare.push(target);
+        }
     }
 
     /// As [`GeometricVerifier::verify`], with the evidence (computed with the default
@@ -112,7 +146,23 @@ impl ScanMatchVerifier {
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
     ) -> Option<(Verification, Evidence)> {
-        let (target, found) = self.search(query, candidate, guess_candidate_from_query)?;
+        let (target, found) = self.search(query, candidate, guess_candidate_from_query);
+        let verified = target.as_ref().zip(found).map(|(target, found)| {
+            self.weigh(query, candidate, target, found, guess_candidate_from_query)
+        });
+        self.spare(target);
+        verified
+    }
+
+    /// The evidence for the alignment `found` of `query` against `candidate`'s `target`.
+    fn weigh(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        target: &ScanMatchTarget,
+        found: Match,
+        guess_candidate_from_query: &Se2,
+    ) -> (Verification, Evidence) {
         // The same search with the query turned around: symmetric places fit both ways.
         let turned = Se2::new(
             guess_candidate_from_query.x_m,
@@ -146,7 +196,7 @@ impl ScanMatchVerifier {
             flip_ratio,
             &params,
         );
-        Some((
+        (
             Verification {
                 candidate_from_query: found.target_from_query,
                 score: if self.evidence.is_some() {
@@ -157,7 +207,7 @@ impl ScanMatchVerifier {
                 covariance: found.covariance,
             },
             proof,
-        ))
+        )
     }
 }
 
@@ -167,6 +217,7 @@ impl Default for ScanMatchVerifier {
             matcher: ScanMatcher::default(),
             window: SearchWindow::new(2.0, 15f64.to_radians()),
             evidence: None,
+            spare_targets: Mutex::new(Vec::new()),
         }
     }
 }
@@ -183,7 +234,9 @@ impl GeometricVerifier for ScanMatchVerifier {
                 .verify_with_evidence(query, candidate, guess_candidate_from_query)
                 .map(|(v, _)| v);
         }
-        let (_, found) = self.search(query, candidate, guess_candidate_from_query)?;
+        let (target, found) = self.search(query, candidate, guess_candidate_from_query);
+        self.spare(target);
+        let found = found?;
         Some(Verification {
             candidate_from_query: found.target_from_query,
             score: found.score,
@@ -217,7 +270,8 @@ mod tests {
         candidate: &Keyframe,
         guess: &Se2,
     ) -> f64 {
-        let (target, found) = verifier.search(query, candidate, guess).unwrap();
+        let (target, found) = verifier.search(query, candidate, guess);
+        let (target, found) = (target.unwrap(), found.unwrap());
         let turned = Se2::new(guess.x_m, guess.y_m, guess.theta_rad + std::f64::consts::PI);
         let flip_ratio = verifier
             .matcher
@@ -281,5 +335,42 @@ mod tests {
         }
         assert!(flips[0] > 0.5, "the rectangle fits turned: {flips:?}");
         assert!(flips[1] <= 0.5, "the irregular room does not: {flips:?}");
+    }
+
+    /// A target rebuilt in a spare target's memory verifies as a fresh one: a big room, then
+    /// a small one (the grid shrinks), then the big one again (it grows), each against a
+    /// verifier that never verified before.
+    #[test]
+    fn reused_targets_verify_as_fresh_ones() {
+        let big = walls(&[
+            Point2::new(-6.0, -4.0),
+            Point2::new(7.0, -3.5),
+            Point2::new(6.0, 5.0),
+            Point2::new(-5.5, 4.0),
+        ]);
+        let small = walls(&[
+            Point2::new(-2.0, -1.5),
+            Point2::new(2.5, -1.0),
+            Point2::new(2.0, 2.0),
+            Point2::new(-1.5, 1.5),
+        ]);
+        let reused = PlaceVerifierParams::default().verifier().unwrap();
+        let moved = Se2::new(0.3, -0.2, 0.1).inverse();
+        for room in [&big, &small, &big] {
+            let candidate = Keyframe::new(1, room.clone());
+            let query = Keyframe::new(
+                2,
+                room.iter()
+                    .map(|p| moved.transform_point(p))
+                    .collect::<Vec<_>>(),
+            );
+            let guess = Se2::new(0.0, 0.0, 0.05);
+            let fresh = PlaceVerifierParams::default().verifier().unwrap();
+            assert_eq!(
+                reused.verify_with_evidence(&query, &candidate, &guess),
+                fresh.verify_with_evidence(&query, &candidate, &guess)
+            );
+        }
+        assert_eq!(reused.spare_targets.lock().unwrap().len(), 1);
     }
 }

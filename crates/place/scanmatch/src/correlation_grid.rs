@@ -42,6 +42,14 @@ impl CorrelationGrid {
         Ok(grid)
     }
 
+    /// Empties the grid, keeping its buffer for the next [`CorrelationGrid::insert`].
+    pub(crate) fn clear(&mut self) {
+        self.cells.clear();
+        self.width = 0;
+        self.height = 0;
+        self.origin_m = Point2::zeros();
+    }
+
     /// A grid without cells; [`CorrelationGrid::insert`] grows it.
     pub fn empty(params: &CorrelativeParams) -> Result<Self, ScanMatchError> {
         params.validate()?;
@@ -177,7 +185,9 @@ impl CorrelationGrid {
             self.height = (span_y + 2.0 * margin) as usize;
             let corner = (reach + margin_cells as i64) as f64 * resolution_m;
             self.origin_m = Point2::new(min.x - corner, min.y - corner);
-            self.cells = vec![0; self.width * self.height];
+            // Empty: a cleared grid's buffer is reused (no fresh pages to fault in).
+            self.cells.clear();
+            self.cells.resize(self.width * self.height, 0);
             return Ok(());
         }
         // Needed cell range in the current lattice.
@@ -254,6 +264,16 @@ impl CorrelationGrid {
             return None;
         }
         Some(j as usize * self.width + i as usize)
+    }
+
+    /// The cells as the search reads them (offset 0).
+    pub(crate) fn view(&self) -> CellView<'_> {
+        CellView {
+            cells: &self.cells,
+            width: self.width as i64,
+            height: self.height as i64,
+            offset: 0,
+        }
     }
 
     /// The quantised likelihood of cell (i, j), 0 outside the grid.
@@ -425,9 +445,20 @@ impl PrecomputedGrid {
         out.height = height;
     }
 
+    /// The cells as the search reads them: index (i, j) is the block with lower-left corner
+    /// (i, j).
+    pub(crate) fn view(&self) -> CellView<'_> {
+        CellView {
+            cells: &self.cells,
+            width: self.width as i64,
+            height: self.height as i64,
+            offset: self.offset,
+        }
+    }
+
     /// Max of the base block whose lower-left corner is (i, j); 0 where the block misses the
     /// grid.
-    #[inline]
+    #[cfg(test)]
     pub(crate) fn value(&self, i: i64, j: i64) -> u16 {
         let (a, b) = (i + self.offset, j + self.offset);
         if a < 0 || b < 0 || a >= self.width as i64 || b >= self.height as i64 {
@@ -437,6 +468,97 @@ impl PrecomputedGrid {
             .get(b as usize * self.width + a as usize)
             .copied()
             .unwrap_or(0)
+    }
+}
+
+/// Cells of a grid or level as the branch-and-bound reads them: cell (i, j) is
+/// `cells[(j + offset) · width + i + offset]`, 0 outside.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CellView<'a> {
+    cells: &'a [u16],
+    width: i64,
+    height: i64,
+    offset: i64,
+}
+
+/// Cells `(i, j)` of a discretised scan with their bounding box, so that a shifted scan known
+/// to lie inside a grid is summed without a bounds test per point.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct CellScan {
+    cells: Vec<(i32, i32)>,
+    /// `(min_i, min_j, max_i, max_j)`; empty scans have none.
+    bounds: Option<(i64, i64, i64, i64)>,
+}
+
+/// Cells farther than this from the origin are clamped to it: they lie outside any grid
+/// (at most 2^32 cells) at any shift of a search (at most 2^20 cells), so they score 0 either
+/// way, and the rest fit in `i32`.
+const FAR_CELL: i64 = 1 << 30;
+
+impl CellScan {
+    /// The scan of `cells` (any `i64`; see [`FAR_CELL`]).
+    pub(crate) fn new(cells: impl Iterator<Item = (i64, i64)>) -> Self {
+        let clamp = |v: i64| v.clamp(-FAR_CELL, FAR_CELL) as i32;
+        let cells: Vec<(i32, i32)> = cells.map(|(i, j)| (clamp(i), clamp(j))).collect();
+        let bounds = cells
+            .iter()
+            .fold(None, |b: Option<(i64, i64, i64, i64)>, &(i, j)| {
+                let (i, j) = (i64::from(i), i64::from(j));
+                Some(match b {
+                    None => (i, j, i, j),
+                    Some((a, b, c, d)) => (a.min(i), b.min(j), c.max(i), d.max(j)),
+                })
+            });
+        Self { cells, bounds }
+    }
+
+    /// Number of cells.
+    pub(crate) fn len(&self) -> usize {
+        self.cells.len()
+    }
+
+    /// The cells.
+    pub(crate) fn cells(&self) -> impl Iterator<Item = (i64, i64)> + '_ {
+        self.cells
+            .iter()
+            .map(|&(i, j)| (i64::from(i), i64::from(j)))
+    }
+
+    /// Σ over the scan's cells shifted by (x, y) of `view`'s values (0 outside).
+    #[inline]
+    pub(crate) fn sum(&self, view: &CellView<'_>, x: i64, y: i64) -> u64 {
+        let Some((min_i, min_j, max_i, max_j)) = self.bounds else {
+            return 0;
+        };
+        let (dx, dy) = (x + view.offset, y + view.offset);
+        let (lo_a, lo_b, hi_a, hi_b) = (min_i + dx, min_j + dy, max_i + dx, max_j + dy);
+        if hi_a < 0 || hi_b < 0 || lo_a >= view.width || lo_b >= view.height {
+            return 0;
+        }
+        let (cells, width) = (view.cells, view.width);
+        if lo_a >= 0 && lo_b >= 0 && hi_a < view.width && hi_b < view.height {
+            // Every shifted cell is inside: one index per point (`get` never misses here).
+            let base = dy * width + dx;
+            self.cells
+                .iter()
+                .map(|&(i, j)| {
+                    let index = (base + i64::from(j) * width + i64::from(i)) as usize;
+                    u64::from(cells.get(index).copied().unwrap_or(0))
+                })
+                .sum()
+        } else {
+            self.cells
+                .iter()
+                .map(|&(i, j)| {
+                    let (a, b) = (i64::from(i) + dx, i64::from(j) + dy);
+                    if a < 0 || b < 0 || a >= width || b >= view.height {
+                        0
+                    } else {
+                        u64::from(cells.get((b * width + a) as usize).copied().unwrap_or(0))
+                    }
+                })
+                .sum()
+        }
     }
 }
 
@@ -468,6 +590,41 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_shifted_scan_sums_the_cells_it_lands_on_inside_partly_and_outside_the_grid() {
+        let points: Vec<Point2> = (0..60)
+            .map(|k| Point2::new((k as f64 * 0.41).sin() * 1.7, (k as f64 * 0.23).cos() * 1.1))
+            .collect();
+        let base = CorrelationGrid::new(&points, &CorrelativeParams::default()).unwrap();
+        let levels = PrecomputedGrid::levels(&base, 3);
+        let cells: Vec<(i64, i64)> = points
+            .iter()
+            .map(|p| base.cell_of(p))
+            .chain([(1 << 50, -5), (3, 1 << 40)])
+            .collect();
+        let scan = CellScan::new(cells.iter().copied());
+        let (w, h) = base.size();
+        for y in (-(h as i64) - 10..h as i64 + 10).step_by(3) {
+            for x in (-(w as i64) - 10..w as i64 + 10).step_by(3) {
+                let expected: u64 = cells
+                    .iter()
+                    .map(|&(i, j)| u64::from(base.value(i.saturating_add(x), j.saturating_add(y))))
+                    .sum();
+                assert_eq!(scan.sum(&base.view(), x, y), expected, "shift ({x}, {y})");
+                for grid in &levels {
+                    let expected: u64 = cells
+                        .iter()
+                        .map(|&(i, j)| {
+                            u64::from(grid.value(i.saturating_add(x), j.saturating_add(y)))
+                        })
+                        .sum();
+                    assert_eq!(scan.sum(&grid.view(), x, y), expected, "shift ({x}, {y})");
+                }
+            }
+        }
+        assert_eq!(CellScan::new(std::iter::empty()).sum(&base.view(), 0, 0), 0);
     }
 
     #[test]

@@ -12,7 +12,9 @@ use mapmerge_scan::{voxel_downsample, Point2};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
-use crate::correlation_grid::{fast_floor, CorrelationGrid, PrecomputedGrid, LIKELIHOOD_MAX};
+use crate::correlation_grid::{
+    fast_floor, CellScan, CorrelationGrid, PrecomputedGrid, LIKELIHOOD_MAX,
+};
 use crate::error::ScanMatchError;
 use crate::params::{CorrelativeParams, SearchWindow};
 
@@ -59,6 +61,26 @@ impl MatchTarget {
                 .copied()
                 .collect(),
         })
+    }
+
+    /// Makes this the target of `points_in_target` alone, as [`MatchTarget::new`] would
+    /// (the same grid and levels), reusing the buffers: a verifier that matches against a
+    /// different map each time builds into the same memory. On error the target is empty.
+    pub fn rebuild(&mut self, points_in_target: &[Point2]) -> Result<(), ScanMatchError> {
+        self.grid.clear();
+        self.points_in_target.clear();
+        self.levels_fresh = false;
+        self.grid.insert(points_in_target, 0)?;
+        if self.grid.size().0 == 0 {
+            return Err(ScanMatchError::EmptyTarget);
+        }
+        self.points_in_target.extend(
+            points_in_target
+                .iter()
+                .filter(|p| p.x.is_finite() && p.y.is_finite()),
+        );
+        self.prepare();
+        Ok(())
     }
 
     /// A target with nothing in it yet (every match fails until points are inserted).
@@ -175,7 +197,7 @@ struct Search {
     /// Translation offsets in cells, `[-linear_cells, linear_cells]` in x and y.
     linear_cells: i64,
     /// `scans[a − angle_min]`: cell of every query point at offset (0, 0).
-    scans: Vec<Vec<(i64, i64)>>,
+    scans: Vec<CellScan>,
     point_count: u64,
     guess: Se2,
 }
@@ -231,15 +253,12 @@ impl Search {
         let scans = (angle_min..=angle_max)
             .map(|a| {
                 let (sin, cos) = (guess.theta_rad + a as f64 * angular_step_rad).sin_cos();
-                scaled
-                    .iter()
-                    .map(|p| {
-                        (
-                            fast_floor(cos * p.x - sin * p.y + tx),
-                            fast_floor(sin * p.x + cos * p.y + ty),
-                        )
-                    })
-                    .collect()
+                CellScan::new(scaled.iter().map(|p| {
+                    (
+                        fast_floor(cos * p.x - sin * p.y + tx),
+                        fast_floor(sin * p.x + cos * p.y + ty),
+                    )
+                }))
             })
             .collect();
         Some(Self {
@@ -271,18 +290,25 @@ impl Search {
             return 0;
         };
         match height.checked_sub(1) {
-            None => scan
-                .iter()
-                .map(|&(i, j)| u64::from(target.grid.value(i + x, j + y)))
-                .sum(),
+            None => scan.sum(&target.grid.view(), x, y),
             Some(level) => match levels.get(level) {
-                Some(grid) => scan
-                    .iter()
-                    .map(|&(i, j)| u64::from(grid.value(i + x, j + y)))
-                    .sum(),
+                Some(grid) => scan.sum(&grid.view(), x, y),
                 None => scan.len() as u64 * u64::from(LIKELIHOOD_MAX),
             },
         }
+    }
+
+    /// The exact score (height 0) the slow way, one bounds-checked cell at a time: the
+    /// reference [`match_scan_brute_force`] checks [`Search::score`] against.
+    fn score_reference(&self, target: &MatchTarget, a: i64, x: i64, y: i64) -> u64 {
+        usize::try_from(a - self.angle_min)
+            .ok()
+            .and_then(|k| self.scans.get(k))
+            .map_or(0, |scan| {
+                scan.cells()
+                    .map(|(i, j)| u64::from(target.grid.value(i + x, j + y)))
+                    .sum()
+            })
     }
 
     fn pose(&self, target: &MatchTarget, a: i64, x: i64, y: i64) -> Se2 {
@@ -533,9 +559,10 @@ fn query_points(
     params: &CorrelativeParams,
     query_points_in_robot: &[Point2],
 ) -> Option<Vec<Point2>> {
+    let range = params.max_query_range_m;
     let finite: Vec<Point2> = query_points_in_robot
         .iter()
-        .filter(|p| p.x.is_finite() && p.y.is_finite())
+        .filter(|p| p.x.is_finite() && p.y.is_finite() && (range <= 0.0 || p.norm() <= range))
         .copied()
         .collect();
     let points = if params.query_voxel_m > 0.0 {
@@ -587,7 +614,7 @@ pub fn match_scan_brute_force(
     for a in search.angle_min..=search.angle_max {
         for x in -n..=n {
             for y in -n..=n {
-                let sum = search.score(target, &[], a, x, y, 0);
+                let sum = search.score_reference(target, a, x, y);
                 candidates += 1;
                 if better(sum, (a, x, y), &best) {
                     best = Some((sum, (a, x, y)));

@@ -127,6 +127,22 @@ impl ScanMatcher {
         })
     }
 
+    /// Makes `target` the target of `points_in_target`, as [`ScanMatcher::target`] would,
+    /// reusing its correlation grid's memory (see [`MatchTarget::rebuild`]).
+    pub fn retarget(
+        &self,
+        target: &mut ScanMatchTarget,
+        points_in_target: &[Point2],
+    ) -> Result<(), ScanMatchError> {
+        target.correlative.rebuild(points_in_target)?;
+        target.icp = self
+            .params
+            .icp
+            .map(|params| IcpTarget::new(target.correlative.points_in_target(), &params));
+        target.icp_params = self.params.icp;
+        Ok(())
+    }
+
     /// An empty target to build scan by scan with [`ScanMatchTarget::insert_scan`].
     pub fn empty_target(&self) -> Result<ScanMatchTarget, ScanMatchError> {
         Ok(ScanMatchTarget {

@@ -41,6 +41,23 @@ impl SearchWindow {
             angular_rad: std::f64::consts::PI,
         }
     }
+
+    /// The branch-and-bound depth that covers this window at `resolution_m` with one block:
+    /// the smallest `h` with `2^h ≥ 2·⌈linear_m / resolution_m⌉ + 1`. Deeper precomputed
+    /// levels are never read by a search of this window, so a target built for it alone can
+    /// stop there (the same answer, less to build). `None` for a window that is not finite
+    /// and positive.
+    pub fn branch_and_bound_depth(&self, resolution_m: f64) -> Option<usize> {
+        if !(self.linear_m.is_finite() && self.linear_m >= 0.0 && resolution_m > 0.0) {
+            return None;
+        }
+        let cells = (self.linear_m / resolution_m).ceil();
+        if cells > f64::from(1u32 << 20) {
+            return None;
+        }
+        let span = 2 * cells as u64 + 1;
+        Some(span.next_power_of_two().trailing_zeros() as usize)
+    }
 }
 
 /// Parameters of the correlative scan matcher (Olson 2009; Hess et al. 2016).
@@ -63,6 +80,11 @@ pub struct CorrelativeParams {
     /// Query points are voxel-downsampled with this cell (m) before matching (default: 0.05);
     /// 0 keeps every point. Evens out the weight of near and far surfaces and saves time.
     pub query_voxel_m: f64,
+    /// The search sees only query points within this range of the query's origin (m); 0
+    /// (default) sees all. The angular step follows the farthest point (Hess et al., Eq. 7),
+    /// so a shorter range searches fewer headings with fewer points; ICP after the search
+    /// still sees every point.
+    pub max_query_range_m: f64,
     /// Half-width, in grid cells and in angular steps, of the neighbourhood of the optimum
     /// whose scores give the covariance (Olson 2009, Sec. IV) (default: 2).
     pub covariance_half_width: usize,
@@ -80,6 +102,7 @@ impl Default for CorrelativeParams {
             branch_and_bound_depth: 7,
             min_score: 0.4,
             query_voxel_m: 0.05,
+            max_query_range_m: 0.0,
             covariance_half_width: 2,
             max_grid_cells: 16 << 20,
         }
@@ -104,6 +127,9 @@ impl CorrelativeParams {
         }
         if !(self.query_voxel_m.is_finite() && self.query_voxel_m >= 0.0) {
             return invalid("query_voxel_m", "must be finite and non-negative");
+        }
+        if !(self.max_query_range_m.is_finite() && self.max_query_range_m >= 0.0) {
+            return invalid("max_query_range_m", "must be finite and non-negative");
         }
         Ok(())
     }
@@ -175,5 +201,35 @@ impl Default for ScanMatchParams {
             icp_min_inlier_fraction: 0.5,
             icp_max_shift_cells: 4.0,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_window_needs_the_levels_whose_block_covers_it() {
+        // ±1 m at 5 cm: 41 cells, one 64-cell block (height 6); at 10 cm 21 cells (32, 5).
+        assert_eq!(
+            SearchWindow::new(1.0, 0.1).branch_and_bound_depth(0.05),
+            Some(6)
+        );
+        assert_eq!(
+            SearchWindow::new(1.0, 0.1).branch_and_bound_depth(0.1),
+            Some(5)
+        );
+        assert_eq!(
+            SearchWindow::new(0.0, 0.1).branch_and_bound_depth(0.05),
+            Some(0)
+        );
+        assert_eq!(
+            SearchWindow::new(f64::NAN, 0.1).branch_and_bound_depth(0.05),
+            None
+        );
+        assert_eq!(
+            SearchWindow::new(1e9, 0.1).branch_and_bound_depth(0.05),
+            None
+        );
     }
 }

@@ -43,7 +43,7 @@ use mapmerge_place::FreeSpace;
 use mapmerge_place::{
     verify_candidates_by, DescriptorExtractor, Evidence, EvidenceParams, GeometricVerifier,
     Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature,
-    RingSpectrumParams, ScanMatchVerifier, SignatureExtractor, Verification,
+    PlaceVerifierParams, RingSpectrumParams, ScanMatchVerifier, SignatureExtractor, Verification,
 };
 use mapmerge_scan::{transform_points, voxel_downsample, BeamFilter, LaserScan, Point2};
 use mapmerge_scanmatch::{ScanMatchParams, SearchWindow};
@@ -125,6 +125,12 @@ pub struct BenchConfig {
     /// Heading half-width of the verifier's window around the descriptor's yaw (rad)
     /// (default: 15°).
     pub window_angular_rad: f64,
+    /// The verifier's scan matcher (default: [`PlaceVerifierParams`]'s, the atlas's: the
+    /// search and ICP see the query thinned to one point per 0.2 m cell, the evidence every
+    /// point. Chosen on the tuning logs against the full 5 cm query: recall 41.4 → 43.1 %,
+    /// no false loop, intel's median time 44 → 28 ms; a 10 cm search grid on top recalled
+    /// 39.0 %; docs/benchmarks.md §11).
+    pub matcher: ScanMatchParams,
 }
 
 /// The place-recognition parameters of the benchmark's default configuration: the 5 best
@@ -179,6 +185,7 @@ impl Default for BenchConfig {
             evidence: EvidenceParams::default(),
             window_linear_m: 1.0,
             window_angular_rad: 15f64.to_radians(),
+            matcher: PlaceVerifierParams::default().matcher,
         }
     }
 }
@@ -530,7 +537,7 @@ impl GeometricVerifier for Replay<'_> {
 /// The verifier of `config`.
 pub fn verifier(config: &BenchConfig) -> Result<ScanMatchVerifier, Box<dyn std::error::Error>> {
     Ok(ScanMatchVerifier::new(
-        ScanMatchParams::default(),
+        config.matcher,
         SearchWindow::new(config.window_linear_m, config.window_angular_rad),
     )?
     .with_evidence(config.evidence))
