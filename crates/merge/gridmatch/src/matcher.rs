@@ -228,7 +228,6 @@ pub fn match_grids(
             .clamp(1, 16),
         min_score: 0.0,
         query_voxel_m: 0.0,
-        max_query_range_m: 0.0,
         covariance_half_width: 0,
         max_grid_cells: (params.max_cells as u64).saturating_mul(2),
     };

@@ -559,10 +559,9 @@ fn query_points(
     params: &CorrelativeParams,
     query_points_in_robot: &[Point2],
 ) -> Option<Vec<Point2>> {
-    let range = params.max_query_range_m;
     let finite: Vec<Point2> = query_points_in_robot
         .iter()
-        .filter(|p| p.x.is_finite() && p.y.is_finite() && (range <= 0.0 || p.norm() <= range))
+        .filter(|p| p.x.is_finite() && p.y.is_finite())
         .copied()
         .collect();
     let points = if params.query_voxel_m > 0.0 {

@@ -80,11 +80,6 @@ pub struct CorrelativeParams {
     /// Query points are voxel-downsampled with this cell (m) before matching (default: 0.05);
     /// 0 keeps every point. Evens out the weight of near and far surfaces and saves time.
     pub query_voxel_m: f64,
-    /// The search sees only query points within this range of the query's origin (m); 0
-    /// (default) sees all. The angular step follows the farthest point (Hess et al., Eq. 7),
-    /// so a shorter range searches fewer headings with fewer points; ICP after the search
-    /// still sees every point.
-    pub max_query_range_m: f64,
     /// Half-width, in grid cells and in angular steps, of the neighbourhood of the optimum
     /// whose scores give the covariance (Olson 2009, Sec. IV) (default: 2).
     pub covariance_half_width: usize,
@@ -102,7 +97,6 @@ impl Default for CorrelativeParams {
             branch_and_bound_depth: 7,
             min_score: 0.4,
             query_voxel_m: 0.05,
-            max_query_range_m: 0.0,
             covariance_half_width: 2,
             max_grid_cells: 16 << 20,
         }
@@ -127,9 +121,6 @@ impl CorrelativeParams {
         }
         if !(self.query_voxel_m.is_finite() && self.query_voxel_m >= 0.0) {
             return invalid("query_voxel_m", "must be finite and non-negative");
-        }
-        if !(self.max_query_range_m.is_finite() && self.max_query_range_m >= 0.0) {
-            return invalid("max_query_range_m", "must be finite and non-negative");
         }
         Ok(())
     }
