@@ -63,10 +63,23 @@ impl MatchTarget {
         })
     }
 
-    /// Makes this the target of `points_in_target` alone, as [`MatchTarget::new`] would
-    /// (the same grid and levels), reusing the buffers: a verifier that matches against a
-    /// different map each time builds into the same memory. On error the target is empty.
-    pub fn rebuild(&mut self, points_in_target: &[Point2]) -> Result<(), ScanMatchError> {
+    /// Makes this the target of `points_in_target` alone with `params`, as
+    /// [`MatchTarget::new`] would (the same grid and levels), reusing the buffers: a verifier
+    /// that matches against a different map each time builds into the same memory. On error
+    /// the target is empty.
+    pub fn rebuild(
+        &mut self,
+        points_in_target: &[Point2],
+        params: &CorrelativeParams,
+    ) -> Result<(), ScanMatchError> {
+        params.validate()?;
+        if self.params.resolution_m != params.resolution_m
+            || self.params.kernel_sigma_cells != params.kernel_sigma_cells
+            || self.params.max_grid_cells != params.max_grid_cells
+        {
+            self.grid = CorrelationGrid::empty(params)?;
+        }
+        self.params = *params;
         self.grid.clear();
         self.points_in_target.clear();
         self.levels_fresh = false;

@@ -127,14 +127,17 @@ impl ScanMatcher {
         })
     }
 
-    /// Makes `target` the target of `points_in_target`, as [`ScanMatcher::target`] would,
-    /// reusing its correlation grid's memory (see [`MatchTarget::rebuild`]).
+    /// Makes `target` (from any matcher) the target of `points_in_target` with this matcher's
+    /// parameters, as [`ScanMatcher::target`] would, reusing its correlation grid's memory
+    /// (see [`MatchTarget::rebuild`]).
     pub fn retarget(
         &self,
         target: &mut ScanMatchTarget,
         points_in_target: &[Point2],
     ) -> Result<(), ScanMatchError> {
-        target.correlative.rebuild(points_in_target)?;
+        target
+            .correlative
+            .rebuild(points_in_target, &self.params.correlative)?;
         target.icp = self
             .params
             .icp

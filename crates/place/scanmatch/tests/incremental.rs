@@ -167,3 +167,35 @@ fn empty_target_matches_nothing_and_refuses_non_finite_scans_quietly() {
         .unwrap();
     assert!(target.correlative().grid().is_empty());
 }
+
+/// A target rebuilt for other points — here one built scan by scan by a coarser matcher —
+/// matches exactly as a target built afresh by this matcher, and an empty rebuild fails.
+#[test]
+fn a_retargeted_target_matches_as_a_fresh_one() {
+    let world = world();
+    let fine = ScanMatcher::default();
+    let mut coarse_params = mapmerge_scanmatch::ScanMatchParams::default();
+    coarse_params.correlative.resolution_m = 0.1;
+    let coarse = ScanMatcher::new(coarse_params).unwrap();
+    let mut reused = coarse.empty_target().unwrap();
+    let first = Se2::new(3.0, 1.5, 0.0);
+    reused
+        .insert_scan(&first, &scan_at(&world, &first))
+        .unwrap();
+    let at = Se2::new(11.0, 1.5, 0.1);
+    let target_points: Vec<Point2> = scan_at(&world, &at)
+        .into_iter()
+        .map(|p| at.transform_point(&p))
+        .collect();
+    fine.retarget(&mut reused, &target_points).unwrap();
+    let fresh = fine.target(&target_points).unwrap();
+    let truth = Se2::new(10.7, 1.3, 0.05);
+    let query = scan_at(&world, &truth);
+    let guess = truth.compose(&Se2::new(0.2, -0.15, 0.05));
+    let window = SearchWindow::new(0.5, 0.2);
+    assert_eq!(
+        fine.match_scan(&reused, &query, &guess, &window),
+        fine.match_scan(&fresh, &query, &guess, &window)
+    );
+    assert!(fine.retarget(&mut reused, &[]).is_err());
+}
