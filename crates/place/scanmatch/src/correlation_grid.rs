@@ -490,9 +490,10 @@ pub(crate) struct CellScan {
     bounds: Option<(i64, i64, i64, i64)>,
 }
 
-/// Cells farther than this from the origin are clamped to it: they lie outside any grid
-/// (at most 2^32 cells) at any shift of a search (at most 2^20 cells), so they score 0 either
-/// way, and the rest fit in `i32`.
+/// Cells farther than this from the origin are clamped to it: at any shift of a search (at
+/// most 2^20 cells) they lie outside any grid whose sides are shorter than 2^29 cells (one
+/// such row alone is a gigabyte per level, far past `max_grid_cells`' default), so they score
+/// 0 either way, and the rest fit in `i32`.
 const FAR_CELL: i64 = 1 << 30;
 
 impl CellScan {
