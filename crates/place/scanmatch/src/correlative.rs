@@ -40,33 +40,14 @@ impl MatchTarget {
         points_in_target: &[Point2],
         params: &CorrelativeParams,
     ) -> Result<Self, ScanMatchError> {
-        let grid = CorrelationGrid::new(points_in_target, params)?;
-        let mut levels = Vec::new();
-        let mut scratch = Vec::new();
-        PrecomputedGrid::levels_into(
-            &grid,
-            params.branch_and_bound_depth,
-            &mut levels,
-            &mut scratch,
-        );
-        Ok(Self {
-            params: *params,
-            grid,
-            levels,
-            levels_fresh: true,
-            scratch,
-            points_in_target: points_in_target
-                .iter()
-                .filter(|p| p.x.is_finite() && p.y.is_finite())
-                .copied()
-                .collect(),
-        })
+        let mut target = Self::empty(params)?;
+        target.rebuild(points_in_target, params)?;
+        Ok(target)
     }
 
-    /// Makes this the target of `points_in_target` alone with `params`, as
-    /// [`MatchTarget::new`] would (the same grid and levels), reusing the buffers: a verifier
-    /// that matches against a different map each time builds into the same memory. On error
-    /// the target is empty.
+    /// Makes this the target of `points_in_target` alone with `params` (what
+    /// [`MatchTarget::new`] builds), reusing the buffers: a verifier that matches against a
+    /// different map each time builds into the same memory. On error the target is empty.
     pub fn rebuild(
         &mut self,
         points_in_target: &[Point2],

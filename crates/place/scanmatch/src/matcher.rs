@@ -115,20 +115,13 @@ impl ScanMatcher {
 
     /// Prepares `points_in_target` (a scan or a local map, in the target frame).
     pub fn target(&self, points_in_target: &[Point2]) -> Result<ScanMatchTarget, ScanMatchError> {
-        let correlative = MatchTarget::new(points_in_target, &self.params.correlative)?;
-        let icp = self
-            .params
-            .icp
-            .map(|params| IcpTarget::new(correlative.points_in_target(), &params));
-        Ok(ScanMatchTarget {
-            correlative,
-            icp,
-            icp_params: self.params.icp,
-        })
+        let mut target = self.empty_target()?;
+        self.retarget(&mut target, points_in_target)?;
+        Ok(target)
     }
 
     /// Makes `target` (from any matcher) the target of `points_in_target` with this matcher's
-    /// parameters, as [`ScanMatcher::target`] would, reusing its correlation grid's memory
+    /// parameters (what [`ScanMatcher::target`] builds), reusing its correlation grid's memory
     /// (see [`MatchTarget::rebuild`]).
     pub fn retarget(
         &self,
