@@ -548,14 +548,16 @@ impl CellScan {
                 })
                 .sum()
         } else {
+            // Negative offsets wrap to huge unsigned ones: one comparison per axis.
+            let (width_u, height_u) = (width as u64, view.height as u64);
             self.cells
                 .iter()
                 .map(|&(i, j)| {
                     let (a, b) = (i64::from(i) + dx, i64::from(j) + dy);
-                    if a < 0 || b < 0 || a >= width || b >= view.height {
-                        0
-                    } else {
+                    if (a as u64) < width_u && (b as u64) < height_u {
                         u64::from(cells.get((b * width + a) as usize).copied().unwrap_or(0))
+                    } else {
+                        0
                     }
                 })
                 .sum()

@@ -529,7 +529,9 @@ pub fn match_scan_above(
             }
             let half = 1i64 << (height - 1);
             let (a, x0, y0) = key;
-            let mut children = Vec::with_capacity(4);
+            // The children go straight onto the stack (no allocation per node); those below
+            // the threshold would only be popped and pruned.
+            let first_child = stack.len();
             for x in [x0, x0 + half] {
                 for y in [y0, y0 + half] {
                     if x > n || y > n {
@@ -537,12 +539,15 @@ pub fn match_scan_above(
                     }
                     let child_bound = search.score(target, &levels, a, x, y, height - 1);
                     candidates += 1;
-                    children.push((child_bound, (a, x, y), height - 1));
+                    if child_bound >= threshold {
+                        stack.push((child_bound, (a, x, y), height - 1));
+                    }
                 }
             }
             // Ascending bound, ties: larger key first, so the stack pops best/smallest first.
-            children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
-            stack.extend(children);
+            if let Some(children) = stack.get_mut(first_child..) {
+                children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
+            }
         }
     }
     search.finish(target, best, candidates, min_score)
