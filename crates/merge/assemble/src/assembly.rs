@@ -50,6 +50,12 @@ pub struct AssembleParams {
     /// Three pairs closing a triangle agree when their placements compose to within this
     /// (m, deg) (default: 3 m, 10°: the segments' drift between the overlaps).
     pub max_triangle_error: (f64, f64),
+    /// A pair that no triangle of pairs confirms (a segment's only link, or the one bridge
+    /// between two groups) rests on its own loop edges alone, and nothing else would catch
+    /// a placement slid along a corridor: it is kept only with at least this many agreeing
+    /// edges (default: 3; a pair confirmed by a triangle needs
+    /// `VerificationParams::min_loops`, 2).
+    pub unconfirmed_min_loops: usize,
 }
 
 impl Default for AssembleParams {
@@ -63,6 +69,7 @@ impl Default for AssembleParams {
             max_pair_residual: (0.5, 5.0),
             max_odometry_excess: 5.0,
             max_triangle_error: (3.0, 10.0),
+            unconfirmed_min_loops: 3,
         }
     }
 }
@@ -327,7 +334,9 @@ impl Assembler {
 
     /// Groups whose pose graphs agree with every pair in them. From all associated pairs:
     /// first the pairs that triangles of pairs contradict more than confirm leave (most
-    /// contradicted first); then the groups (Algorithm 1) and each group's graph; while some
+    /// contradicted first), and so do the pairs no triangle confirms that have too few edges
+    /// of their own (`unconfirmed_min_loops`); then the groups (Algorithm 1) and each group's
+    /// graph; while some
     /// pairs are in a
     /// contradiction (`violating_pairs`), the one of them with the least evidence (shortest
     /// overlap `L_ij`) leaves the grouping and the groups are made again. Then the rejected
@@ -367,7 +376,14 @@ impl Assembler {
             self.set_pair_weight(&pair.0, &pair.1, 0.0)?;
             self.rejected.insert(pair);
         }
-        // 2. The groups' pose graphs.
+        // 2. A pair no triangle confirms needs more edges of its own (removing it takes no
+        //    confirmation from another pair: it closes no consistent triangle).
+        let weak = self.unconfirmed_and_weak();
+        for pair in weak {
+            self.set_pair_weight(&pair.0, &pair.1, 0.0)?;
+            self.rejected.insert(pair);
+        }
+        // 3. The groups' pose graphs.
         loop {
             let violating = self.violating_pairs()?;
             let Some(pair) = violating.into_iter().min_by(|x, y| {
@@ -394,7 +410,10 @@ impl Assembler {
                 .triangle_votes()
                 .get(&pair)
                 .is_some_and(|(_, contradicted)| *contradicted > 0);
-            if contradicted || !self.violating_pairs()?.is_empty() {
+            if contradicted
+                || self.unconfirmed_and_weak().contains(&pair)
+                || !self.violating_pairs()?.is_empty()
+            {
                 self.set_pair_weight(&pair.0, &pair.1, 0.0)?;
                 self.rejected.insert(pair);
             }
@@ -482,6 +501,21 @@ impl Assembler {
             }
         }
         votes
+    }
+
+    /// Accepted pairs that close no consistent triangle and have fewer than
+    /// `unconfirmed_min_loops` loop edges.
+    fn unconfirmed_and_weak(&self) -> BTreeSet<(String, String)> {
+        let votes = self.triangle_votes();
+        self.pairs
+            .iter()
+            .filter(|(key, p)| p.weight > 0.0 && !self.rejected.contains(*key))
+            .filter(|(key, p)| {
+                votes.get(*key).map_or(0, |(confirmed, _)| *confirmed) == 0
+                    && p.loops.len() < self.params.unconfirmed_min_loops
+            })
+            .map(|(key, _)| key.clone())
+            .collect()
     }
 
     /// How much a pair's association rests on: its overlap length `L_ij` (m).

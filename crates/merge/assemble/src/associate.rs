@@ -84,10 +84,12 @@ pub struct VerificationParams {
     /// 1).
     pub loop_min_sigma: (f64, f64),
     /// The scan matcher's search and ICP see the query submap thinned to one point per cell
-    /// of this size (m); the evidence sees every point (default: 0.2, as the atlas's and the
-    /// place benchmark's verifier, `mapmerge_place::PlaceVerifierParams`; chosen on the
-    /// tuning logs, where the same 62 of 95 pairs and 571 edges, all true, were found as
-    /// with the matcher's own 0.05, in 11.2 s of association instead of 18.8 s).
+    /// of this size (m); the evidence sees every point (default: 0.4; chosen on the tuning
+    /// logs, where the matcher's own 0.05, 0.2 and 0.4 found the same 62 of 95 pairs (571,
+    /// 571 and 566 edges, all true) with 18.8, 11.2 and 7.5 s of association, and 0.3, 0.35
+    /// and 0.5 lost one infinite-corridor pair each; a submap has several times a scan's
+    /// points, so it is thinned more than the atlas's keyframes,
+    /// `mapmerge_place::PlaceVerifierParams`).
     pub search_voxel_m: f64,
 }
 
@@ -108,7 +110,7 @@ impl Default for VerificationParams {
             predicted_rank_fraction: 0.25,
             min_predicted_agreement: 0.5,
             loop_min_sigma: (0.05, 1.0),
-            search_voxel_m: 0.2,
+            search_voxel_m: 0.4,
         }
     }
 }
