@@ -21,10 +21,11 @@ use crate::{GeometricVerifier, Keyframe, Verification};
 #[serde(default, deny_unknown_fields)]
 pub struct PlaceVerifierParams {
     /// The matcher (default: [`ScanMatchParams::default`] with a query thinned to one point
-    /// per 0.2 m cell, `correlative.query_voxel_m`, for the search and ICP; the evidence
-    /// still sees every point). A local map of a few metres keeps its shape at 0.2 m, and
-    /// the search costs in proportion to the query's points: 0.05 m took twice the time for
-    /// as many merges on the tuning seeds (docs/benchmarks.md §10).
+    /// per 0.4 m cell, `correlative.query_voxel_m`, for the search and ICP; the evidence
+    /// still sees every point). A local map of a few metres keeps its shape, and the search
+    /// costs in proportion to the query's points: 0.05 m took twice the time of 0.2 m for
+    /// as many merges on the simulator's tuning seeds (docs/benchmarks.md §10), and 0.4 m
+    /// recalled as many places as 0.2 m on the tuning logs in 0.6–0.7 of the time (§11).
     pub matcher: ScanMatchParams,
     /// Search window around the guess (default: ±2 m, ±15°: Scan Context's yaw is good to
     /// a sector or two and its translation guess is zero).
@@ -36,7 +37,7 @@ pub struct PlaceVerifierParams {
 impl Default for PlaceVerifierParams {
     fn default() -> Self {
         let mut matcher = ScanMatchParams::default();
-        matcher.correlative.query_voxel_m = 0.2;
+        matcher.correlative.query_voxel_m = 0.4;
         Self {
             matcher,
             window: SearchWindow::new(2.0, 15f64.to_radians()),

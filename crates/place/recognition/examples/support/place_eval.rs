@@ -126,10 +126,11 @@ pub struct BenchConfig {
     /// (default: 15°).
     pub window_angular_rad: f64,
     /// The verifier's scan matcher (default: [`PlaceVerifierParams`]'s, the atlas's: the
-    /// search and ICP see the query thinned to one point per 0.2 m cell, the evidence every
-    /// point. Chosen on the tuning logs against the full 5 cm query: recall 41.4 → 43.1 %,
-    /// no false loop, intel's median time 44 → 28 ms; a 10 cm search grid on top recalled
-    /// 39.0 %; docs/benchmarks.md §11).
+    /// search and ICP see the query thinned to one point per 0.4 m cell, the evidence every
+    /// point. Chosen on the tuning logs against the full 5 cm query: recall 41.4 → 43.1 %
+    /// at 0.2 m, no false loop, intel's median time 44 → 28 ms; 0.3 m and 0.4 m 43.0 %,
+    /// no false loop, intel 21 → 15 ms from 0.2 m; a 10 cm search grid recalled 39.0 %;
+    /// docs/benchmarks.md §11).
     pub matcher: ScanMatchParams,
 }
 
