@@ -72,6 +72,11 @@ pub struct EvidenceParams {
     /// query's points where the candidate knows the space is scored down in proportion
     /// (default: 0.5); the agreement of a small overlap proves little.
     pub min_overlap_fraction: f64,
+    /// With both keyframes' free space, the agreement enters the score as the lower end of
+    /// its Wilson score interval at this many standard deviations over `overlap_points`
+    /// (0: the agreement itself) (default: 0). An agreement measured over many points is
+    /// firmer evidence than the same fraction over few.
+    pub agreement_z: f64,
     /// Radius of the neighbourhood that gives a point's normal (m) (default: 0.2).
     pub normal_radius_m: f64,
     /// Points whose neighbourhood is less line-like than this count as no structure
@@ -91,6 +96,7 @@ impl Default for EvidenceParams {
             flip_tolerance: 0.5,
             full_constraint_m: 3.0,
             min_overlap_fraction: 0.5,
+            agreement_z: 0.0,
             normal_radius_m: 0.2,
             min_planarity: 0.5,
         }
@@ -128,7 +134,8 @@ pub struct Evidence {
     /// The evidence in `[0, 1]`: `support · min(1, constraint_m / full_constraint_m)`, where
     /// with both keyframes' free space `support = max(0, agreement − flip) · min(1,
     /// overlap_fraction / min_overlap_fraction)` (the two maps agree wherever both know the
-    /// space), and without `support = inlier_fraction − violation_weight ·
+    /// space; the agreement taken at the lower end of its Wilson interval over
+    /// `overlap_points` when `EvidenceParams::agreement_z` > 0), and without `support = inlier_fraction − violation_weight ·
     /// violation_fraction − flip` (points the candidate never saw count against it);
     /// `flip = flip_weight · max(0, flip_ratio − flip_tolerance)`.
     pub score: f64,
@@ -145,7 +152,9 @@ impl Evidence {
             } else {
                 1.0
             };
-            (self.agreement - flip_penalty).max(0.0) * overlapping
+            let agreement =
+                wilson_lower_bound(self.agreement, self.overlap_points, params.agreement_z);
+            (agreement - flip_penalty).max(0.0) * overlapping
         } else {
             // Completeness less the candidate's points in the query's free space.
             self.inlier_fraction - params.violation_weight * self.violation_fraction - flip_penalty
@@ -157,6 +166,21 @@ impl Evidence {
         };
         (support * constrained).clamp(0.0, 1.0)
     }
+}
+
+/// The lower end of the Wilson score interval of a fraction `p` observed over `n` trials, at
+/// `z` standard deviations (Wilson 1927); `p` itself when `z` is 0, 0 without trials.
+pub fn wilson_lower_bound(p: f64, n: usize, z: f64) -> f64 {
+    if z <= 0.0 {
+        return p;
+    }
+    if n == 0 {
+        return 0.0;
+    }
+    let (n, z2) = (n as f64, z * z);
+    let centre = p + z2 / (2.0 * n);
+    let spread = z * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).max(0.0).sqrt();
+    ((centre - spread) / (1.0 + z2 / n)).clamp(0.0, 1.0)
 }
 
 /// A 2D k-d tree and nearest-neighbour distances (m).
@@ -332,6 +356,51 @@ mod tests {
     fn seen_from_origin(points: Vec<Point2>) -> Keyframe {
         let rays: Vec<(Point2, Point2)> = points.iter().map(|p| (Point2::zeros(), *p)).collect();
         Keyframe::new(0, points).with_free_space(FreeSpace::from_rays(0.1, rays).unwrap())
+    }
+
+    #[test]
+    fn the_wilson_lower_bound_matches_the_textbook_value_and_firms_up_with_more_points() {
+        // p = 0.5 over 100 trials at 1.96 standard deviations: 0.4038 (Wilson 1927).
+        assert!((wilson_lower_bound(0.5, 100, 1.96) - 0.4038).abs() < 1e-4);
+        assert_eq!(wilson_lower_bound(0.97, 10, 0.0), 0.97);
+        assert_eq!(wilson_lower_bound(0.97, 0, 3.0), 0.0);
+        assert!((wilson_lower_bound(1.0, 1_000_000, 3.0) - 1.0).abs() < 1e-4);
+        for p in [0.0, 0.3, 0.9, 0.99, 1.0] {
+            let mut previous = 0.0;
+            for n in [1, 10, 100, 1000, 10_000] {
+                let bound = wilson_lower_bound(p, n, 3.0);
+                assert!((0.0..=p + 1e-12).contains(&bound), "p {p} n {n}: {bound}");
+                assert!(
+                    bound >= previous - 1e-12,
+                    "p {p} n {n}: {bound} < {previous}"
+                );
+                previous = bound;
+            }
+        }
+        // In the score: the same agreement over more points scores higher.
+        let parts = |overlap_points| Evidence {
+            query_points: 100,
+            inlier_fraction: 1.0,
+            candidate_points_in_view: 100,
+            violation_fraction: 0.0,
+            constraint_m: 5.0,
+            flip_ratio: 0.0,
+            whole_map: true,
+            overlap_points,
+            agreement: 0.98,
+            overlap_fraction: 1.0,
+            score: 0.0,
+        };
+        let params = EvidenceParams {
+            agreement_z: 3.0,
+            ..EvidenceParams::default()
+        };
+        let (few, many) = (
+            parts(200).score_with(&params),
+            parts(5000).score_with(&params),
+        );
+        assert!(few < many && many < 0.98, "{few} {many}");
+        assert_eq!(parts(200).score_with(&EvidenceParams::default()), 0.98);
     }
 
     #[test]
