@@ -336,10 +336,9 @@ impl Assembler {
     /// first the pairs that triangles of pairs contradict more than confirm leave (most
     /// contradicted first), and so do the pairs no triangle confirms that have too few edges
     /// of their own (`unconfirmed_min_loops`); then the groups (Algorithm 1) and each group's
-    /// graph; while some
-    /// pairs are in a
-    /// contradiction (`violating_pairs`), the one of them with the least evidence (shortest
-    /// overlap `L_ij`) leaves the grouping and the groups are made again. Then the rejected
+    /// graph; while some pairs are in a contradiction (`violating_pairs`), the one of them
+    /// with the least evidence (shortest overlap `L_ij`) leaves the grouping and the groups
+    /// are made again. Then the rejected
     /// pairs are offered back, most evidence first, and stay when the graphs accept them
     /// (a correct pair bent by a wrong one comes back). A look-alike that joined two groups
     /// disagrees with the segments' other connections and is dropped once later evidence

@@ -169,9 +169,10 @@ impl Evidence {
 }
 
 /// The lower end of the Wilson score interval of a fraction `p` observed over `n` trials, at
-/// `z` standard deviations (Wilson 1927); `p` itself when `z` is 0, 0 without trials.
+/// `z` standard deviations (Wilson 1927); `p` itself when `z` is not a positive finite
+/// number, 0 without trials.
 pub fn wilson_lower_bound(p: f64, n: usize, z: f64) -> f64 {
-    if z <= 0.0 {
+    if z.is_nan() || z.is_infinite() || z <= 0.0 {
         return p;
     }
     if n == 0 {
@@ -363,6 +364,7 @@ mod tests {
         // p = 0.5 over 100 trials at 1.96 standard deviations: 0.4038 (Wilson 1927).
         assert!((wilson_lower_bound(0.5, 100, 1.96) - 0.4038).abs() < 1e-4);
         assert_eq!(wilson_lower_bound(0.97, 10, 0.0), 0.97);
+        assert_eq!(wilson_lower_bound(0.97, 10, f64::NAN), 0.97);
         assert_eq!(wilson_lower_bound(0.97, 0, 3.0), 0.0);
         assert!((wilson_lower_bound(1.0, 1_000_000, 3.0) - 1.0).abs() < 1e-4);
         for p in [0.0, 0.3, 0.9, 0.99, 1.0] {
