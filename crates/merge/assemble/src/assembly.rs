@@ -377,7 +377,13 @@ impl Assembler {
         }
         // 2. A pair no triangle confirms needs more edges of its own (removing it takes no
         //    confirmation from another pair: it closes no consistent triangle).
-        let weak = self.unconfirmed_and_weak();
+        let votes = self.triangle_votes();
+        let weak: Vec<(String, String)> = self
+            .pairs
+            .keys()
+            .filter(|key| !self.rejected.contains(*key) && self.unconfirmed_and_weak(key, &votes))
+            .cloned()
+            .collect();
         for pair in weak {
             self.set_pair_weight(&pair.0, &pair.1, 0.0)?;
             self.rejected.insert(pair);
@@ -405,12 +411,12 @@ impl Assembler {
             let weight = self.pairs.get(&pair).map_or(0.0, |p| p.weight);
             self.rejected.remove(&pair);
             self.set_pair_weight(&pair.0, &pair.1, weight)?;
-            let contradicted = self
-                .triangle_votes()
+            let votes = self.triangle_votes();
+            let contradicted = votes
                 .get(&pair)
                 .is_some_and(|(_, contradicted)| *contradicted > 0);
             if contradicted
-                || self.unconfirmed_and_weak().contains(&pair)
+                || self.unconfirmed_and_weak(&pair, &votes)
                 || !self.violating_pairs()?.is_empty()
             {
                 self.set_pair_weight(&pair.0, &pair.1, 0.0)?;
@@ -502,19 +508,18 @@ impl Assembler {
         votes
     }
 
-    /// Accepted pairs that close no consistent triangle and have fewer than
-    /// `unconfirmed_min_loops` loop edges.
-    fn unconfirmed_and_weak(&self) -> BTreeSet<(String, String)> {
-        let votes = self.triangle_votes();
-        self.pairs
-            .iter()
-            .filter(|(key, p)| p.weight > 0.0 && !self.rejected.contains(*key))
-            .filter(|(key, p)| {
-                votes.get(*key).map_or(0, |(confirmed, _)| *confirmed) == 0
-                    && p.loops.len() < self.params.unconfirmed_min_loops
-            })
-            .map(|(key, _)| key.clone())
-            .collect()
+    /// Whether the accepted pair `key` closes no consistent triangle (by `votes`) and has
+    /// fewer than `unconfirmed_min_loops` loop edges.
+    fn unconfirmed_and_weak(
+        &self,
+        key: &(String, String),
+        votes: &BTreeMap<(String, String), (usize, usize)>,
+    ) -> bool {
+        self.pairs.get(key).is_some_and(|p| {
+            p.weight > 0.0
+                && votes.get(key).map_or(0, |(confirmed, _)| *confirmed) == 0
+                && p.loops.len() < self.params.unconfirmed_min_loops
+        })
     }
 
     /// How much a pair's association rests on: its overlap length `L_ij` (m).
