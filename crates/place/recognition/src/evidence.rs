@@ -77,6 +77,12 @@ pub struct EvidenceParams {
     /// (0: the agreement itself) (default: 0). An agreement measured over many points is
     /// firmer evidence than the same fraction over few.
     pub agreement_z: f64,
+    /// With both keyframes' free space: a placement whose distance metric
+    /// ([`Evidence::distance_m`]) exceeds this (m) scores 0 (default: none, no limit).
+    pub max_distance_m: Option<f64>,
+    /// Distances that enter [`Evidence::distance_m`] are capped at this (m) (default: 1), so
+    /// a few points far from everything do not outweigh the rest.
+    pub distance_cap_m: f64,
     /// Radius of the neighbourhood that gives a point's normal (m) (default: 0.2).
     pub normal_radius_m: f64,
     /// Points whose neighbourhood is less line-like than this count as no structure
@@ -97,6 +103,8 @@ impl Default for EvidenceParams {
             full_constraint_m: 3.0,
             min_overlap_fraction: 0.5,
             agreement_z: 0.0,
+            max_distance_m: None,
+            distance_cap_m: 1.0,
             normal_radius_m: 0.2,
             min_planarity: 0.5,
         }
@@ -129,9 +137,17 @@ pub struct Evidence {
     /// … the fraction of them near a return of the other map (Birk & Carpin 2006's
     /// agreement, `agr / (agr + dis)`, over points instead of cells; 0 without free space) …
     pub agreement: f64,
-    /// … and the fraction of the query's points that fall where the candidate knows the space.
+    /// … the fraction of the query's points that fall where the candidate knows the space …
     pub overlap_fraction: f64,
-    /// The evidence in `[0, 1]`: `support · min(1, constraint_m / full_constraint_m)`, where
+    /// … and the modified distance metric DM of Andersone (2019, Sec. 3.3) over those points
+    /// instead of cells (m): per map, the mean distance from its overlapping points to the
+    /// other map's nearest return (each capped at `distance_cap_m`), summed over the two
+    /// maps. 0 for identical maps; it grows with misalignment, while the agreement (SM)
+    /// only counts points beyond a tolerance. 0 without free space.
+    #[serde(default)]
+    pub distance_m: f64,
+    /// The evidence in `[0, 1]`: `support · min(1, constraint_m / full_constraint_m)` (0 when
+    /// `distance_m` exceeds `EvidenceParams::max_distance_m`), where
     /// with both keyframes' free space `support = max(0, agreement − flip) · min(1,
     /// overlap_fraction / min_overlap_fraction)` (the two maps agree wherever both know the
     /// space; the agreement taken at the lower end of its Wilson interval over
@@ -154,6 +170,12 @@ impl Evidence {
             };
             let agreement =
                 wilson_lower_bound(self.agreement, self.overlap_points, params.agreement_z);
+            if params
+                .max_distance_m
+                .is_some_and(|max| self.distance_m > max)
+            {
+                return 0.0;
+            }
             (agreement - flip_penalty).max(0.0) * overlapping
         } else {
             // Completeness less the candidate's points in the query's free space.
@@ -201,6 +223,28 @@ impl Nearest {
                 .distance
                 .sqrt()
         })
+    }
+}
+
+/// One map's points against the other map (see [`evidence`]).
+#[derive(Default)]
+struct Tally {
+    agree: usize,
+    disagree: usize,
+    /// Points where the other map knows the space …
+    known: usize,
+    /// … and the sum of their distances to its nearest return, capped (m).
+    distance_sum_m: f64,
+}
+
+impl Tally {
+    /// The mean capped distance; `cap_m` when no point overlaps (nothing shows agreement).
+    fn mean_distance_m(&self, cap_m: f64) -> f64 {
+        if self.known == 0 {
+            cap_m
+        } else {
+            self.distance_sum_m / self.known as f64
+        }
     }
 }
 
@@ -304,38 +348,48 @@ pub fn evidence(
     };
     // 4. Whole-map agreement: each map's points against the other's returns and free space.
     if let Some((query_free, candidate_free)) = free_spaces {
-        // (agree, disagree) of `points` against a map's returns (distances given) and free space.
+        // Of `points` against a map's returns (distances given) and free space: agreeing and
+        // disagreeing points, and the points where that map knows the space with the sum of
+        // their capped distances (DM).
         let tally =
             |points: &[Point2], distances_m: &mut dyn Iterator<Item = f64>, free: &FreeSpace| {
-                let (mut agree, mut disagree) = (0usize, 0usize);
+                let mut t = Tally::default();
                 for (p, d) in points.iter().zip(distances_m) {
+                    let is_free = d > params.inlier_m && free.is_free(p);
                     if d <= params.inlier_m {
-                        agree += 1;
-                    } else if d > params.violation_clearance_m && free.is_free(p) {
-                        disagree += 1;
+                        t.agree += 1;
+                    } else if d > params.violation_clearance_m && is_free {
+                        t.disagree += 1;
+                    }
+                    if d <= params.violation_clearance_m || is_free {
+                        t.known += 1;
+                        t.distance_sum_m += d.min(params.distance_cap_m);
                     }
                 }
-                (agree, disagree)
+                t
             };
-        let (query_agree, query_disagree) = tally(
+        let query_tally = tally(
             &query_in_candidate,
             &mut query_to_candidate_m.iter().copied(),
             candidate_free,
         );
-        let (candidate_agree, candidate_disagree) = tally(
+        let candidate_tally = tally(
             &candidate_in_query,
             &mut candidate_in_query.iter().map(|p| near_query.distance_m(p)),
             query_free,
         );
-        let agree = query_agree + candidate_agree;
-        let known = agree + query_disagree + candidate_disagree;
+        let agree = query_tally.agree + candidate_tally.agree;
+        let known = agree + query_tally.disagree + candidate_tally.disagree;
         out.overlap_points = known;
         out.agreement = if known > 0 {
             agree as f64 / known as f64
         } else {
             0.0
         };
-        out.overlap_fraction = (query_agree + query_disagree) as f64 / query.len() as f64;
+        out.overlap_fraction =
+            (query_tally.agree + query_tally.disagree) as f64 / query.len() as f64;
+        out.distance_m = query_tally.mean_distance_m(params.distance_cap_m)
+            + candidate_tally.mean_distance_m(params.distance_cap_m);
     }
     out.whole_map = free_spaces.is_some();
     out.score = out.score_with(params);
@@ -391,6 +445,7 @@ mod tests {
             overlap_points,
             agreement: 0.98,
             overlap_fraction: 1.0,
+            distance_m: 0.0,
             score: 0.0,
         };
         let params = EvidenceParams {
@@ -436,6 +491,37 @@ mod tests {
         let none = against(&kf(room()));
         assert_eq!((none.agreement, none.overlap_points), (0.0, 0));
         assert!(!none.whole_map && same.whole_map);
+    }
+
+    #[test]
+    fn the_distance_metric_grows_with_misalignment_and_can_refuse_a_placement() {
+        let at = |x_m: f64, params: &EvidenceParams| {
+            evidence(
+                &seen_from_origin(room()),
+                &seen_from_origin(room()),
+                &Se2::new(x_m, 0.0, 0.0),
+                0.0,
+                params,
+            )
+        };
+        let defaults = EvidenceParams::default();
+        let distances: Vec<f64> = [0.0, 0.1, 0.2, 0.4]
+            .iter()
+            .map(|x| at(*x, &defaults).distance_m)
+            .collect();
+        assert!(distances[0] < 0.02, "{distances:?}");
+        for pair in distances.windows(2) {
+            assert!(pair[1] > pair[0], "{distances:?}");
+        }
+        // Within the inlier tolerance the agreement cannot tell 0 from 0.1 m; DM can.
+        assert!(at(0.1, &defaults).agreement > 0.99);
+        let strict = EvidenceParams {
+            max_distance_m: Some(0.1),
+            ..defaults
+        };
+        assert!(at(0.0, &strict).score > 0.9);
+        assert_eq!(at(0.2, &strict).score, 0.0);
+        assert!(at(0.2, &defaults).score > 0.0);
     }
 
     /// Points every 2 cm along the segment `a`–`b`.
