@@ -114,9 +114,10 @@ use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::ScanAnchors;
 use mapmerge_verify::{
-    ChangeDetectionDetector, ChangeDetectionParams, DmDetector, EntropyDetector, EntropyParams,
-    Evidence, GridmapDetector, GridmapParams, HistogramDetector, HistogramParams,
-    InvalidMergeDetector, MergedMap, SimilarityParams, SmDetector, DETECTOR_NAMES,
+    BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
+    ChangeDetectionParams, DmDetector, EntropyDetector, EntropyParams, Evidence, GridmapDetector,
+    GridmapParams, HistogramDetector, HistogramParams, InvalidMergeDetector, MergedMap,
+    SimilarityParams, SmDetector, DETECTOR_NAMES,
 };
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -250,7 +251,8 @@ pub struct InvalidMergeArgs {
     #[arg(long)]
     pub json: bool,
     /// Detector parameters other than the defaults (JSON: `{"change_detection": {…},
-    /// "gridmap": {…}, "entropy": {…}, "histogram": {…}, "sm": {…}, "dm": {…}}`, each
+    /// "gridmap": {…}, "entropy": {…}, "histogram": {…}, "sm": {…}, "dm": {…},
+    /// "better_hypothesis": {…}}`, each
     /// optional and each partial, fields as in `mapmerge_verify`), e.g. to vary the window.
     #[arg(long)]
     pub detector_params: Option<PathBuf>,
@@ -279,6 +281,7 @@ struct DetectorParamsFile {
     histogram: Option<HistogramParams>,
     sm: Option<SimilarityParams>,
     dm: Option<SimilarityParams>,
+    better_hypothesis: Option<BetterHypothesisParams>,
 }
 
 impl DetectorParamsFile {
@@ -300,6 +303,9 @@ impl DetectorParamsFile {
             "histogram" => Box::new(HistogramDetector::new(self.histogram.clone()?)),
             "sm" => Box::new(SmDetector::new(self.sm.clone()?)),
             "dm" => Box::new(DmDetector::new(self.dm.clone()?)),
+            "better_hypothesis" => Box::new(BetterHypothesisDetector::new(
+                self.better_hypothesis.clone()?,
+            )),
             _ => return None,
         };
         Some(boxed)

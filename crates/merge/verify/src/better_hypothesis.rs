@@ -7,17 +7,19 @@
 //! `C_contradicting / (C_contradicting + C_agreeing + prior)`.
 //!
 //! Keyframes are local maps of a few consecutive scans of one epoch (more structure than one
-//! scan, as `mapmerge-atlas`'s place recognition), described by Scan Context, retrieved from a
-//! `PlaceIndex` built once per merge and verified by `ScanMatchVerifier` scored by its
-//! evidence (free-space violations, constraint, 180° flips), accepted from the atlas's score
-//! and confidence (the gap to the best rival place), so look-alike rooms give no evidence.
+//! scan, as `mapmerge-atlas`'s place recognition) with the free space their beams crossed,
+//! described by Scan Context, retrieved from a `PlaceIndex` built once per merge and verified
+//! by the atlas's `ScanMatchVerifier`, scored like the atlas's merge search by the whole-map
+//! agreement of the two local maps (issue 16, part 4), and accepted from a score and a
+//! confidence (the gap to the best rival place), so look-alike rooms give no evidence.
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_grid::FreeSpace;
 use mapmerge_place::{
     verify_candidates, DescriptorExtractor, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
     PlaceParams, PlaceSignature, PlaceVerifierParams, ScanMatchVerifier, SignatureExtractor,
 };
-use mapmerge_scan::{voxel_downsample, Point2};
+use mapmerge_scan::voxel_downsample;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{unit, OtherSnapshot};
@@ -34,15 +36,23 @@ pub struct BetterHypothesisParams {
     pub keyframe_travel_m: f64,
     /// Keyframes are thinned to one point per cell of this size (m) (default: 0.1).
     pub voxel_m: f64,
+    /// Keyframes keep the free space their beams crossed at this resolution (m), so that a
+    /// match is scored by the whole-map agreement of the two local maps, as the atlas's merge
+    /// search does (default: 0.1, the atlas's); 0 scores by the query's free space alone.
+    pub free_space_m: f64,
     /// Queries with fewer points are skipped (default: 50).
     pub min_query_points: usize,
     /// Query every this many new vertices (default: 1). Each query verifies up to
     /// `place.candidates_per_query` candidates (tens of ms each).
     pub query_every: usize,
     /// Retrieval and verification (default: 5 candidates within Scan Context distance 0.6,
-    /// accepted from evidence score 0.85 — the atlas's merge setting).
+    /// accepted from whole-map score 0.95; chosen on the tuning logs' forced merges and the
+    /// simulator's fitting seeds, docs/benchmarks.md §11: 0.975, the atlas's merge setting,
+    /// caught fewer invalid merges, and 0.9 read 13 of 92 valid ones as contradicted).
     pub place: PlaceParams,
-    /// A match also needs this confidence (gap to the best rival place) (default: 0.2).
+    /// A match also needs this confidence (gap to the best rival place) (default: 0.2; the
+    /// atlas's 0.05 let one look-alike contradiction undo a correct merge on freiburg-079,
+    /// docs/benchmarks.md §11).
     pub min_confidence: f64,
     /// A match contradicts the merge when it places the query this far (m) from where the
     /// merged map has it (default: 1) …
@@ -62,12 +72,13 @@ impl Default for BetterHypothesisParams {
             keyframe_scans: 5,
             keyframe_travel_m: 4.0,
             voxel_m: 0.1,
+            free_space_m: 0.1,
             min_query_points: 50,
             query_every: 1,
             place: PlaceParams {
                 candidates_per_query: 5,
                 max_descriptor_distance: 0.6,
-                min_score: 0.85,
+                min_score: 0.95,
                 ..PlaceParams::default()
             },
             min_confidence: 0.2,
@@ -120,18 +131,21 @@ impl std::fmt::Debug for BetterHypothesisDetector {
     }
 }
 
-/// The keyframe of `scans[i]`: its points and those of up to `params.keyframe_scans − 1`
-/// preceding scans of its epoch (within the travel limit), in its frame, thinned.
-fn local_map(scans: &[DetectorScan], i: usize, params: &BetterHypothesisParams) -> Vec<Point2> {
+/// The keyframe of `scans[i]` (id `i`): its points and those of up to
+/// `params.keyframe_scans − 1` preceding scans of its epoch (within the travel limit), in its
+/// frame, thinned, with the free space their beams crossed (`params.free_space_m`).
+fn local_map(scans: &[DetectorScan], i: usize, params: &BetterHypothesisParams) -> Keyframe {
+    let empty = || Keyframe::new(i as u64, Vec::new());
     let Some(anchor) = scans.get(i) else {
-        return Vec::new();
+        return empty();
     };
     let map_from_anchor = anchor.map_from_robot;
     if !map_from_anchor.is_finite() {
-        return Vec::new();
+        return empty();
     }
     let anchor_from_map = map_from_anchor.inverse();
-    let mut points = Vec::new();
+    let keep_rays = params.free_space_m > 0.0;
+    let (mut points, mut rays) = (Vec::new(), Vec::new());
     let mut travel_m = 0.0;
     let mut previous = map_from_anchor.translation();
     for j in (0..=i).rev().take(params.keyframe_scans.max(1)) {
@@ -145,14 +159,29 @@ fn local_map(scans: &[DetectorScan], i: usize, params: &BetterHypothesisParams) 
             break;
         }
         let anchor_from_scan = anchor_from_map.compose(&scan.map_from_robot);
+        let first = points.len();
         points.extend(
             scan.points_in_robot
                 .iter()
                 .filter(|p| p.x.is_finite() && p.y.is_finite())
                 .map(|p| anchor_from_scan.transform_point(p)),
         );
+        if keep_rays {
+            let origin = anchor_from_scan.translation();
+            rays.extend(
+                points
+                    .get(first..)
+                    .unwrap_or(&[])
+                    .iter()
+                    .map(|p| (origin, *p)),
+            );
+        }
     }
-    voxel_downsample(&points, params.voxel_m)
+    let keyframe = Keyframe::new(i as u64, voxel_downsample(&points, params.voxel_m));
+    match keep_rays.then(|| FreeSpace::from_rays(params.free_space_m, rays)) {
+        Some(Ok(free)) => keyframe.with_free_space(free),
+        _ => keyframe,
+    }
 }
 
 impl BetterHypothesisDetector {
@@ -196,10 +225,12 @@ impl BetterHypothesisDetector {
         self.index = PlaceIndex::new(self.params.place.index.clone());
         self.keyframes.clear();
         for i in 0..other.len() {
-            let points = local_map(other, i, &self.params);
-            self.index
-                .insert(KeyframeId(i as u64), self.extractor.describe(&points));
-            self.keyframes.push(Keyframe::new(i as u64, points));
+            let keyframe = local_map(other, i, &self.params);
+            self.index.insert(
+                KeyframeId(i as u64),
+                self.extractor.describe(&keyframe.points_in_keyframe),
+            );
+            self.keyframes.push(keyframe);
         }
         self.vertices = 0;
         self.info = BetterHypothesisInfo::default();
@@ -210,13 +241,13 @@ impl BetterHypothesisDetector {
         let Some(newest) = map.current.last() else {
             return;
         };
-        let points = local_map(map.current, map.current.len() - 1, &self.params);
-        if points.len() < self.params.min_query_points.max(1) {
+        let mut query = local_map(map.current, map.current.len() - 1, &self.params);
+        query.id = KeyframeId(newest.node.0);
+        if query.points_in_keyframe.len() < self.params.min_query_points.max(1) {
             return;
         }
         self.info.queries += 1;
-        let descriptor = self.extractor.describe(&points);
-        let query = Keyframe::new(newest.node.0, points);
+        let descriptor = self.extractor.describe(&query.points_in_keyframe);
         let candidates: Vec<PlaceCandidate> = self
             .index
             .query(&descriptor, self.params.place.candidates_per_query)
@@ -310,6 +341,8 @@ impl InvalidMergeDetector for BetterHypothesisDetector {
 
 #[cfg(test)]
 mod tests {
+    #![allow(clippy::expect_used)]
+
     use super::*;
     use crate::testworld::{Case, World};
 
@@ -327,6 +360,39 @@ mod tests {
         let r_correct = correct.max_ratio(&mut d);
         assert!(r_correct < 0.01, "correct {r_correct}, {:?}", d.info());
         assert!(d.info().agreeing > 0, "{:?}", d.info());
+    }
+
+    #[test]
+    fn keyframes_keep_the_free_space_their_beams_crossed_unless_asked_not_to() {
+        // Two scans of a wall 3 m ahead, the second taken 0.5 m further on.
+        let wall: std::sync::Arc<[mapmerge_scan::Point2]> = (0..=40)
+            .map(|k| mapmerge_scan::Point2::new(3.0, -2.0 + 0.1 * f64::from(k)))
+            .collect();
+        let scans: Vec<DetectorScan> = [0.0, 0.5]
+            .iter()
+            .enumerate()
+            .map(|(k, x)| DetectorScan {
+                node: mapmerge_posegraph::NodeId(k as u64),
+                epoch: 0,
+                map_from_robot: Se2::new(*x, 0.0, 0.0),
+                points_in_robot: std::sync::Arc::clone(&wall),
+            })
+            .collect();
+        let params = BetterHypothesisParams::default();
+        let keyframe = local_map(&scans, 1, &params);
+        let free = keyframe
+            .free_space
+            .as_deref()
+            .expect("free space by default");
+        // Between the newest pose and the wall (keyframe frame) the beams saw through.
+        assert!(free.is_free(&mapmerge_scan::Point2::new(1.5, 0.0)));
+        assert!(!free.is_free(&mapmerge_scan::Point2::new(-3.0, 0.0)));
+        assert!(!keyframe.points_in_keyframe.is_empty());
+        let without = BetterHypothesisParams {
+            free_space_m: 0.0,
+            ..params
+        };
+        assert!(local_map(&scans, 1, &without).free_space.is_none());
     }
 
     #[test]
