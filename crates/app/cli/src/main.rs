@@ -24,6 +24,7 @@ mod sim;
 mod simulate;
 mod slam;
 mod split;
+mod store;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
 #[derive(Parser, Debug)]
@@ -66,6 +67,8 @@ enum Command {
     /// Cut a corrected laser log into overlapping segments, each re-based to its own origin
     /// (optionally with noisy odometry), with the ground truth kept apart.
     Split(split::SplitArgs),
+    /// Inspect, check and roll back a lifelong store (a SQLite file of map versions).
+    Store(store::StoreArgs),
 }
 
 /// An error that maps to exit code 2.
@@ -198,6 +201,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval::run(args),
         Command::Slam(args) => slam::run(args),
         Command::Split(args) => split::run(args),
+        Command::Store(args) => store::run(args),
     };
     match result {
         Ok(code) => code,

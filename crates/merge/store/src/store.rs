@@ -1,0 +1,323 @@
+//! Opening a store, its lock, its check and its versions.
+
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior};
+use serde::{Deserialize, Serialize};
+
+use crate::error::StoreError;
+use crate::schema::{APPLICATION_ID, MIGRATIONS, SCHEMA_VERSION};
+
+/// One map version (a committed session), as `mapmerge store versions --json` prints it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VersionInfo {
+    /// Its number, from 1, increasing.
+    pub version: i64,
+    /// The version it continued (none for the first).
+    pub parent: Option<i64>,
+    /// The session's name (e.g. its log).
+    pub session: String,
+    /// When it was committed (Unix seconds).
+    pub created_unix_s: i64,
+    /// Pose-graph vertices over every graph.
+    pub nodes: i64,
+    /// Pose-graph edges over every graph.
+    pub edges: i64,
+    /// Keyframes (views).
+    pub keyframes: i64,
+    /// Local maps.
+    pub local_maps: i64,
+    /// Area of the known cells of the rendered map (m²).
+    pub mapped_area_m2: f64,
+}
+
+/// What `mapmerge store info --json` prints about a store.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StoreInfo {
+    /// The store's schema version.
+    pub schema_version: i64,
+    /// Committed versions.
+    pub versions: usize,
+    /// The newest version, if any.
+    pub newest: Option<VersionInfo>,
+    /// Size of the store's files on disk (bytes).
+    pub bytes: u64,
+}
+
+/// An open store, held by this process until dropped.
+pub struct Store {
+    path: PathBuf,
+    connection: Connection,
+}
+
+impl std::fmt::Debug for Store {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Store")
+            .field("path", &self.path)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Store {
+    /// Opens the store at `path`, creating it when there is no file, and upgrades an older
+    /// schema. Refused stores (locked, newer, not a store, corrupt) are not modified.
+    pub fn open(path: &Path) -> Result<Self, StoreError> {
+        Self::open_with(path, true)
+    }
+
+    /// Opens an existing store (an error when there is no file).
+    pub fn open_existing(path: &Path) -> Result<Self, StoreError> {
+        Self::open_with(path, false)
+    }
+
+    fn open_with(path: &Path, create: bool) -> Result<Self, StoreError> {
+        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        if create {
+            flags |= OpenFlags::SQLITE_OPEN_CREATE;
+        }
+        let classify = |e: rusqlite::Error| classify(path, e);
+        let mut connection = Connection::open_with_flags(path, flags).map_err(classify)?;
+        // One process at a time: the first access takes the file's lock and keeps it until
+        // the connection closes (no waiting for a busy store).
+        connection
+            .busy_timeout(std::time::Duration::ZERO)
+            .map_err(classify)?;
+        connection
+            .pragma_update(None, "locking_mode", "EXCLUSIVE")
+            .map_err(classify)?;
+        let transaction = connection
+            .transaction_with_behavior(TransactionBehavior::Exclusive)
+            .map_err(classify)?;
+        let application_id: i64 = transaction
+            .pragma_query_value(None, "application_id", |row| row.get(0))
+            .map_err(classify)?;
+        let schema_version: i64 = transaction
+            .pragma_query_value(None, "user_version", |row| row.get(0))
+            .map_err(classify)?;
+        let tables: i64 = transaction
+            .query_row("SELECT count(*) FROM sqlite_schema", [], |row| row.get(0))
+            .map_err(classify)?;
+        let fresh = application_id == 0 && schema_version == 0 && tables == 0;
+        if !fresh && application_id != APPLICATION_ID {
+            return Err(StoreError::NotAStore {
+                path: path.to_path_buf(),
+                reason: format!("application id {application_id:#x}, {tables} schema objects"),
+            });
+        }
+        if schema_version > SCHEMA_VERSION {
+            return Err(StoreError::NewerSchema {
+                path: path.to_path_buf(),
+                found: schema_version,
+                supported: SCHEMA_VERSION,
+            });
+        }
+        transaction.rollback().map_err(classify)?;
+        // Accepted: from here on the store may be written.
+        connection
+            .pragma_update(None, "journal_mode", "WAL")
+            .map_err(classify)?;
+        connection
+            .pragma_update(None, "foreign_keys", true)
+            .map_err(classify)?;
+        let transaction = connection
+            .transaction_with_behavior(TransactionBehavior::Exclusive)
+            .map_err(classify)?;
+        let from = usize::try_from(schema_version).unwrap_or(0);
+        for migration in MIGRATIONS.iter().skip(from) {
+            transaction.execute_batch(migration).map_err(classify)?;
+        }
+        transaction
+            .pragma_update(None, "application_id", APPLICATION_ID)
+            .map_err(classify)?;
+        transaction
+            .pragma_update(None, "user_version", SCHEMA_VERSION)
+            .map_err(classify)?;
+        transaction.commit().map_err(classify)?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            connection,
+        })
+    }
+
+    /// The store's file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Every committed version, oldest first.
+    pub fn versions(&self) -> Result<Vec<VersionInfo>, StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let mut statement = self
+            .connection
+            .prepare(
+                "SELECT version, parent, session, created_unix_s, nodes, edges, keyframes,
+                        local_maps, mapped_area_m2
+                 FROM versions ORDER BY version",
+            )
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([], |row| {
+                Ok(VersionInfo {
+                    version: row.get(0)?,
+                    parent: row.get(1)?,
+                    session: row.get(2)?,
+                    created_unix_s: row.get(3)?,
+                    nodes: row.get(4)?,
+                    edges: row.get(5)?,
+                    keyframes: row.get(6)?,
+                    local_maps: row.get(7)?,
+                    mapped_area_m2: row.get(8)?,
+                })
+            })
+            .map_err(classify)?;
+        rows.collect::<Result<Vec<_>, _>>().map_err(classify)
+    }
+
+    /// The store's schema version, versions and size.
+    pub fn info(&self) -> Result<StoreInfo, StoreError> {
+        let versions = self.versions()?;
+        let bytes = ["", "-wal"]
+            .iter()
+            .filter_map(|suffix| {
+                let mut name = self.path.clone().into_os_string();
+                name.push(suffix);
+                std::fs::metadata(PathBuf::from(name)).ok()
+            })
+            .map(|m| m.len())
+            .sum();
+        Ok(StoreInfo {
+            schema_version: SCHEMA_VERSION,
+            versions: versions.len(),
+            newest: versions.last().cloned(),
+            bytes,
+        })
+    }
+
+    /// Commits a new version continuing the newest, with the session's counts (its
+    /// `version`, `parent` and `created_unix_s` are assigned here). Returns its number.
+    pub fn commit_version(&mut self, counts: &VersionInfo) -> Result<i64, StoreError> {
+        let path = self.path.clone();
+        let classify = |e: rusqlite::Error| classify(&path, e);
+        let created_unix_s = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
+        let transaction = self
+            .connection
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(classify)?;
+        let parent: Option<i64> = transaction
+            .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
+            .optional()
+            .map_err(classify)?
+            .flatten();
+        let version = parent.unwrap_or(0) + 1;
+        transaction
+            .execute(
+                "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
+                                       keyframes, local_maps, mapped_area_m2)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                rusqlite::params![
+                    version,
+                    parent,
+                    counts.session,
+                    created_unix_s,
+                    counts.nodes,
+                    counts.edges,
+                    counts.keyframes,
+                    counts.local_maps,
+                    counts.mapped_area_m2
+                ],
+            )
+            .map_err(classify)?;
+        transaction.commit().map_err(classify)?;
+        Ok(version)
+    }
+
+    /// Deletes every version after `version` (iRobot deletes bad versions); `version` must
+    /// exist. Returns how many were deleted.
+    pub fn rollback_to(&mut self, version: i64) -> Result<usize, StoreError> {
+        let path = self.path.clone();
+        let classify = |e: rusqlite::Error| classify(&path, e);
+        let transaction = self
+            .connection
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(classify)?;
+        let exists: bool = transaction
+            .query_row(
+                "SELECT EXISTS (SELECT 1 FROM versions WHERE version = ?1)",
+                [version],
+                |row| row.get(0),
+            )
+            .map_err(classify)?;
+        if !exists {
+            return Err(StoreError::NoSuchVersion {
+                path: path.clone(),
+                version,
+            });
+        }
+        // One statement: foreign keys are checked when it ends, children gone with parents.
+        let deleted = transaction
+            .execute("DELETE FROM versions WHERE version > ?1", [version])
+            .map_err(classify)?;
+        transaction.commit().map_err(classify)?;
+        Ok(deleted)
+    }
+
+    /// `Ok` when the store is intact: SQLite's integrity and foreign-key checks pass and every
+    /// version's parent is the version before it.
+    pub fn check(&self) -> Result<(), StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: self.path.clone(),
+            reason,
+        };
+        let integrity: String = self
+            .connection
+            .pragma_query_value(None, "integrity_check", |row| row.get(0))
+            .map_err(classify)?;
+        if integrity != "ok" {
+            return Err(corrupt(integrity));
+        }
+        let dangling: i64 = self
+            .connection
+            .query_row("SELECT count(*) FROM pragma_foreign_key_check", [], |row| {
+                row.get(0)
+            })
+            .map_err(classify)?;
+        if dangling > 0 {
+            return Err(corrupt(format!("{dangling} rows refer to missing rows")));
+        }
+        let mut expected_parent = None;
+        for v in self.versions()? {
+            if v.parent != expected_parent {
+                return Err(corrupt(format!(
+                    "version {} continues {:?}, expected {:?}",
+                    v.version, v.parent, expected_parent
+                )));
+            }
+            expected_parent = Some(v.version);
+        }
+        Ok(())
+    }
+}
+
+/// SQLite's error as the store's: busy is a lock, "not a database" and corruption are named.
+fn classify(path: &Path, error: rusqlite::Error) -> StoreError {
+    let path = path.to_path_buf();
+    match error.sqlite_error_code() {
+        Some(ErrorCode::DatabaseBusy | ErrorCode::DatabaseLocked) => StoreError::Locked { path },
+        Some(ErrorCode::NotADatabase) => StoreError::NotAStore {
+            path,
+            reason: error.to_string(),
+        },
+        Some(ErrorCode::DatabaseCorrupt) => StoreError::Corrupt {
+            path,
+            reason: error.to_string(),
+        },
+        _ => StoreError::Sqlite {
+            path,
+            source: error,
+        },
+    }
+}
