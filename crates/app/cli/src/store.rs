@@ -82,10 +82,10 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
                     info.versions,
                     info.bytes
                 );
-                if let Some(v) = &info.newest {
+                if let (Some(version), Some(session)) = (info.newest_version, &info.session) {
                     println!(
-                        "newest: version {} ({}), {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m²",
-                        v.version, v.session, v.nodes, v.edges, v.keyframes, v.local_maps, v.mapped_area_m2
+                        "newest: version {version} ({session}), {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m²",
+                        info.nodes, info.edges, info.keyframes, info.local_maps, info.mapped_area_m2
                     );
                 }
             }

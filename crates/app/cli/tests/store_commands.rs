@@ -13,12 +13,13 @@ fn session(name: &str, nodes: i64) -> VersionInfo {
         version: 0,
         parent: None,
         session: name.into(),
-        created_unix_s: 0,
+        created: 0,
         nodes,
         edges: nodes + 5,
         keyframes: nodes / 2,
         local_maps: nodes / 3,
         mapped_area_m2: 42.0,
+        bytes: 0,
     }
 }
 
@@ -34,13 +35,18 @@ fn store_commands_read_check_and_roll_back_a_store() {
     }
     let info = ok_json(&["store", "info", p(&site), "--json"]);
     assert_eq!(info["versions"], 3);
-    assert_eq!(info["newest"]["session"], "wednesday");
+    assert_eq!(info["session"], "wednesday");
+    assert_eq!(info["nodes"], 40);
+    assert_eq!(info["edges"], 45);
+    assert!(info["bytes"].as_u64().unwrap() > 0);
     assert_eq!(info["schema_version"], mapmerge_store::SCHEMA_VERSION);
     let versions = ok_json(&["store", "versions", p(&site), "--json"]);
     let list = versions["versions"].as_array().unwrap();
     assert_eq!(list.len(), 3);
     assert_eq!(list[1]["parent"], 1);
     assert_eq!(list[1]["nodes"], 36);
+    assert!(list[1]["bytes"].as_i64().unwrap() > 0);
+    assert!(list[1]["created"].as_i64().unwrap() > 1_700_000_000);
     assert_eq!(
         ok_json(&["store", "check", p(&site), "--json"])["intact"],
         true

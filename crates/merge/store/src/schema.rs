@@ -23,6 +23,7 @@ pub(crate) const MIGRATIONS: [&str; 1] = [
          edges INTEGER NOT NULL,
          keyframes INTEGER NOT NULL,
          local_maps INTEGER NOT NULL,
-         mapped_area_m2 REAL NOT NULL
+         mapped_area_m2 REAL NOT NULL,
+         bytes INTEGER NOT NULL
      ) STRICT;",
 ];

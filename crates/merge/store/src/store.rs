@@ -19,7 +19,7 @@ pub struct VersionInfo {
     /// The session's name (e.g. its log).
     pub session: String,
     /// When it was committed (Unix seconds).
-    pub created_unix_s: i64,
+    pub created: i64,
     /// Pose-graph vertices over every graph.
     pub nodes: i64,
     /// Pose-graph edges over every graph.
@@ -30,18 +30,33 @@ pub struct VersionInfo {
     pub local_maps: i64,
     /// Area of the known cells of the rendered map (m²).
     pub mapped_area_m2: f64,
+    /// Size of the store's database with this version committed (bytes).
+    pub bytes: i64,
 }
 
-/// What `mapmerge store info --json` prints about a store.
+/// What `mapmerge store info --json` prints about a store: its schema, how many versions it
+/// has, and the newest version's counts (0 without versions).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StoreInfo {
     /// The store's schema version.
     pub schema_version: i64,
     /// Committed versions.
     pub versions: usize,
-    /// The newest version, if any.
-    pub newest: Option<VersionInfo>,
-    /// Size of the store's files on disk (bytes).
+    /// The newest version's number (none without versions).
+    pub newest_version: Option<i64>,
+    /// The newest version's session.
+    pub session: Option<String>,
+    /// The newest version's pose-graph vertices.
+    pub nodes: i64,
+    /// … edges,
+    pub edges: i64,
+    /// … keyframes,
+    pub keyframes: i64,
+    /// … local maps …
+    pub local_maps: i64,
+    /// … and mapped area (m²).
+    pub mapped_area_m2: f64,
+    /// Size of the store's files on disk now (bytes).
     pub bytes: u64,
 }
 
@@ -152,7 +167,7 @@ impl Store {
             .connection
             .prepare(
                 "SELECT version, parent, session, created_unix_s, nodes, edges, keyframes,
-                        local_maps, mapped_area_m2
+                        local_maps, mapped_area_m2, bytes
                  FROM versions ORDER BY version",
             )
             .map_err(classify)?;
@@ -162,12 +177,13 @@ impl Store {
                     version: row.get(0)?,
                     parent: row.get(1)?,
                     session: row.get(2)?,
-                    created_unix_s: row.get(3)?,
+                    created: row.get(3)?,
                     nodes: row.get(4)?,
                     edges: row.get(5)?,
                     keyframes: row.get(6)?,
                     local_maps: row.get(7)?,
                     mapped_area_m2: row.get(8)?,
+                    bytes: row.get(9)?,
                 })
             })
             .map_err(classify)?;
@@ -186,16 +202,23 @@ impl Store {
             })
             .map(|m| m.len())
             .sum();
+        let newest = versions.last();
         Ok(StoreInfo {
             schema_version: SCHEMA_VERSION,
             versions: versions.len(),
-            newest: versions.last().cloned(),
+            newest_version: newest.map(|v| v.version),
+            session: newest.map(|v| v.session.clone()),
+            nodes: newest.map_or(0, |v| v.nodes),
+            edges: newest.map_or(0, |v| v.edges),
+            keyframes: newest.map_or(0, |v| v.keyframes),
+            local_maps: newest.map_or(0, |v| v.local_maps),
+            mapped_area_m2: newest.map_or(0.0, |v| v.mapped_area_m2),
             bytes,
         })
     }
 
     /// Commits a new version continuing the newest, with the session's counts (its
-    /// `version`, `parent` and `created_unix_s` are assigned here). Returns its number.
+    /// `version`, `parent`, `created` and `bytes` are assigned here). Returns its number.
     pub fn commit_version(&mut self, counts: &VersionInfo) -> Result<i64, StoreError> {
         let path = self.path.clone();
         let classify = |e: rusqlite::Error| classify(&path, e);
@@ -215,8 +238,8 @@ impl Store {
         transaction
             .execute(
                 "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
-                                       keyframes, local_maps, mapped_area_m2)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                                       keyframes, local_maps, mapped_area_m2, bytes)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, 0)",
                 rusqlite::params![
                     version,
                     parent,
@@ -228,6 +251,20 @@ impl Store {
                     counts.local_maps,
                     counts.mapped_area_m2
                 ],
+            )
+            .map_err(classify)?;
+        // The database's size with this version in it (pages × page size).
+        let bytes: i64 = transaction
+            .query_row(
+                "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size",
+                [],
+                |row| row.get(0),
+            )
+            .map_err(classify)?;
+        transaction
+            .execute(
+                "UPDATE versions SET bytes = ?1 WHERE version = ?2",
+                [bytes, version],
             )
             .map_err(classify)?;
         transaction.commit().map_err(classify)?;

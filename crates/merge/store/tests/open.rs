@@ -8,12 +8,13 @@ fn counts(session: &str, nodes: i64) -> VersionInfo {
         version: 0,
         parent: None,
         session: session.into(),
-        created_unix_s: 0,
+        created: 0,
         nodes,
         edges: 2 * nodes,
         keyframes: nodes / 2,
         local_maps: nodes / 4,
         mapped_area_m2: 120.5,
+        bytes: 0,
     }
 }
 
