@@ -120,6 +120,12 @@ impl Store {
                 reason: format!("application id {application_id:#x}, {tables} schema objects"),
             });
         }
+        if schema_version < 0 {
+            return Err(StoreError::Corrupt {
+                path: path.to_path_buf(),
+                reason: format!("schema version {schema_version}"),
+            });
+        }
         if schema_version > SCHEMA_VERSION {
             return Err(StoreError::NewerSchema {
                 path: path.to_path_buf(),

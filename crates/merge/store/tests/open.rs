@@ -92,6 +92,20 @@ fn a_newer_schema_is_refused_and_left_untouched() {
 }
 
 #[test]
+fn a_negative_schema_version_is_corruption_and_left_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    drop(Store::open(&path).unwrap());
+    rusqlite_connection(&path)
+        .pragma_update(None, "user_version", -3)
+        .unwrap();
+    let before = bytes(&path);
+    let error = Store::open(&path).unwrap_err();
+    assert!(matches!(error, StoreError::Corrupt { .. }), "{error}");
+    assert_eq!(bytes(&path), before);
+}
+
+#[test]
 fn files_that_are_not_stores_are_refused_and_left_untouched() {
     let dir = tempfile::tempdir().unwrap();
     // Text.
