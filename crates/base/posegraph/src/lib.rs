@@ -21,9 +21,11 @@
 
 mod graph;
 mod ids;
+mod simplify;
 
 pub use graph::{
     Edge, EdgeKind, GraphError, PoseGraph, PoseGraph2, PoseGraph3, ReanchorRecord, RemovedVertex,
     UnionRecord, Vertex,
 };
 pub use ids::{EdgeId, NodeId, RobotId, SessionId, VertexMeta};
+pub use simplify::edge_information_ln_det;
