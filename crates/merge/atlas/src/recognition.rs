@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_place::{
-    FreeSpace, GeometricVerifier, Keyframe, PlaceParams, PlaceVerifierParams, ScanMatchVerifier,
+    GeometricVerifier, Keyframe, PlaceParams, PlaceVerifierParams, ScanMatchVerifier,
 };
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{transform_points, voxel_downsample, Point2};
@@ -185,13 +185,10 @@ pub(crate) fn local_map_keyframes(
         if params.local_map_m > 0.0 {
             points = voxel_downsample(&points, params.voxel_m);
         }
-        let mut keyframe = Keyframe::new(node.0, points);
-        if keep_rays {
-            if let Ok(free) = FreeSpace::from_rays(params.free_space_m, rays) {
-                keyframe = keyframe.with_free_space(free);
-            }
-        }
-        keyframes.insert(*node, keyframe);
+        keyframes.insert(
+            *node,
+            Keyframe::new(node.0, points).with_rays(params.free_space_m, rays),
+        );
     }
     keyframes
 }

@@ -72,37 +72,34 @@ fn bytes(path: &std::path::Path) -> Vec<u8> {
     std::fs::read(path).unwrap()
 }
 
-#[test]
-fn a_newer_schema_is_refused_and_left_untouched() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("site.mapmerge");
-    drop(Store::open(&path).unwrap());
-    {
-        let raw = rusqlite_connection(&path);
-        raw.pragma_update(None, "user_version", SCHEMA_VERSION + 1)
-            .unwrap();
-    }
-    let before = bytes(&path);
-    let error = Store::open(&path).unwrap_err();
-    assert!(
-        matches!(error, StoreError::NewerSchema { found, .. } if found == SCHEMA_VERSION + 1),
-        "{error}"
-    );
-    assert_eq!(bytes(&path), before);
-}
-
-#[test]
-fn a_negative_schema_version_is_corruption_and_left_untouched() {
+/// The error of opening a store whose schema version was set to `version`; the file is
+/// checked to be byte for byte what it was.
+fn refused_with_schema_version(version: i64) -> StoreError {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("site.mapmerge");
     drop(Store::open(&path).unwrap());
     rusqlite_connection(&path)
-        .pragma_update(None, "user_version", -3)
+        .pragma_update(None, "user_version", version)
         .unwrap();
     let before = bytes(&path);
     let error = Store::open(&path).unwrap_err();
-    assert!(matches!(error, StoreError::Corrupt { .. }), "{error}");
     assert_eq!(bytes(&path), before);
+    error
+}
+
+#[test]
+fn a_newer_schema_is_refused_and_left_untouched() {
+    let error = refused_with_schema_version(SCHEMA_VERSION + 1);
+    assert!(
+        matches!(error, StoreError::NewerSchema { found, .. } if found == SCHEMA_VERSION + 1),
+        "{error}"
+    );
+}
+
+#[test]
+fn a_negative_schema_version_is_corruption_and_left_untouched() {
+    let error = refused_with_schema_version(-3);
+    assert!(matches!(error, StoreError::Corrupt { .. }), "{error}");
 }
 
 #[test]

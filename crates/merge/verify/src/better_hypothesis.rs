@@ -14,7 +14,6 @@
 //! confidence (the gap to the best rival place), so look-alike rooms give no evidence.
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
-use mapmerge_grid::FreeSpace;
 use mapmerge_place::{
     verify_candidates, DescriptorExtractor, Keyframe, KeyframeId, PlaceCandidate, PlaceIndex,
     PlaceParams, PlaceSignature, PlaceVerifierParams, ScanMatchVerifier, SignatureExtractor,
@@ -177,11 +176,8 @@ fn local_map(scans: &[DetectorScan], i: usize, params: &BetterHypothesisParams) 
             );
         }
     }
-    let keyframe = Keyframe::new(i as u64, voxel_downsample(&points, params.voxel_m));
-    match keep_rays.then(|| FreeSpace::from_rays(params.free_space_m, rays)) {
-        Some(Ok(free)) => keyframe.with_free_space(free),
-        _ => keyframe,
-    }
+    Keyframe::new(i as u64, voxel_downsample(&points, params.voxel_m))
+        .with_rays(params.free_space_m, rays)
 }
 
 impl BetterHypothesisDetector {

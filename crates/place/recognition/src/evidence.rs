@@ -355,16 +355,18 @@ pub fn evidence(
             |points: &[Point2], distances_m: &mut dyn Iterator<Item = f64>, free: &FreeSpace| {
                 let mut t = Tally::default();
                 for (p, d) in points.iter().zip(distances_m) {
-                    let is_free = d > params.inlier_m && free.is_free(p);
+                    // Near a return the other map knows the space; beyond the clearance only
+                    // its free space does (and then the point disagrees).
                     if d <= params.inlier_m {
                         t.agree += 1;
-                    } else if d > params.violation_clearance_m && is_free {
+                    } else if d > params.violation_clearance_m {
+                        if !free.is_free(p) {
+                            continue;
+                        }
                         t.disagree += 1;
                     }
-                    if d <= params.violation_clearance_m || is_free {
-                        t.known += 1;
-                        t.distance_sum_m += d.min(params.distance_cap_m);
-                    }
+                    t.known += 1;
+                    t.distance_sum_m += d.min(params.distance_cap_m);
                 }
                 t
             };

@@ -50,4 +50,21 @@ impl Keyframe {
         self.free_space = Some(Arc::new(free_space));
         self
     }
+
+    /// The same keyframe with the free space that `rays` (sensor origin, return; keyframe
+    /// frame) crossed, at `resolution_m`. Unchanged when `resolution_m` is not positive or
+    /// the rays make no free space (verification then approximates it from the origin).
+    pub fn with_rays(
+        self,
+        resolution_m: f64,
+        rays: impl IntoIterator<Item = (Point2, Point2)>,
+    ) -> Self {
+        if resolution_m.is_nan() || resolution_m <= 0.0 {
+            return self;
+        }
+        match FreeSpace::from_rays(resolution_m, rays) {
+            Ok(free) => self.with_free_space(free),
+            Err(_) => self,
+        }
+    }
 }

@@ -39,7 +39,6 @@ use std::path::Path;
 use std::time::Instant;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
-use mapmerge_place::FreeSpace;
 use mapmerge_place::{
     verify_candidates_by, DescriptorExtractor, Evidence, EvidenceParams, GeometricVerifier,
     Keyframe, KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature,
@@ -319,13 +318,7 @@ fn local_map(
         }
         points = voxel_downsample(&points, config.local_map_voxel_m);
     }
-    let keyframe = Keyframe::new(id, points);
-    if config.free_space_m > 0.0 {
-        if let Ok(free) = FreeSpace::from_rays(config.free_space_m, rays) {
-            return keyframe.with_free_space(free);
-        }
-    }
-    keyframe
+    Keyframe::new(id, points).with_rays(config.free_space_m, rays)
 }
 
 /// Field of view of a scan (rad): the span of its beams plus one beam.
