@@ -98,9 +98,9 @@ pub struct Atlas<B: BackupStore = MemoryBackups> {
     /// of the local trajectory).
     pub(crate) map_from_local: Se2,
     pub(crate) constraints: ConstraintBuilder,
-    next_node: u64,
-    next_epoch: u32,
-    next_map: u32,
+    pub(crate) next_node: u64,
+    pub(crate) next_epoch: u32,
+    pub(crate) next_map: u32,
     pub(crate) next_merge: u64,
     pub(crate) events: Vec<AtlasEvent>,
 }

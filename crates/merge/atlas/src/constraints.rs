@@ -23,7 +23,7 @@ use mapmerge_place::{
     verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe, KeyframeId,
     PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, SignatureExtractor, Verification,
 };
-use mapmerge_posegraph::{Edge, EdgeKind, NodeId};
+use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
 use mapmerge_slam::{edge_information, RefineFirst, Submap, TrackerParams};
 use mapmerge_solve::{chi2_quantile_99, OptimizerParams, RobustKernel};
@@ -33,6 +33,7 @@ use serde::{Deserialize, Serialize};
 use crate::atlas::Atlas;
 use crate::backup::BackupStore;
 use crate::error::AtlasError;
+use crate::ids::MapId;
 use crate::merge::{information_from_covariance, LoopEdge};
 use crate::recognition::{local_map_keyframes, MergeProposal};
 
@@ -403,12 +404,30 @@ impl<B: BackupStore> Atlas<B> {
 
     /// Indexes `nodes` of the active graph not yet in the place index, with `submap`.
     fn index_nodes(&mut self, nodes: &[NodeId], submap: Option<NodeId>) {
+        self.index_nodes_of(None, nodes, submap);
+    }
+
+    /// Indexes `nodes` of the active graph (`map` none) or of an inactive graph not yet in
+    /// the place index, with `submap`.
+    pub(crate) fn index_nodes_of(
+        &mut self,
+        map: Option<MapId>,
+        nodes: &[NodeId],
+        submap: Option<NodeId>,
+    ) {
         let fresh: Vec<NodeId> = nodes
             .iter()
             .copied()
             .filter(|n| !self.constraints.is_indexed(*n) && self.keyframes.get(*n).is_some())
             .collect();
-        let descriptors = self.describe(&fresh);
+        let graph = match map {
+            None => &self.active,
+            Some(map) => match self.inactive.get(&map) {
+                Some(graph) => graph,
+                None => return,
+            },
+        };
+        let descriptors = self.describe(graph, &fresh);
         for (node, descriptor) in descriptors {
             if let Some(points) = self.keyframes.get(node).cloned() {
                 self.constraints
@@ -417,12 +436,12 @@ impl<B: BackupStore> Atlas<B> {
         }
     }
 
-    /// The place index's descriptors of `nodes` of the active graph: of each keyframe's
-    /// points, or of its local map with `index_local_maps` (see [`crate::KeyframeParams`]).
-    fn describe(&self, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
+    /// The place index's descriptors of `nodes` of `graph`: of each keyframe's points, or of
+    /// its local map with `index_local_maps` (see [`crate::KeyframeParams`]).
+    fn describe(&self, graph: &PoseGraph2, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
         let extractor = &self.constraints.extractor;
         if self.params.index_local_maps {
-            local_map_keyframes(&self.active, &self.keyframes, &self.params.keyframes, nodes)
+            local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, nodes)
                 .into_iter()
                 .map(|(node, k)| (node, extractor.describe(&k.points_in_keyframe)))
                 .collect()
@@ -618,7 +637,7 @@ impl<B: BackupStore> Atlas<B> {
     ) -> usize {
         let loops_params = self.params.loops.clone();
         self.constraints.info.place_queries += 1;
-        let Some((_, descriptor)) = self.describe(&[node]).pop() else {
+        let Some((_, descriptor)) = self.describe(&self.active, &[node]).pop() else {
             return 0;
         };
         let c = &self.constraints;
@@ -917,7 +936,7 @@ impl<B: BackupStore> Atlas<B> {
     /// The newest current-epoch keyframe as a place-recognition query.
     fn newest_query(&self) -> Option<PlaceQuery> {
         let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
-        let (_, descriptor) = self.describe(&[node]).pop()?;
+        let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
         let local_maps = local_map_keyframes(
             &self.active,
             &self.keyframes,

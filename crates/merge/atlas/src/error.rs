@@ -58,6 +58,9 @@ pub enum AtlasError {
         /// Its epoch.
         epoch: EpochId,
     },
+    /// A snapshot to restore is inconsistent.
+    #[error("inconsistent atlas snapshot: {0}")]
+    BadSnapshot(String),
     /// A backup is missing from the store.
     #[error("no backup of {0}")]
     MissingBackup(MergeId),

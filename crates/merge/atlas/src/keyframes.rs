@@ -8,7 +8,7 @@ use mapmerge_posegraph::NodeId;
 use mapmerge_scan::Point2;
 
 /// One keyframe's data besides its vertex.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct KeyframeRecord {
     /// Points in the vertex's robot frame, shared (`Arc`) with whoever reads them.
     pub points_in_robot: Arc<[Point2]>,
@@ -65,6 +65,11 @@ impl KeyframeStore {
     /// Every keyframe's points in id order.
     pub fn iter(&self) -> impl Iterator<Item = (NodeId, &Arc<[Point2]>)> + '_ {
         self.keyframes.iter().map(|(k, v)| (*k, &v.points_in_robot))
+    }
+
+    /// Every keyframe's record in id order.
+    pub fn records(&self) -> impl Iterator<Item = (NodeId, &KeyframeRecord)> + '_ {
+        self.keyframes.iter().map(|(k, v)| (*k, v))
     }
 
     pub(crate) fn insert(&mut self, node: NodeId, record: KeyframeRecord) {

@@ -130,8 +130,10 @@ fn scenario() -> impl Strategy<Value = Scenario> {
         })
 }
 
-/// Runs a scenario and checks every invariant; returns the atlas for further checks.
-fn run<B: BackupStore>(s: &Scenario, backups: B) -> Atlas<B> {
+/// Runs a scenario and checks every invariant; returns the atlas for further checks. With
+/// `restore_into`, the atlas is snapshotted just before the undo and continues as the atlas
+/// restored from that snapshot into those backups (the undo must not notice).
+fn run<B: BackupStore>(s: &Scenario, backups: B, restore_into: Option<B>) -> Atlas<B> {
     let mut atlas = Atlas::with_backups(AtlasParams::default(), backups).unwrap();
     for (i, path) in s.old.iter().enumerate() {
         add_path(&mut atlas, path, Se2::new(i as f64, 0.0, 0.0));
@@ -260,6 +262,14 @@ fn run<B: BackupStore>(s: &Scenario, backups: B) -> Atlas<B> {
     );
     assert!(atlas.can_prune(atlas.robot_node().unwrap()));
 
+    if let Some(fresh) = restore_into {
+        let snapshot = atlas.snapshot().unwrap();
+        let restored = Atlas::restore(AtlasParams::default(), fresh, snapshot.clone()).unwrap();
+        assert_eq!(restored.snapshot().unwrap(), snapshot);
+        assert_eq!(restored.backups().stored(), atlas.backups().stored());
+        atlas = restored;
+    }
+
     // The current epoch as it is before the undo.
     let current_vertices: BTreeSet<NodeId> = atlas
         .active()
@@ -322,7 +332,7 @@ proptest! {
 
     #[test]
     fn undo_restores_inactive_graphs_exactly_and_keeps_the_current_epoch(s in scenario()) {
-        let atlas = run(&s, mapmerge_atlas::MemoryBackups::default());
+        let atlas = run(&s, mapmerge_atlas::MemoryBackups::default(), None);
 
         // The event log round-trips through JSON lines.
         let mut writer = EventLogWriter::new(Vec::new());
@@ -332,6 +342,39 @@ proptest! {
         let bytes = writer.into_inner();
         let back = read_events(bytes.as_slice()).unwrap();
         prop_assert_eq!(back.as_slice(), atlas.events());
+    }
+
+    #[test]
+    fn an_atlas_restored_from_its_snapshot_undoes_merges_exactly(s in scenario()) {
+        let fresh = mapmerge_atlas::MemoryBackups::default();
+        run(&s, mapmerge_atlas::MemoryBackups::default(), Some(fresh));
+    }
+}
+
+#[test]
+fn inconsistent_snapshots_are_refused() {
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    add_path(&mut atlas, &[(1.0, 0.0, 0.0); 4], Se2::identity());
+    let good = atlas.snapshot().unwrap();
+    let restore = |snapshot| {
+        Atlas::restore(AtlasParams::default(), mapmerge_atlas::MemoryBackups::default(), snapshot)
+    };
+    assert!(restore(good.clone()).is_ok());
+    let mut no_keyframe = good.clone();
+    no_keyframe.keyframes.pop_first();
+    let mut stale_counter = good.clone();
+    stale_counter.counters.next_node = 2;
+    let mut lost_robot = good.clone();
+    lost_robot.counters.robot = Some(NodeId(99));
+    let mut no_backup = good;
+    no_backup.counters.merges.push(mapmerge_atlas::AppliedMerge {
+        merge: mapmerge_atlas::MergeId(0),
+        map: MapId(0),
+        active_from_inactive: [0.0; 3],
+    });
+    no_backup.counters.next_merge = 1;
+    for bad in [no_keyframe, stale_counter, lost_robot, no_backup] {
+        assert!(matches!(restore(bad), Err(AtlasError::BadSnapshot(_))));
     }
 }
 
@@ -352,7 +395,15 @@ fn disk_backups_restore_exactly_too() {
         ],
         after: vec![(0.4, 0.0, 0.05); 7],
     };
-    let atlas = run(&scenario, DiskBackups::new(&dir).unwrap());
+    let atlas = run(&scenario, DiskBackups::new(&dir).unwrap(), None);
+    assert!(atlas.backups().stored().is_empty());
+    // Restored from a snapshot into another folder, mid-merge.
+    let restored_dir = dir.join("restored");
+    let atlas = run(
+        &scenario,
+        DiskBackups::new(dir.join("first")).unwrap(),
+        Some(DiskBackups::new(&restored_dir).unwrap()),
+    );
     assert!(atlas.backups().stored().is_empty());
     let _ = std::fs::remove_dir_all(&dir);
 }

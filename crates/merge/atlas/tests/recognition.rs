@@ -142,9 +142,20 @@ fn recognition_without_free_space_merges_as_well() {
     merges_onto_the_true_transform(params);
 }
 
+#[test]
+fn an_atlas_restored_between_epochs_recognises_the_place_as_well() {
+    merges_onto_the_true_transform_after(AtlasParams::default(), true);
+}
+
 fn merges_onto_the_true_transform(params: AtlasParams) {
+    merges_onto_the_true_transform_after(params, false);
+}
+
+/// With `restore`, the atlas is snapshotted after epoch 0 and continues restored (a new run
+/// of the lifelong store): its place index is rebuilt from the keyframes.
+fn merges_onto_the_true_transform_after(params: AtlasParams, restore: bool) {
     let world = world();
-    let mut atlas = Atlas::new(params).unwrap();
+    let mut atlas = Atlas::new(params.clone()).unwrap();
     // Epoch 0 tours the room in the world frame.
     add_epoch(
         &mut atlas,
@@ -160,6 +171,10 @@ fn merges_onto_the_true_transform(params: AtlasParams) {
         &Se2::identity(),
     );
     atlas.end_epoch(EpochEndReason::Kidnap);
+    if restore {
+        let snapshot = atlas.snapshot().unwrap();
+        atlas = Atlas::restore(params, Default::default(), snapshot).unwrap();
+    }
     let before = atlas.inactive(MapId(0)).unwrap().clone();
     // Epoch 1 starts somewhere else, its frame unknown, and drives back through the room.
     let start = Se2::new(1.0, 8.0, -1.2);
