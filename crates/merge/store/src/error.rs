@@ -45,6 +45,30 @@ pub enum StoreError {
         /// The version asked for.
         version: i64,
     },
+    /// A version whose atlas is no longer kept (only its row in `versions` is).
+    #[error("{path}: version {version} is no longer retained (only its summary is kept)")]
+    NotRetained {
+        /// The store.
+        path: PathBuf,
+        /// The version asked for.
+        version: i64,
+    },
+    /// A retained version has no atlas (it was written by schema 1, which stored none).
+    #[error("{path}: version {version} holds no atlas")]
+    NoAtlas {
+        /// The store.
+        path: PathBuf,
+        /// The version.
+        version: i64,
+    },
+    /// An atlas to commit is inconsistent; nothing was written.
+    #[error("{path}: refusing to commit an inconsistent atlas: {reason}")]
+    BadAtlas {
+        /// The store.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// Any other SQLite failure.
     #[error("{path}: {source}")]
     Sqlite {

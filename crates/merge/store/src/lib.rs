@@ -1,15 +1,18 @@
 //! The lifelong store (issue 17; iRobot, Sec. 4 and 5.4): one SQLite file per site, opened by
-//! one process at a time, holding map versions. This is its foundation: the file, its schema
-//! version and migrations, the lock, the integrity check and the version list. The atlas's
-//! state is not stored yet.
+//! one process at a time, holding map versions. Each committed session is a version: the
+//! atlas's counters, graphs, keyframes and backups (rows shared by the versions they are valid
+//! in), its events and a summary ([`Store::commit_session`], [`Store::load`]). A version can
+//! be rolled back to; the newest [`Store::keep_versions`] keep their atlas.
 //!
 //! Opening never modifies a store it refuses: a store from a newer schema, a corrupt file or a
 //! store locked by another process is an error before anything is written.
 
+mod atlas_rows;
 mod error;
 mod schema;
 mod store;
 
 pub use error::StoreError;
 pub use schema::SCHEMA_VERSION;
-pub use store::{Store, StoreInfo, VersionInfo};
+pub use atlas_rows::{mapped_area_m2, SessionCommit, StoredAtlas};
+pub use store::{Store, StoreInfo, VersionInfo, DEFAULT_KEEP_VERSIONS};

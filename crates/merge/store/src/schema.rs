@@ -12,7 +12,7 @@ pub const APPLICATION_ID: i64 = 0x6d6d_7267;
 pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
 
 /// The migrations, oldest first (see the module documentation).
-pub(crate) const MIGRATIONS: [&str; 1] = [
+pub(crate) const MIGRATIONS: [&str; 2] = [
     // 0 → 1: map versions, one per committed session.
     "CREATE TABLE versions (
          version INTEGER PRIMARY KEY,
@@ -26,4 +26,57 @@ pub(crate) const MIGRATIONS: [&str; 1] = [
          mapped_area_m2 REAL NOT NULL,
          bytes INTEGER NOT NULL
      ) STRICT;",
+    // 1 → 2: the atlas itself. Every blob has the CRC-32 of its bytes beside it. Rows of graphs, keyframes and backups are shared by the
+    // versions they are valid in: version v sees a row when
+    // added_version <= v < removed_version (no removed_version: still valid).
+    "ALTER TABLE versions ADD COLUMN retained INTEGER NOT NULL DEFAULT 1;
+     CREATE TABLE atlas_state (
+         version INTEGER PRIMARY KEY REFERENCES versions(version),
+         counters BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE TABLE graphs (
+         id INTEGER PRIMARY KEY,
+         slot INTEGER NOT NULL,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         body BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE INDEX graphs_by_validity ON graphs(removed_version, added_version);
+     CREATE TABLE keyframes (
+         node INTEGER PRIMARY KEY,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         travel_m REAL NOT NULL,
+         local_x_m REAL NOT NULL,
+         local_y_m REAL NOT NULL,
+         local_yaw_rad REAL NOT NULL,
+         submap INTEGER,
+         reference_x_m REAL,
+         reference_y_m REAL,
+         reference_yaw_rad REAL,
+         points BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE INDEX keyframes_by_validity ON keyframes(removed_version, added_version);
+     CREATE TABLE backups (
+         merge INTEGER PRIMARY KEY,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         body BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE TABLE events (
+         seq INTEGER PRIMARY KEY,
+         version INTEGER NOT NULL REFERENCES versions(version),
+         body TEXT NOT NULL
+     ) STRICT;
+     CREATE INDEX events_by_version ON events(version);",
 ];
+
+/// The slot of the active graph in `graphs` (an inactive graph's slot is its map id).
+pub(crate) const ACTIVE_SLOT: i64 = -1;
+
+/// The tables whose rows carry `added_version` and `removed_version`.
+pub(crate) const VERSIONED_TABLES: [&str; 3] = ["graphs", "keyframes", "backups"];

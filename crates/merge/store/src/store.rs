@@ -1,13 +1,12 @@
 //! Opening a store, its lock, its check and its versions.
 
 use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
 
 use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
 use crate::error::StoreError;
-use crate::schema::{APPLICATION_ID, MIGRATIONS, SCHEMA_VERSION};
+use crate::schema::{APPLICATION_ID, MIGRATIONS, SCHEMA_VERSION, VERSIONED_TABLES};
 
 /// One map version (a committed session), as `mapmerge store versions --json` prints it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -32,6 +31,9 @@ pub struct VersionInfo {
     pub mapped_area_m2: f64,
     /// Size of the store's database with this version committed (bytes).
     pub bytes: i64,
+    /// Whether its atlas is still stored (older versions keep only this row; see
+    /// [`Store::keep_versions`]).
+    pub retained: bool,
 }
 
 /// What `mapmerge store info --json` prints about a store: its schema, how many versions it
@@ -60,10 +62,14 @@ pub struct StoreInfo {
     pub bytes: u64,
 }
 
+/// Versions whose atlas a store keeps by default (older ones keep their row in `versions`).
+pub const DEFAULT_KEEP_VERSIONS: usize = 10;
+
 /// An open store, held by this process until dropped.
 pub struct Store {
-    path: PathBuf,
-    connection: Connection,
+    pub(crate) path: PathBuf,
+    pub(crate) connection: Connection,
+    pub(crate) keep_versions: usize,
 }
 
 impl std::fmt::Debug for Store {
@@ -155,9 +161,13 @@ impl Store {
             .pragma_update(None, "user_version", SCHEMA_VERSION)
             .map_err(classify)?;
         transaction.commit().map_err(classify)?;
+        connection
+            .pragma_update(None, "synchronous", "FULL")
+            .map_err(classify)?;
         Ok(Self {
             path: path.to_path_buf(),
             connection,
+            keep_versions: DEFAULT_KEEP_VERSIONS,
         })
     }
 
@@ -173,7 +183,7 @@ impl Store {
             .connection
             .prepare(
                 "SELECT version, parent, session, created_unix_s, nodes, edges, keyframes,
-                        local_maps, mapped_area_m2, bytes
+                        local_maps, mapped_area_m2, bytes, retained
                  FROM versions ORDER BY version",
             )
             .map_err(classify)?;
@@ -190,6 +200,7 @@ impl Store {
                     local_maps: row.get(7)?,
                     mapped_area_m2: row.get(8)?,
                     bytes: row.get(9)?,
+                    retained: row.get(10)?,
                 })
             })
             .map_err(classify)?;
@@ -223,62 +234,16 @@ impl Store {
         })
     }
 
-    /// Commits a new version continuing the newest, with the session's counts (its
-    /// `version`, `parent`, `created` and `bytes` are assigned here). Returns its number.
-    pub fn commit_version(&mut self, counts: &VersionInfo) -> Result<i64, StoreError> {
-        let path = self.path.clone();
-        let classify = |e: rusqlite::Error| classify(&path, e);
-        let created_unix_s = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
-        let transaction = self
-            .connection
-            .transaction_with_behavior(TransactionBehavior::Immediate)
-            .map_err(classify)?;
-        let parent: Option<i64> = transaction
-            .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
-            .optional()
-            .map_err(classify)?
-            .flatten();
-        let version = parent.unwrap_or(0) + 1;
-        transaction
-            .execute(
-                "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
-                                       keyframes, local_maps, mapped_area_m2, bytes)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, 0)",
-                rusqlite::params![
-                    version,
-                    parent,
-                    counts.session,
-                    created_unix_s,
-                    counts.nodes,
-                    counts.edges,
-                    counts.keyframes,
-                    counts.local_maps,
-                    counts.mapped_area_m2
-                ],
-            )
-            .map_err(classify)?;
-        // The database's size with this version in it (pages × page size).
-        let bytes: i64 = transaction
-            .query_row(
-                "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size",
-                [],
-                |row| row.get(0),
-            )
-            .map_err(classify)?;
-        transaction
-            .execute(
-                "UPDATE versions SET bytes = ?1 WHERE version = ?2",
-                [bytes, version],
-            )
-            .map_err(classify)?;
-        transaction.commit().map_err(classify)?;
-        Ok(version)
+    /// How many of the newest versions keep their atlas (at least 1). A commit forgets the
+    /// atlas of older versions: their rows in `versions` stay, rows no retained version sees
+    /// are deleted, and their events go with them. Default [`DEFAULT_KEEP_VERSIONS`].
+    pub fn keep_versions(&mut self, keep: usize) {
+        self.keep_versions = keep.max(1);
     }
 
-    /// Deletes every version after `version` (iRobot deletes bad versions); `version` must
-    /// exist. Returns how many were deleted.
+    /// Deletes every version after `version` (iRobot deletes bad versions) with the rows and
+    /// events they added, and makes valid again what they removed. `version` must be stored
+    /// and retained. Returns how many versions were deleted.
     pub fn rollback_to(&mut self, version: i64) -> Result<usize, StoreError> {
         let path = self.path.clone();
         let classify = |e: rusqlite::Error| classify(&path, e);
@@ -286,29 +251,66 @@ impl Store {
             .connection
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .map_err(classify)?;
-        let exists: bool = transaction
+        let retained: Option<bool> = transaction
             .query_row(
-                "SELECT EXISTS (SELECT 1 FROM versions WHERE version = ?1)",
+                "SELECT retained FROM versions WHERE version = ?1",
                 [version],
                 |row| row.get(0),
             )
+            .optional()
             .map_err(classify)?;
-        if !exists {
-            return Err(StoreError::NoSuchVersion {
-                path: path.clone(),
-                version,
-            });
+        match retained {
+            None => {
+                return Err(StoreError::NoSuchVersion {
+                    path: path.clone(),
+                    version,
+                })
+            }
+            Some(false) => {
+                return Err(StoreError::NotRetained {
+                    path: path.clone(),
+                    version,
+                })
+            }
+            Some(true) => {}
+        }
+        for table in VERSIONED_TABLES {
+            transaction
+                .execute(
+                    &format!("UPDATE {table} SET removed_version = NULL WHERE removed_version > ?1"),
+                    [version],
+                )
+                .map_err(classify)?;
+            transaction
+                .execute(&format!("DELETE FROM {table} WHERE added_version > ?1"), [version])
+                .map_err(classify)?;
+        }
+        for table in ["events", "atlas_state"] {
+            transaction
+                .execute(&format!("DELETE FROM {table} WHERE version > ?1"), [version])
+                .map_err(classify)?;
         }
         // One statement: foreign keys are checked when it ends, children gone with parents.
         let deleted = transaction
             .execute("DELETE FROM versions WHERE version > ?1", [version])
             .map_err(classify)?;
         transaction.commit().map_err(classify)?;
+        self.checkpoint()?;
         Ok(deleted)
     }
 
-    /// `Ok` when the store is intact: SQLite's integrity and foreign-key checks pass and every
-    /// version's parent is the version before it.
+    /// Moves the write-ahead log into the database file and empties it, so the file alone
+    /// holds every committed version (and its size is the store's).
+    pub(crate) fn checkpoint(&self) -> Result<(), StoreError> {
+        self.connection
+            .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()))
+            .map_err(|e| classify(&self.path, e))
+    }
+
+    /// `Ok` when the store is intact: SQLite's integrity and foreign-key checks pass, every
+    /// version's parent is the version before it, every retained version has its atlas,
+    /// every stored graph, backup, keyframe and counter decodes, and the newest version's
+    /// atlas is consistent.
     pub fn check(&self) -> Result<(), StoreError> {
         let classify = |e: rusqlite::Error| classify(&self.path, e);
         let corrupt = |reason: String| StoreError::Corrupt {
@@ -332,7 +334,8 @@ impl Store {
             return Err(corrupt(format!("{dangling} rows refer to missing rows")));
         }
         let mut expected_parent = None;
-        for v in self.versions()? {
+        let versions = self.versions()?;
+        for v in &versions {
             if v.parent != expected_parent {
                 return Err(corrupt(format!(
                     "version {} continues {:?}, expected {:?}",
@@ -341,12 +344,12 @@ impl Store {
             }
             expected_parent = Some(v.version);
         }
-        Ok(())
+        self.check_rows(&versions)
     }
 }
 
 /// SQLite's error as the store's: busy is a lock, "not a database" and corruption are named.
-fn classify(path: &Path, error: rusqlite::Error) -> StoreError {
+pub(crate) fn classify(path: &Path, error: rusqlite::Error) -> StoreError {
     let path = path.to_path_buf();
     match error.sqlite_error_code() {
         Some(ErrorCode::DatabaseBusy | ErrorCode::DatabaseLocked) => StoreError::Locked { path },

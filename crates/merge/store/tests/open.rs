@@ -1,32 +1,98 @@
 //! Opening stores: created, reopened, upgraded; refused without being modified.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use mapmerge_store::{Store, StoreError, VersionInfo, SCHEMA_VERSION};
+use std::collections::BTreeMap;
+use std::sync::Arc;
 
-fn counts(session: &str, nodes: i64) -> VersionInfo {
-    VersionInfo {
-        version: 0,
-        parent: None,
-        session: session.into(),
-        created: 0,
-        nodes,
-        edges: 2 * nodes,
-        keyframes: nodes / 2,
-        local_maps: nodes / 4,
-        mapped_area_m2: 120.5,
-        bytes: 0,
+use mapmerge_atlas::{Atlas, AtlasParams, AtlasSnapshot, EpochEndReason};
+use mapmerge_geometry::Se2;
+use mapmerge_posegraph::{Edge, EdgeKind, NodeId, Vertex};
+use mapmerge_store::{SessionCommit, Store, StoreError, SCHEMA_VERSION};
+use nalgebra::{Matrix3, Vector2};
+
+/// An atlas that lives through sessions: each adds an epoch of `nodes` vertices along x
+/// (with a few points each) and ends it, and prunes the oldest vertices beyond `keep_nodes`.
+struct Robot {
+    atlas: Atlas,
+    sessions: usize,
+}
+
+impl Robot {
+    fn new() -> Self {
+        Self {
+            atlas: Atlas::new(AtlasParams::default()).unwrap(),
+            sessions: 0,
+        }
     }
+
+    /// One session; returns its snapshot and the reference pose of each new keyframe.
+    fn session(&mut self, nodes: usize, keep_nodes: usize) -> (AtlasSnapshot, BTreeMap<NodeId, Se2>) {
+        if self.sessions > 0 {
+            self.atlas.end_epoch(EpochEndReason::Restart);
+        }
+        self.sessions += 1;
+        let mut reference = BTreeMap::new();
+        let mut previous = None;
+        for k in 0..nodes {
+            let pose = Se2::new(k as f64, 0.1 * self.sessions as f64, 0.0);
+            let points: Arc<[Vector2<f64>]> = (0..5)
+                .map(|j| Vector2::new(1.0 + j as f64 * 0.3, -1.0 + 0.5 * j as f64))
+                .collect();
+            let node = self.atlas.add_vertex(Vertex::new(pose), points);
+            reference.insert(node, Se2::new(k as f64, 0.0, 0.01 * k as f64));
+            if let Some(previous) = previous {
+                self.atlas
+                    .add_edge(Edge {
+                        from: previous,
+                        to: node,
+                        measurement: Se2::new(1.0, 0.0, 0.0),
+                        information: Matrix3::identity() * 50.0,
+                        kind: EdgeKind::Odometry,
+                    })
+                    .unwrap();
+            }
+            previous = Some(node);
+        }
+        // Bounded: the oldest inactive vertices go.
+        let mut inactive: Vec<NodeId> = self
+            .atlas
+            .inactive_maps()
+            .flat_map(|(_, g)| g.vertices().map(|(n, _)| n).collect::<Vec<_>>())
+            .collect();
+        inactive.sort();
+        let total = inactive.len() + self.atlas.active().num_vertices();
+        for node in inactive.iter().take(total.saturating_sub(keep_nodes)) {
+            self.atlas.prune_vertex(*node).unwrap();
+        }
+        (self.atlas.snapshot().unwrap(), reference)
+    }
+}
+
+fn commit(store: &mut Store, name: &str, atlas: &AtlasSnapshot, reference: &BTreeMap<NodeId, Se2>) -> i64 {
+    let events = vec![format!("{{\"session\":\"{name}\"}}")];
+    store
+        .commit_session(&SessionCommit {
+            session: name,
+            atlas,
+            events: &events,
+            reference_poses: reference,
+        })
+        .unwrap()
 }
 
 #[test]
 fn a_new_store_keeps_its_versions_across_reopening_and_rolls_back() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("site.mapmerge");
+    let mut robot = Robot::new();
+    let (monday, monday_reference) = robot.session(6, 100);
+    let (tuesday, tuesday_reference) = robot.session(4, 100);
     {
         let mut store = Store::open(&path).unwrap();
         assert_eq!(store.versions().unwrap(), vec![]);
-        assert_eq!(store.commit_version(&counts("monday", 100)).unwrap(), 1);
-        assert_eq!(store.commit_version(&counts("tuesday", 120)).unwrap(), 2);
+        assert_eq!(store.load(None).unwrap(), None);
+        assert_eq!(commit(&mut store, "monday", &monday, &monday_reference), 1);
+        assert_eq!(commit(&mut store, "tuesday", &tuesday, &tuesday_reference), 2);
         store.check().unwrap();
     }
     let mut store = Store::open_existing(&path).unwrap();
@@ -34,7 +100,19 @@ fn a_new_store_keeps_its_versions_across_reopening_and_rolls_back() {
     assert_eq!(versions.len(), 2);
     assert_eq!(versions[1].parent, Some(1));
     assert_eq!(versions[1].session, "tuesday");
-    assert_eq!(versions[1].edges, 240);
+    assert_eq!(versions[1].nodes, 10);
+    assert_eq!(versions[1].edges, 8);
+    assert_eq!(versions[1].keyframes, 10);
+    assert!(versions[1].mapped_area_m2 > versions[0].mapped_area_m2);
+    // Each version's atlas comes back exactly, with the reference poses of its keyframes.
+    let newest = store.load(None).unwrap().unwrap();
+    assert_eq!(newest.version, 2);
+    assert_eq!(newest.atlas, tuesday);
+    let mut both = monday_reference.clone();
+    both.extend(tuesday_reference);
+    assert_eq!(newest.reference_poses, both);
+    assert_eq!(store.load(Some(1)).unwrap().unwrap().atlas, monday);
+    assert_eq!(store.events(None).unwrap().len(), 2);
     let info = store.info().unwrap();
     assert_eq!(info.schema_version, SCHEMA_VERSION);
     assert_eq!(info.versions, 2);
@@ -45,8 +123,73 @@ fn a_new_store_keeps_its_versions_across_reopening_and_rolls_back() {
     ));
     assert_eq!(store.rollback_to(1).unwrap(), 1);
     assert_eq!(store.versions().unwrap().len(), 1);
-    assert_eq!(store.commit_version(&counts("wednesday", 90)).unwrap(), 2);
+    assert_eq!(store.load(None).unwrap().unwrap().atlas, monday);
+    assert_eq!(store.events(None).unwrap().len(), 1);
     store.check().unwrap();
+    // The robot continues from Monday's map.
+    let mut robot = Robot {
+        atlas: Atlas::restore(AtlasParams::default(), Default::default(), monday).unwrap(),
+        sessions: 1,
+    };
+    let (wednesday, reference) = robot.session(3, 100);
+    assert_eq!(commit(&mut store, "wednesday", &wednesday, &reference), 2);
+    assert_eq!(store.load(None).unwrap().unwrap().atlas, wednesday);
+    store.check().unwrap();
+}
+
+#[test]
+fn old_versions_forget_their_atlas_and_the_store_stays_bounded() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    let mut store = Store::open(&path).unwrap();
+    store.keep_versions(3);
+    let mut robot = Robot::new();
+    let mut snapshots = Vec::new();
+    let mut sizes = Vec::new();
+    for k in 0..30 {
+        let (atlas, reference) = robot.session(8, 20);
+        commit(&mut store, &format!("session {k}"), &atlas, &reference);
+        snapshots.push(atlas);
+        sizes.push(store.info().unwrap().bytes);
+    }
+    let versions = store.versions().unwrap();
+    assert_eq!(versions.len(), 30);
+    assert_eq!(versions.iter().filter(|v| v.retained).count(), 3);
+    assert!(matches!(
+        store.load(Some(5)),
+        Err(StoreError::NotRetained { version: 5, .. })
+    ));
+    assert!(matches!(
+        store.rollback_to(5),
+        Err(StoreError::NotRetained { version: 5, .. })
+    ));
+    for version in 28..=30 {
+        let stored = store.load(Some(version)).unwrap().unwrap();
+        assert_eq!(stored.atlas, snapshots[version as usize - 1]);
+    }
+    assert_eq!(store.events(None).unwrap().len(), 3);
+    store.check().unwrap();
+    // The map is bounded (20 vertices), so is the file: the last ten sessions add nothing.
+    assert_eq!(sizes[29], sizes[19], "{sizes:?}");
+}
+
+#[test]
+fn an_inconsistent_atlas_is_refused_and_nothing_is_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    let mut store = Store::open(&path).unwrap();
+    let (mut atlas, reference) = Robot::new().session(3, 10);
+    atlas.keyframes.pop_first();
+    let error = store
+        .commit_session(&SessionCommit {
+            session: "bad",
+            atlas: &atlas,
+            events: &[],
+            reference_poses: &reference,
+        })
+        .unwrap_err();
+    assert!(matches!(error, StoreError::BadAtlas { .. }), "{error}");
+    assert!(store.versions().unwrap().is_empty());
 }
 
 #[test]
@@ -129,33 +272,68 @@ fn files_that_are_not_stores_are_refused_and_left_untouched() {
     assert_eq!(bytes(&other), before);
 }
 
-#[test]
-fn a_damaged_store_is_an_error_not_a_panic() {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("site.mapmerge");
+/// A store of 20 sessions, its file's bytes.
+fn stored_sessions(path: &std::path::Path) -> Vec<u8> {
     {
-        let mut store = Store::open(&path).unwrap();
-        for k in 0..50 {
-            store
-                .commit_version(&counts(&format!("session {k}"), k))
-                .unwrap();
+        let mut store = Store::open(path).unwrap();
+        let mut robot = Robot::new();
+        for k in 0..20 {
+            let (atlas, reference) = robot.session(10, 1000);
+            commit(&mut store, &format!("session {k}"), &atlas, &reference);
         }
     }
-    // Overwrite the middle of the file (the tables' pages) with garbage.
-    let mut data = bytes(&path);
-    assert!(data.len() > 4096, "{}", data.len());
-    for b in data.iter_mut().skip(4096 + 100).take(2000) {
-        *b = 0xA5;
-    }
-    std::fs::write(&path, &data).unwrap();
-    let opened = Store::open_existing(&path);
-    match opened {
+    bytes(path)
+}
+
+/// Opening and checking a damaged store fails with an error, never a panic.
+fn refused_as_damaged(path: &std::path::Path) {
+    match Store::open_existing(path) {
         Err(e) => assert!(
             matches!(e, StoreError::Corrupt { .. } | StoreError::NotAStore { .. }),
             "{e}"
         ),
-        Ok(store) => assert!(store.check().is_err() || store.versions().is_err()),
+        Ok(store) => {
+            let error = store.check().unwrap_err();
+            assert!(matches!(error, StoreError::Corrupt { .. }), "{error}");
+        }
     }
+}
+
+#[test]
+fn a_damaged_store_is_an_error_not_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    let mut data = stored_sessions(&path);
+    // Garbage over every page but the header's.
+    assert!(data.len() > 3 * 4096, "{}", data.len());
+    let end = data.len() - 100;
+    for b in data.iter_mut().take(end).skip(4096 + 100) {
+        *b = 0xA5;
+    }
+    std::fs::write(&path, &data).unwrap();
+    refused_as_damaged(&path);
+}
+
+#[test]
+fn one_flipped_bit_in_a_keyframe_is_found_by_the_check() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    let mut data = stored_sessions(&path);
+    // Every stored x = 1.6 (1.0 + 2 × 0.3, a keyframe point) as little-endian f64, live or
+    // in a freed page, gets its lowest bit flipped.
+    let needle = 1.6f64.to_le_bytes();
+    let at: Vec<usize> = data
+        .windows(needle.len())
+        .enumerate()
+        .filter(|(_, w)| *w == needle)
+        .map(|(i, _)| i)
+        .collect();
+    assert!(!at.is_empty());
+    for i in at {
+        data[i] ^= 1;
+    }
+    std::fs::write(&path, &data).unwrap();
+    refused_as_damaged(&path);
 }
 
 fn rusqlite_connection(path: &std::path::Path) -> rusqlite::Connection {

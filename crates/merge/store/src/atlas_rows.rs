@@ -1,0 +1,628 @@
+//! The atlas in the store: one transaction per committed session, rows shared between the
+//! versions they are valid in (docs/formats.md, "The lifelong store").
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use mapmerge_atlas::{
+    points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot, KeyframeRecord, MapId,
+    MergeId,
+};
+use mapmerge_geometry::Se2;
+use mapmerge_grid::FreeSpace;
+use mapmerge_posegraph::{NodeId, PoseGraph2};
+use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
+
+use crate::error::StoreError;
+use crate::schema::ACTIVE_SLOT;
+use crate::store::{classify, Store, VersionInfo};
+
+/// One session to commit as a new version.
+#[derive(Clone, Copy, Debug)]
+pub struct SessionCommit<'a> {
+    /// The session's name (e.g. its log).
+    pub session: &'a str,
+    /// The atlas at the end of the session.
+    pub atlas: &'a AtlasSnapshot,
+    /// The session's events, one JSON document each (appended to the event log).
+    pub events: &'a [String],
+    /// Reference poses of keyframes (simulation truth, or a corrected log's poses), kept
+    /// beside the keyframes this version adds.
+    pub reference_poses: &'a BTreeMap<NodeId, Se2>,
+}
+
+/// A version's atlas as loaded.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoredAtlas {
+    /// The version.
+    pub version: i64,
+    /// Its atlas.
+    pub atlas: AtlasSnapshot,
+    /// The reference poses stored with its keyframes.
+    pub reference_poses: BTreeMap<NodeId, Se2>,
+}
+
+/// Cell side of the free-space grid that measures a version's mapped area (m).
+const AREA_RESOLUTION_M: f64 = 0.1;
+
+/// Area seen by the keyframes of each graph (m²): the cells their beams crossed, summed over
+/// the graphs (each graph in its own frame; separate graphs may cover the same place).
+pub fn mapped_area_m2(atlas: &AtlasSnapshot) -> f64 {
+    atlas
+        .graphs()
+        .map(|graph| {
+            let rays = graph.vertices().flat_map(|(node, vertex)| {
+                let points = atlas
+                    .keyframes
+                    .get(&node)
+                    .map(|k| Arc::clone(&k.points_in_robot));
+                let origin = vertex.pose.translation();
+                let pose = vertex.pose;
+                points
+                    .into_iter()
+                    .flat_map(move |p| p.to_vec())
+                    .map(move |p| (origin, pose.transform_point(&p)))
+            });
+            // Coarser cells for a site too large for the grid.
+            let rays: Vec<_> = rays.collect();
+            let mut resolution_m = AREA_RESOLUTION_M;
+            loop {
+                match FreeSpace::from_rays(resolution_m, rays.iter().copied()) {
+                    Ok(free) => break free.free_cells() as f64 * resolution_m * resolution_m,
+                    Err(_) if resolution_m < 100.0 => resolution_m *= 2.0,
+                    Err(_) => break 0.0,
+                }
+            }
+        })
+        .sum()
+}
+
+/// The CRC-32 stored beside every blob.
+fn crc(bytes: &[u8]) -> i64 {
+    i64::from(crc32fast::hash(bytes))
+}
+
+/// Postcard's encoding, its error as SQLite's (it fails the transaction).
+fn encode<T: serde::Serialize>(value: &T) -> rusqlite::Result<Vec<u8>> {
+    postcard::to_stdvec(value).map_err(|e| rusqlite::Error::ToSqlConversionFailure(Box::new(e)))
+}
+
+impl Store {
+    /// Commits the session as a new version continuing the newest, in one transaction: the
+    /// counters, every graph that changed, the keyframes and backups that are new (those
+    /// gone are marked removed), the events, and the version's summary. Then versions
+    /// beyond [`Store::keep_versions`] forget their atlas. Returns the new version's number.
+    /// An inconsistent atlas is refused before anything is written.
+    pub fn commit_session(&mut self, commit: &SessionCommit<'_>) -> Result<i64, StoreError> {
+        let path = self.path.clone();
+        let classify = |e: rusqlite::Error| classify(&path, e);
+        let atlas = commit.atlas;
+        atlas.validate().map_err(|reason| StoreError::BadAtlas {
+            path: path.clone(),
+            reason,
+        })?;
+        let created_unix_s = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
+        let mapped_area_m2 = mapped_area_m2(atlas);
+        let keep = i64::try_from(self.keep_versions).unwrap_or(i64::MAX);
+        let transaction = self
+            .connection
+            .transaction_with_behavior(TransactionBehavior::Immediate)
+            .map_err(classify)?;
+        let parent: Option<i64> = transaction
+            .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
+            .optional()
+            .map_err(classify)?
+            .flatten();
+        let version = parent.unwrap_or(0) + 1;
+        let count = |n: usize| i64::try_from(n).unwrap_or(i64::MAX);
+        transaction
+            .execute(
+                "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
+                                       keyframes, local_maps, mapped_area_m2, bytes, retained)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, 0, 1)",
+                params![
+                    version,
+                    parent,
+                    commit.session,
+                    created_unix_s,
+                    count(atlas.num_vertices()),
+                    count(atlas.num_edges()),
+                    count(atlas.keyframes.len()),
+                    count(atlas.num_local_maps()),
+                    mapped_area_m2
+                ],
+            )
+            .map_err(classify)?;
+        let counters = encode(&atlas.counters).map_err(classify)?;
+        transaction
+            .execute(
+                "INSERT INTO atlas_state (version, counters, checksum) VALUES (?1, ?2, ?3)",
+                params![version, counters, crc(&counters)],
+            )
+            .map_err(classify)?;
+        write_graphs(&transaction, version, atlas).map_err(classify)?;
+        write_keyframes(&transaction, version, atlas, commit.reference_poses)
+            .map_err(classify)?;
+        write_backups(&transaction, version, atlas).map_err(classify)?;
+        {
+            let mut insert = transaction
+                .prepare("INSERT INTO events (version, body) VALUES (?1, ?2)")
+                .map_err(classify)?;
+            for event in commit.events {
+                insert.execute(params![version, event]).map_err(classify)?;
+            }
+        }
+        forget_before(&transaction, version - keep + 1).map_err(classify)?;
+        // The database's size with this version in it (pages × page size).
+        let bytes: i64 = transaction
+            .query_row(
+                "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size",
+                [],
+                |row| row.get(0),
+            )
+            .map_err(classify)?;
+        transaction
+            .execute(
+                "UPDATE versions SET bytes = ?1 WHERE version = ?2",
+                [bytes, version],
+            )
+            .map_err(classify)?;
+        transaction.commit().map_err(classify)?;
+        self.checkpoint()?;
+        Ok(version)
+    }
+
+    /// The atlas of `version` (default: the newest); `None` when the store has no version.
+    pub fn load(&self, version: Option<i64>) -> Result<Option<StoredAtlas>, StoreError> {
+        let path = &self.path;
+        let classify = |e: rusqlite::Error| classify(path, e);
+        let version = match version {
+            Some(v) => v,
+            None => {
+                let newest: Option<i64> = self
+                    .connection
+                    .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
+                    .map_err(classify)?;
+                match newest {
+                    Some(v) => v,
+                    None => return Ok(None),
+                }
+            }
+        };
+        let retained: Option<bool> = self
+            .connection
+            .query_row(
+                "SELECT retained FROM versions WHERE version = ?1",
+                [version],
+                |row| row.get(0),
+            )
+            .optional()
+            .map_err(classify)?;
+        match retained {
+            None => {
+                return Err(StoreError::NoSuchVersion {
+                    path: path.clone(),
+                    version,
+                })
+            }
+            Some(false) => {
+                return Err(StoreError::NotRetained {
+                    path: path.clone(),
+                    version,
+                })
+            }
+            Some(true) => {}
+        }
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: path.clone(),
+            reason: format!("version {version}: {reason}"),
+        };
+        let counters: Option<(Vec<u8>, i64)> = self
+            .connection
+            .query_row(
+                "SELECT counters, checksum FROM atlas_state WHERE version = ?1",
+                [version],
+                |row| Ok((row.get(0)?, row.get(1)?)),
+            )
+            .optional()
+            .map_err(classify)?;
+        let Some((counters, checksum)) = counters else {
+            return Err(StoreError::NoAtlas {
+                path: path.clone(),
+                version,
+            });
+        };
+        if crc(&counters) != checksum {
+            return Err(corrupt("counters: checksum mismatch".into()));
+        }
+        let counters: AtlasCounters = postcard::from_bytes(&counters)
+            .map_err(|e| corrupt(format!("counters: {e}")))?;
+        const VISIBLE: &str =
+            "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
+        let mut active = None;
+        let mut inactive = BTreeMap::new();
+        let mut statement = self
+            .connection
+            .prepare(&format!("SELECT slot, body, checksum FROM graphs WHERE {VISIBLE}"))
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([version], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+            })
+            .map_err(classify)?;
+        for row in rows {
+            let (slot, body, checksum) = row.map_err(classify)?;
+            if crc(&body) != checksum {
+                return Err(corrupt(format!("graph in slot {slot}: checksum mismatch")));
+            }
+            let graph: PoseGraph2 = postcard::from_bytes(&body)
+                .map_err(|e| corrupt(format!("graph in slot {slot}: {e}")))?;
+            if slot == ACTIVE_SLOT {
+                active = Some(graph);
+            } else {
+                let map = u32::try_from(slot)
+                    .map_err(|_| corrupt(format!("graph slot {slot}")))?;
+                if inactive.insert(MapId(map), graph).is_some() {
+                    return Err(corrupt(format!("two graphs in slot {slot}")));
+                }
+            }
+        }
+        let mut keyframes = BTreeMap::new();
+        let mut reference_poses = BTreeMap::new();
+        let mut statement = self
+            .connection
+            .prepare(&format!(
+                "SELECT node, travel_m, local_x_m, local_y_m, local_yaw_rad, submap,
+                        reference_x_m, reference_y_m, reference_yaw_rad, points, checksum
+                 FROM keyframes WHERE {VISIBLE}"
+            ))
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([version], |row| {
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, f64>(1)?,
+                    [row.get::<_, f64>(2)?, row.get(3)?, row.get(4)?],
+                    row.get::<_, Option<i64>>(5)?,
+                    [
+                        row.get::<_, Option<f64>>(6)?,
+                        row.get(7)?,
+                        row.get(8)?,
+                    ],
+                    row.get::<_, Vec<u8>>(9)?,
+                    row.get::<_, i64>(10)?,
+                ))
+            })
+            .map_err(classify)?;
+        for row in rows {
+            let (node, travel_m, local, submap, reference, points, checksum) =
+                row.map_err(classify)?;
+            let node = node_id(node).ok_or_else(|| corrupt(format!("keyframe id {node}")))?;
+            if crc(&points) != checksum {
+                return Err(corrupt(format!("keyframe {node}: checksum mismatch")));
+            }
+            let points_in_robot = points_from_le_bytes(&points)
+                .ok_or_else(|| corrupt(format!("keyframe {node}: {} bytes of points", points.len())))?;
+            let submap = match submap {
+                Some(s) => Some(node_id(s).ok_or_else(|| corrupt(format!("submap id {s}")))?),
+                None => None,
+            };
+            keyframes.insert(
+                node,
+                KeyframeRecord {
+                    points_in_robot,
+                    travel_m,
+                    local_from_robot: Se2::new(local[0], local[1], local[2]),
+                    submap,
+                },
+            );
+            if let [Some(x), Some(y), Some(yaw)] = reference {
+                reference_poses.insert(node, Se2::new(x, y, yaw));
+            }
+        }
+        let mut backups = BTreeMap::new();
+        let mut statement = self
+            .connection
+            .prepare(&format!("SELECT merge, body, checksum FROM backups WHERE {VISIBLE}"))
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([version], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+            })
+            .map_err(classify)?;
+        for row in rows {
+            let (merge, body, checksum) = row.map_err(classify)?;
+            if crc(&body) != checksum {
+                return Err(corrupt(format!("backup of merge {merge}: checksum mismatch")));
+            }
+            let id = u64::try_from(merge).map_err(|_| corrupt(format!("merge id {merge}")))?;
+            let graph: PoseGraph2 = postcard::from_bytes(&body)
+                .map_err(|e| corrupt(format!("backup of merge {merge}: {e}")))?;
+            backups.insert(MergeId(id), graph);
+        }
+        let atlas = AtlasSnapshot {
+            counters,
+            active: active.unwrap_or_default(),
+            inactive,
+            keyframes,
+            backups,
+        };
+        atlas.validate().map_err(corrupt)?;
+        Ok(Some(StoredAtlas {
+            version,
+            atlas,
+            reference_poses,
+        }))
+    }
+
+    /// The event log of the retained versions (JSON documents, oldest first), or of one
+    /// version.
+    pub fn events(&self, version: Option<i64>) -> Result<Vec<String>, StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let mut statement = self
+            .connection
+            .prepare(
+                "SELECT body FROM events WHERE ?1 IS NULL OR version = ?1 ORDER BY seq",
+            )
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([version], |row| row.get(0))
+            .map_err(classify)?;
+        rows.collect::<Result<_, _>>().map_err(classify)
+    }
+
+    /// The rows half of [`Store::check`]: every retained version has counters, every stored
+    /// blob decodes, and the newest version loads into a consistent atlas.
+    pub(crate) fn check_rows(&self, versions: &[VersionInfo]) -> Result<(), StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: self.path.clone(),
+            reason,
+        };
+        let with_atlas: BTreeSet<i64> = {
+            let mut statement = self
+                .connection
+                .prepare("SELECT version, counters, checksum FROM atlas_state")
+                .map_err(classify)?;
+            let rows = statement
+                .query_map([], |row| {
+                    Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                })
+                .map_err(classify)?;
+            let mut with_atlas = BTreeSet::new();
+            for row in rows {
+                let (version, counters, checksum) = row.map_err(classify)?;
+                if crc(&counters) != checksum {
+                    return Err(corrupt(format!("version {version}: counters: checksum mismatch")));
+                }
+                postcard::from_bytes::<AtlasCounters>(&counters)
+                    .map_err(|e| corrupt(format!("version {version}: counters: {e}")))?;
+                with_atlas.insert(version);
+            }
+            with_atlas
+        };
+        // Versions written by schema 1 hold no atlas; every later one does while retained.
+        let first_with_atlas = with_atlas.first().copied().unwrap_or(i64::MAX);
+        for v in versions {
+            let expected = v.retained && v.version >= first_with_atlas;
+            if expected != with_atlas.contains(&v.version) {
+                return Err(corrupt(format!(
+                    "version {} ({}retained) {} an atlas",
+                    v.version,
+                    if v.retained { "" } else { "not " },
+                    if expected { "lacks" } else { "has" }
+                )));
+            }
+        }
+        for (table, key) in [("graphs", "id"), ("backups", "merge")] {
+            let mut statement = self
+                .connection
+                .prepare(&format!("SELECT {key}, body, checksum FROM {table}"))
+                .map_err(classify)?;
+            let rows = statement
+                .query_map([], |row| {
+                    Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                })
+                .map_err(classify)?;
+            for row in rows {
+                let (id, body, checksum) = row.map_err(classify)?;
+                if crc(&body) != checksum {
+                    return Err(corrupt(format!("{table} row {id}: checksum mismatch")));
+                }
+                postcard::from_bytes::<PoseGraph2>(&body)
+                    .map_err(|e| corrupt(format!("{table} row {id}: {e}")))?;
+            }
+        }
+        let mut statement = self
+            .connection
+            .prepare("SELECT node, points, checksum FROM keyframes")
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+            })
+            .map_err(classify)?;
+        for row in rows {
+            let (node, points, checksum) = row.map_err(classify)?;
+            if points.len() % 16 != 0 || crc(&points) != checksum {
+                return Err(corrupt(format!("keyframe {node}: points damaged")));
+            }
+        }
+        if let Some(newest) = versions.last().filter(|v| with_atlas.contains(&v.version)) {
+            self.load(Some(newest.version))?;
+        }
+        Ok(())
+    }
+}
+
+fn node_id(value: i64) -> Option<NodeId> {
+    u64::try_from(value).ok().map(NodeId)
+}
+
+fn sql_id(value: u64) -> i64 {
+    i64::try_from(value).unwrap_or(i64::MAX)
+}
+
+/// Graphs: a slot whose graph changed gets a new row, the old one is marked removed; slots
+/// that are gone are marked removed.
+fn write_graphs(
+    transaction: &Transaction<'_>,
+    version: i64,
+    atlas: &AtlasSnapshot,
+) -> rusqlite::Result<()> {
+    let mut live: BTreeMap<i64, (i64, Vec<u8>)> = BTreeMap::new();
+    {
+        let mut statement = transaction
+            .prepare("SELECT slot, id, body FROM graphs WHERE removed_version IS NULL")?;
+        let rows = statement.query_map([], |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?;
+        for row in rows {
+            let (slot, id, body) = row?;
+            live.insert(slot, (id, body));
+        }
+    }
+    let graphs = std::iter::once((ACTIVE_SLOT, &atlas.active))
+        .chain(atlas.inactive.iter().map(|(m, g)| (i64::from(m.0), g)));
+    let mut kept = BTreeSet::new();
+    for (slot, graph) in graphs {
+        let body = encode(graph)?;
+        kept.insert(slot);
+        match live.get(&slot) {
+            Some((_, old)) if *old == body => continue,
+            Some((id, _)) => {
+                transaction.execute(
+                    "UPDATE graphs SET removed_version = ?1 WHERE id = ?2",
+                    [version, *id],
+                )?;
+            }
+            None => {}
+        }
+        transaction.execute(
+            "INSERT INTO graphs (slot, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)",
+            params![slot, version, body, crc(&body)],
+        )?;
+    }
+    for (slot, (id, _)) in &live {
+        if !kept.contains(slot) {
+            transaction.execute(
+                "UPDATE graphs SET removed_version = ?1 WHERE id = ?2",
+                [version, *id],
+            )?;
+        }
+    }
+    Ok(())
+}
+
+/// Keyframes never change: new ones get a row, those gone are marked removed.
+fn write_keyframes(
+    transaction: &Transaction<'_>,
+    version: i64,
+    atlas: &AtlasSnapshot,
+    reference_poses: &BTreeMap<NodeId, Se2>,
+) -> rusqlite::Result<()> {
+    let live = live_ids(transaction, "keyframes", "node")?;
+    let mut insert = transaction.prepare(
+        "INSERT INTO keyframes (node, added_version, travel_m, local_x_m, local_y_m,
+                                local_yaw_rad, submap, reference_x_m, reference_y_m,
+                                reference_yaw_rad, points, checksum)
+         VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12)",
+    )?;
+    for (node, record) in &atlas.keyframes {
+        if live.contains(&sql_id(node.0)) {
+            continue;
+        }
+        let local = record.local_from_robot;
+        let reference = reference_poses.get(node);
+        let points = points_to_le_bytes(&record.points_in_robot);
+        insert.execute(params![
+            sql_id(node.0),
+            version,
+            record.travel_m,
+            local.x_m,
+            local.y_m,
+            local.theta_rad,
+            record.submap.map(|s| sql_id(s.0)),
+            reference.map(|p| p.x_m),
+            reference.map(|p| p.y_m),
+            reference.map(|p| p.theta_rad),
+            points,
+            crc(&points),
+        ])?;
+    }
+    let kept: BTreeSet<i64> = atlas.keyframes.keys().map(|n| sql_id(n.0)).collect();
+    mark_removed(transaction, "keyframes", "node", version, live.difference(&kept))
+}
+
+/// Backups never change either.
+fn write_backups(
+    transaction: &Transaction<'_>,
+    version: i64,
+    atlas: &AtlasSnapshot,
+) -> rusqlite::Result<()> {
+    let live = live_ids(transaction, "backups", "merge")?;
+    for (merge, graph) in &atlas.backups {
+        if !live.contains(&sql_id(merge.0)) {
+            let body = encode(graph)?;
+            transaction.execute(
+                "INSERT INTO backups (merge, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)",
+                params![sql_id(merge.0), version, body, crc(&body)],
+            )?;
+        }
+    }
+    let kept: BTreeSet<i64> = atlas.backups.keys().map(|m| sql_id(m.0)).collect();
+    mark_removed(transaction, "backups", "merge", version, live.difference(&kept))
+}
+
+fn live_ids(
+    transaction: &Transaction<'_>,
+    table: &str,
+    key: &str,
+) -> rusqlite::Result<BTreeSet<i64>> {
+    let mut statement =
+        transaction.prepare(&format!("SELECT {key} FROM {table} WHERE removed_version IS NULL"))?;
+    let rows = statement.query_map([], |row| row.get(0))?;
+    rows.collect()
+}
+
+fn mark_removed<'a>(
+    transaction: &Transaction<'_>,
+    table: &str,
+    key: &str,
+    version: i64,
+    ids: impl Iterator<Item = &'a i64>,
+) -> rusqlite::Result<()> {
+    let mut update = transaction.prepare(&format!(
+        "UPDATE {table} SET removed_version = ?1 WHERE {key} = ?2"
+    ))?;
+    for id in ids {
+        update.execute([version, *id])?;
+    }
+    Ok(())
+}
+
+/// Versions before `oldest_kept` forget their atlas: rows no version from `oldest_kept` on
+/// sees, their counters and their events go; their summary rows stay.
+fn forget_before(transaction: &Transaction<'_>, oldest_kept: i64) -> rusqlite::Result<()> {
+    if oldest_kept <= 1 {
+        return Ok(());
+    }
+    for table in crate::schema::VERSIONED_TABLES {
+        transaction.execute(
+            &format!("DELETE FROM {table} WHERE removed_version <= ?1"),
+            [oldest_kept],
+        )?;
+    }
+    for table in ["atlas_state", "events"] {
+        transaction.execute(
+            &format!("DELETE FROM {table} WHERE version < ?1"),
+            [oldest_kept],
+        )?;
+    }
+    transaction.execute(
+        "UPDATE versions SET retained = 0 WHERE version < ?1",
+        [oldest_kept],
+    )?;
+    Ok(())
+}
