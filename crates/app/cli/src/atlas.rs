@@ -28,7 +28,7 @@ use mapmerge_io::{AnyGraph, GraphFormat};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_render::{session_color, Picture, Rgb};
 use mapmerge_scan::LaserLog;
-use mapmerge_sim::{simulate, SimParams};
+use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 use mapmerge_verify::{
     ChangeDetectionDetector, DetectorScan, InvalidMergeDetector, MergedMap, PointClass,
 };
@@ -60,6 +60,18 @@ pub struct AtlasArgs {
     /// Seed of the simulation.
     #[arg(long, default_value_t = 12)]
     pub seed: u64,
+    /// Simulate only this session of the world (its changes, route and noise as in the
+    /// whole simulation): one session per run, as a robot lives with `--store`.
+    #[arg(long, requires = "sim")]
+    pub session_index: Option<usize>,
+    /// The lifelong store (created when missing): the run continues the atlas of its newest
+    /// version and commits one version per session, atomically.
+    #[arg(long)]
+    pub store: Option<PathBuf>,
+    /// How many of the newest versions keep their atlas in the store (older versions keep
+    /// their summary only).
+    #[arg(long, default_value_t = mapmerge_store::DEFAULT_KEEP_VERSIONS, requires = "store")]
+    pub keep_versions: usize,
     /// Engine parameters (JSON, `mapmerge_engine::EngineParams`; absent fields keep their
     /// defaults).
     #[arg(long)]
@@ -150,6 +162,9 @@ struct Report {
     sessions: usize,
     scans: usize,
     epochs: usize,
+    /// Epochs that had a map to merge into: all but the first, or all when the run continued
+    /// a stored atlas.
+    epochs_with_a_map: usize,
     merges: Vec<MergeReport>,
     unmerges: Vec<UnmergeReport>,
     hypotheses: mapmerge_engine::HypothesisSummary,
@@ -168,8 +183,34 @@ struct Report {
     epochs_merged_correctly: Option<usize>,
     pictures: Vec<PathBuf>,
     events: PathBuf,
+    /// With `--store`: what was continued and what was committed.
+    store: Option<StoreRunReport>,
     seconds: f64,
     ms_per_scan: f64,
+}
+
+/// `atlas --store`: the version continued and the versions committed.
+#[derive(Serialize)]
+struct StoreRunReport {
+    path: PathBuf,
+    /// The version the run continued (none for a new store).
+    resumed_from: Option<i64>,
+    /// Opening the store, loading its newest atlas and rebuilding the place index (s).
+    open_secs: f64,
+    committed: Vec<CommittedSession>,
+}
+
+/// One committed session.
+#[derive(Serialize)]
+struct CommittedSession {
+    #[serde(flatten)]
+    version: mapmerge_store::VersionInfo,
+    /// Snapshotting the atlas and committing it (s).
+    commit_secs: f64,
+    /// ATE (m, RMS after rigid alignment) of the session's keyframes against their reference
+    /// poses, and of every keyframe of the graph the robot ended in.
+    session_ate_m: Option<f64>,
+    map_ate_m: Option<f64>,
 }
 
 /// Merge edges are judged true within this (m, rad).
@@ -184,6 +225,15 @@ fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
             .map_err(bad_input)?;
         params.sessions = args.sessions;
         params.duration_secs = args.duration;
+        if let Some(index) = args.session_index {
+            let s = simulate_session_alone(&params, args.seed, index).map_err(bad_input)?;
+            return Ok(vec![Session {
+                name: format!("{preset} session {index}"),
+                kidnaps: s.kidnaps.iter().map(|k| k.scan_index).collect(),
+                truth: Some(s.truth.iter().map(|(_, pose)| *pose).collect()),
+                log: s.log,
+            }]);
+        }
         let dataset = simulate(&params, args.seed).map_err(bad_input)?;
         return Ok(dataset
             .sessions
@@ -248,21 +298,50 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
         }
     };
+    // The store first: a refused store stops the run before any work.
+    let opened = Instant::now();
+    let mut store = match &args.store {
+        Some(path) => {
+            let mut store = crate::store::open_or_create(path)?;
+            store.keep_versions(args.keep_versions);
+            Some(store)
+        }
+        None => None,
+    };
+    let stored = match &store {
+        Some(store) => match store.load(None) {
+            Ok(stored) => stored,
+            // Versions written by schema 1 hold no atlas: the lifelong atlas starts now.
+            Err(mapmerge_store::StoreError::NoAtlas { .. }) => None,
+            Err(e) => return Err(bad_file(e)),
+        },
+        None => None,
+    };
+    let resumed_from = stored.as_ref().map(|s| s.version);
+    // The reference pose of every keyframe (simulation: ground truth; logs: their poses).
+    let (mut engine, mut truth_of_node) = match stored {
+        Some(stored) => (
+            Engine::resume(params, stored.atlas).map_err(bad_file)?,
+            stored.reference_poses,
+        ),
+        None => (Engine::new(params).map_err(bad_input)?, BTreeMap::new()),
+    };
+    let open_secs = opened.elapsed().as_secs_f64();
     let sessions = load_sessions(args)?;
-    let mut engine = Engine::new(params).map_err(bad_input)?;
+    let mut committed = Vec::new();
     let pictures_dir = args.output.join("pictures");
     std::fs::create_dir_all(&pictures_dir)
         .with_context(|| format!("creating {}", pictures_dir.display()))?;
     let total: usize = sessions.iter().map(|s| s.log.scans.len()).sum();
     let visible = !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let bar = crate::progress_bar(total, "scans", "", visible);
-    // The reference pose of every keyframe (simulation: ground truth; logs: their poses).
-    let mut truth_of_node: BTreeMap<NodeId, Se2> = BTreeMap::new();
     let mut pictures = Vec::new();
     let mut picture_count = 0usize;
     for (s, session) in sessions.iter().enumerate() {
         bar.set_message(session.name.clone());
-        if s > 0 {
+        let events_before = engine.events().len();
+        let first_node = engine.atlas().next_node_id();
+        if s > 0 || resumed_from.is_some() {
             engine.end_epoch(EpochEndReason::Restart)?;
         }
         let mut previous_odometry = None;
@@ -315,6 +394,16 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 )?;
                 pictures.push(path);
             }
+        }
+        if let Some(store) = store.as_mut() {
+            committed.push(commit_session(
+                store,
+                &mut engine,
+                &session.name,
+                events_before,
+                first_node,
+                &truth_of_node,
+            )?);
         }
     }
     bar.finish_and_clear();
@@ -373,6 +462,11 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .count()
         }),
         epochs_merged_correctly: judged.then_some(kept_correct.len()),
+        epochs_with_a_map: if resumed_from.is_some() {
+            epochs
+        } else {
+            epochs.saturating_sub(1)
+        },
         hypotheses: engine.hypothesis_summary(),
         ambiguous_keyframes: engine.ambiguous_keyframes(),
         tracker: engine.tracker_info(),
@@ -381,6 +475,12 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         unmerges,
         pictures,
         events: events_path,
+        store: args.store.as_ref().map(|path| StoreRunReport {
+            path: path.clone(),
+            resumed_from,
+            open_secs,
+            committed,
+        }),
         seconds,
         ms_per_scan: 1e3 * seconds / engine.scans().max(1) as f64,
     };
@@ -456,8 +556,26 @@ fn print_text(report: &Report) {
     ) {
         println!(
             "  against the ground truth: {u} of {w} wrong merges rejected or undone within {UNDO_WITHIN_M} m; {cu} of {c} correct merges undone, {cr} rejected; {e} of {} later epochs end merged correctly",
-            report.epochs.saturating_sub(1)
+            report.epochs_with_a_map
         );
+    }
+    if let Some(store) = &report.store {
+        let continued = store
+            .resumed_from
+            .map_or_else(|| "a new atlas".to_owned(), |v| format!("version {v}"));
+        for c in &store.committed {
+            println!(
+                "  store {}: continued {continued}, committed version {} ({} nodes, {} edges, {} keyframes, {:.0} m², {} bytes; session ATE {} m)",
+                store.path.display(),
+                c.version.version,
+                c.version.nodes,
+                c.version.edges,
+                c.version.keyframes,
+                c.version.mapped_area_m2,
+                c.version.bytes,
+                c.session_ate_m.map_or_else(|| "-".to_owned(), |a| format!("{a:.3}")),
+            );
+        }
     }
     if let Some(first) = report.pictures.first() {
         println!(
@@ -598,6 +716,75 @@ fn write_merge_results(
     out.flush()
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+/// Commits the session that just ended: the atlas as it is (merges into the active graph
+/// still undoable, with their backups), the session's events and the reference poses.
+fn commit_session(
+    store: &mut mapmerge_store::Store,
+    engine: &mut Engine,
+    session: &str,
+    events_before: usize,
+    first_node: NodeId,
+    truth_of_node: &BTreeMap<NodeId, Se2>,
+) -> anyhow::Result<CommittedSession> {
+    let started = Instant::now();
+    engine.finish()?;
+    let atlas = engine.atlas().snapshot()?;
+    let events = engine
+        .events()
+        .get(events_before..)
+        .unwrap_or_default()
+        .iter()
+        .map(serde_json::to_string)
+        .collect::<Result<Vec<_>, _>>()?;
+    let version = store
+        .commit_session(&mapmerge_store::SessionCommit {
+            session,
+            atlas: &atlas,
+            events: &events,
+            reference_poses: truth_of_node,
+        })
+        .map_err(bad_file)?;
+    let commit_secs = started.elapsed().as_secs_f64();
+    let version = store
+        .versions()
+        .map_err(bad_file)?
+        .into_iter()
+        .find(|v| v.version == version)
+        .ok_or_else(|| anyhow::anyhow!("version {version} was committed but is not listed"))?;
+    let active = engine.atlas().active();
+    let session_nodes: Vec<NodeId> = active
+        .vertices()
+        .map(|(n, _)| n)
+        .filter(|n| *n >= first_node)
+        .collect();
+    let all_nodes: Vec<NodeId> = active.vertices().map(|(n, _)| n).collect();
+    Ok(CommittedSession {
+        version,
+        commit_secs,
+        session_ate_m: ate_of(active, &session_nodes, truth_of_node),
+        map_ate_m: ate_of(active, &all_nodes, truth_of_node),
+    })
+}
+
+/// ATE (m, RMS after rigid alignment) of `nodes` of `graph` that have a reference pose; none
+/// with fewer than three.
+fn ate_of(
+    graph: &PoseGraph2,
+    nodes: &[NodeId],
+    truth_of_node: &BTreeMap<NodeId, Se2>,
+) -> Option<f64> {
+    let (reference, estimate): (Vec<Se2>, Vec<Se2>) = nodes
+        .iter()
+        .filter_map(|n| Some((*truth_of_node.get(n)?, graph.vertex(*n)?.pose)))
+        .unzip();
+    if reference.len() < 3 {
+        return None;
+    }
+    mapmerge_eval::absolute_trajectory_error(&reference, &estimate, true)
+        .ok()
+        .map(|e| e.rms_m)
 }
 
 /// A merge is correct when most of its merge edges (recorded by the engine when it decided,

@@ -1,11 +1,17 @@
-//! `mapmerge store`: inspect, check and roll back a lifelong store (issue 17; the atlas does
-//! not write to stores yet). Every refused store (in use, newer schema, not a store,
+//! `mapmerge store`: inspect, check, roll back and export a lifelong store (issue 17;
+//! `mapmerge atlas --store` writes it). Every refused store (in use, newer schema, not a store,
 //! corrupt) is bad input: exit code 2, the file untouched.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use anyhow::Context;
 use clap::{Args, Subcommand};
+use mapmerge_geometry::Se2;
+use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid, Point2};
+use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
+use mapmerge_render::{session_color, Picture, PictureStyle};
 use mapmerge_store::{Store, StoreError};
 use serde::Serialize;
 
@@ -30,6 +36,25 @@ pub enum StoreCommand {
     Check(SiteArgs),
     /// Delete every version after `--to` (a bad session's version and its successors).
     Rollback(RollbackArgs),
+    /// Write each map of a version: its pose graph (g2o), its occupancy grid (map_server
+    /// PGM + YAML) with a picture (PNG), and one TUM trajectory per epoch.
+    Export(ExportArgs),
+}
+
+/// Arguments of `mapmerge store export`.
+#[derive(Args, Debug)]
+pub struct ExportArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    /// The version (default: the newest).
+    #[arg(long)]
+    pub version: Option<i64>,
+    /// Cell side of the occupancy grids (m).
+    #[arg(long, default_value_t = 0.05)]
+    pub resolution: f64,
+    /// Output folder.
+    #[arg(short, long)]
+    pub output: PathBuf,
 }
 
 /// A store and the output format.
@@ -60,6 +85,11 @@ fn open(site: &SiteArgs) -> anyhow::Result<Store> {
         )));
     }
     Store::open_existing(&site.site).map_err(refused)
+}
+
+/// Opens the store at `path`, creating it when there is no file (`atlas --store`).
+pub(crate) fn open_or_create(path: &std::path::Path) -> anyhow::Result<Store> {
+    Store::open(path).map_err(refused)
 }
 
 /// Store errors are the user's file: bad input.
@@ -148,6 +178,131 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
                 );
             }
         }
+        StoreCommand::Export(export_args) => export(export_args)?,
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// One exported map's files.
+#[derive(Serialize)]
+struct ExportedMap {
+    /// `active` or `map-N` (the inactive graph's id).
+    name: String,
+    vertices: usize,
+    edges: usize,
+    epochs: Vec<u32>,
+    g2o: PathBuf,
+    map_yaml: PathBuf,
+    png: PathBuf,
+    trajectories: Vec<PathBuf>,
+}
+
+/// Writes every non-empty graph of a version (see [`StoreCommand::Export`]).
+fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    crate::check_resolution(args.resolution)?;
+    let store = open(&args.site)?;
+    let Some(stored) = store.load(args.version).map_err(refused)? else {
+        return Err(crate::bad_input(format!(
+            "{}: the store has no version yet",
+            args.site.site.display()
+        )));
+    };
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
+    let atlas = &stored.atlas;
+    let graphs = std::iter::once(("active".to_owned(), &atlas.active)).chain(
+        atlas
+            .inactive
+            .iter()
+            .map(|(id, g)| (format!("map-{}", id.0), g)),
+    );
+    let thresholds = ClassThresholds::default();
+    let mut maps = Vec::new();
+    for (name, graph) in graphs.filter(|(_, g)| g.num_vertices() > 0) {
+        let g2o = args.output.join(format!("{name}.g2o"));
+        mapmerge_io::write_graph(&g2o, &AnyGraph::Planar(graph.clone()), GraphFormat::G2o)
+            .map_err(anyhow::Error::from)?;
+        // The grid: every keyframe's beams from its vertex.
+        let mut grid = OccupancyGrid::new(args.resolution)?;
+        let model = InsertParams::default().model;
+        for (node, vertex) in graph.vertices() {
+            let Some(keyframe) = atlas.keyframes.get(&node) else {
+                continue;
+            };
+            let ends: Vec<Point2> = keyframe
+                .points_in_robot
+                .iter()
+                .map(|p| vertex.pose.transform_point(p))
+                .collect();
+            grid.insert_rays(&vertex.pose.translation(), &ends, &[], &model)?;
+        }
+        let map_yaml = args.output.join(format!("{name}.yaml"));
+        mapmerge_io::write_ros_map(
+            &map_yaml,
+            &RosMap::from_grid(&grid, MapMode::Trinary, &thresholds),
+        )?;
+        let png = args.output.join(format!("{name}.png"));
+        let style = PictureStyle {
+            pixels_per_cell: 1,
+            classes: Some(thresholds),
+        };
+        // One trajectory per epoch, stamped with the vertices' stamps (else their order).
+        let mut by_epoch: BTreeMap<u32, Vec<(f64, Se2)>> = BTreeMap::new();
+        for (k, (_, vertex)) in graph.vertices().enumerate() {
+            let stamp = vertex.meta.stamp_secs.unwrap_or(k as f64);
+            by_epoch
+                .entry(vertex.meta.session.0)
+                .or_default()
+                .push((stamp, vertex.pose));
+        }
+        let mut picture = Picture::of_grid(&grid, &style);
+        for (epoch, poses) in &by_epoch {
+            let poses: Vec<Se2> = poses.iter().map(|(_, pose)| *pose).collect();
+            picture.draw_trajectory(&poses, session_color(u64::from(*epoch)), 1.0);
+        }
+        picture.save_png(&png)?;
+        let mut trajectories = Vec::new();
+        for (epoch, poses) in &by_epoch {
+            let path = args.output.join(format!("{name}-epoch-{epoch}.tum"));
+            mapmerge_io::write_tum_planar(&path, poses)?;
+            trajectories.push(path);
+        }
+        maps.push(ExportedMap {
+            name,
+            vertices: graph.num_vertices(),
+            edges: graph.num_edges(),
+            epochs: by_epoch.keys().copied().collect(),
+            g2o,
+            map_yaml,
+            png,
+            trajectories,
+        });
+    }
+    if args.site.json {
+        #[derive(Serialize)]
+        struct Report<'a> {
+            version: i64,
+            maps: &'a [ExportedMap],
+        }
+        print_json(&Report {
+            version: stored.version,
+            maps: &maps,
+        })?;
+    } else {
+        for m in &maps {
+            println!(
+                "version {}: {} ({} vertices, {} edges, epochs {:?}) -> {}, {}, {}, {} trajectories",
+                stored.version,
+                m.name,
+                m.vertices,
+                m.edges,
+                m.epochs,
+                m.g2o.display(),
+                m.map_yaml.display(),
+                m.png.display(),
+                m.trajectories.len()
+            );
+        }
+    }
+    Ok(())
 }

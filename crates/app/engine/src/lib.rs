@@ -22,8 +22,9 @@ mod decisions;
 use std::sync::Arc;
 
 use mapmerge_atlas::{
-    Atlas, AtlasError, AtlasEvent, AtlasParams, ConstraintInfo, ConstraintSearch, EpochEndReason,
-    LoopEdge, LoopRecord, MapId, MergeReason, MergeRequest, UnmergeReason,
+    Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo, ConstraintSearch,
+    EpochEndReason, LoopEdge, LoopRecord, MapId, MemoryBackups, MergeReason, MergeRequest,
+    UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
@@ -240,6 +241,19 @@ impl Engine {
             tracker_info_before_epoch: TrackerInfo::default(),
         };
         engine.collect_events();
+        Ok(engine)
+    }
+
+    /// An engine continuing a stored atlas (the lifelong store, iRobot Sec. 4): the atlas is
+    /// restored from `atlas` ([`Atlas::restore`], the place index rebuilt) and everything
+    /// else starts afresh, as after a restart. The robot's epoch is the snapshot's until the
+    /// caller ends it (a restarted robot does not know where it is: `end_epoch(Restart)`).
+    pub fn resume(params: EngineParams, atlas: AtlasSnapshot) -> Result<Self, EngineError> {
+        let mut engine = Self::new(params)?;
+        engine.atlas =
+            Atlas::restore(engine.params.atlas.clone(), MemoryBackups::default(), atlas)?;
+        engine.events.clear();
+        engine.atlas_events_seen = 0;
         Ok(engine)
     }
 

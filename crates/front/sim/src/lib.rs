@@ -64,7 +64,9 @@ pub use preset::{generate_world, LayoutParams, WorldParams, WorldPreset};
 pub use ray_caster::{RayCaster, DEFAULT_CELL_M};
 pub use roadmap::Roadmap;
 pub use shapes::{Rect, Segment, Shape};
-pub use simulate::{simulate, Dataset, SessionData, SimParams, SCAN_SOURCE_TAG};
+pub use simulate::{
+    simulate, simulate_session_alone, Dataset, SessionData, SimParams, SCAN_SOURCE_TAG,
+};
 pub use warehouse::WarehouseParams;
 pub use world::{
     Door, DoorId, DoorKind, Obstacle, ObstacleId, ObstacleKind, Room, RoomId, RoomKind, World,

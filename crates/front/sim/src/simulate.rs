@@ -250,52 +250,93 @@ fn pick_start_rooms(
     let mut used: Vec<RoomId> = Vec::new();
     let mut starts = Vec::with_capacity(worlds.len());
     for (index, ((world, _), roadmap)) in worlds.iter().zip(roadmaps).enumerate() {
-        let destinations: Vec<(RoomId, Vec<usize>)> = world
-            .rooms
-            .iter()
-            .filter(|r| r.kind.is_destination())
-            .map(|r| (r.id, roadmap.main_nodes_in(&r.rect)))
-            .filter(|(_, nodes)| !nodes.is_empty())
-            .collect();
-        let room = match params.start_rooms.get(index) {
-            Some(name) => {
-                let id = world.room_by_name(name).map(|r| r.id);
-                match id.filter(|id| destinations.iter().any(|(r, _)| r == id)) {
-                    Some(id) => id,
-                    None => {
-                        return Err(SimError::UnknownStartRoom {
-                            session: index,
-                            name: name.clone(),
-                        })
-                    }
-                }
-            }
-            None => {
-                if destinations.is_empty() {
-                    return Err(SimError::NoFreeSpace(world.name.clone()));
-                }
-                let mut rng = stream_rng(seed, Stream::Route, 1_000_000 + index as u64);
-                let fresh: Vec<RoomId> = destinations
-                    .iter()
-                    .map(|(r, _)| *r)
-                    .filter(|r| !used.contains(r))
-                    .collect();
-                let pool: Vec<RoomId> = if fresh.is_empty() {
-                    destinations.iter().map(|(r, _)| *r).collect()
-                } else {
-                    fresh
-                };
-                pool[rng.random_range(0..pool.len())]
-            }
-        };
-        used.push(room);
-        starts.push(Start {
-            room,
-            roadmap,
-            destinations,
-        });
+        let start = pick_start_room(params, world, roadmap, seed, index, &used)?;
+        used.push(start.room);
+        starts.push(start);
     }
     Ok(starts)
+}
+
+/// Session `index`'s start: the named room, else a random destination room reachable in
+/// `world`, one not in `used` when possible.
+fn pick_start_room(
+    params: &SimParams,
+    world: &World,
+    roadmap: Roadmap,
+    seed: u64,
+    index: usize,
+    used: &[RoomId],
+) -> Result<Start, SimError> {
+    let destinations: Vec<(RoomId, Vec<usize>)> = world
+        .rooms
+        .iter()
+        .filter(|r| r.kind.is_destination())
+        .map(|r| (r.id, roadmap.main_nodes_in(&r.rect)))
+        .filter(|(_, nodes)| !nodes.is_empty())
+        .collect();
+    let room = match params.start_rooms.get(index) {
+        Some(name) => {
+            let id = world.room_by_name(name).map(|r| r.id);
+            match id.filter(|id| destinations.iter().any(|(r, _)| r == id)) {
+                Some(id) => id,
+                None => {
+                    return Err(SimError::UnknownStartRoom {
+                        session: index,
+                        name: name.clone(),
+                    })
+                }
+            }
+        }
+        None => {
+            if destinations.is_empty() {
+                return Err(SimError::NoFreeSpace(world.name.clone()));
+            }
+            let mut rng = stream_rng(seed, Stream::Route, 1_000_000 + index as u64);
+            let fresh: Vec<RoomId> = destinations
+                .iter()
+                .map(|(r, _)| *r)
+                .filter(|r| !used.contains(r))
+                .collect();
+            let pool: Vec<RoomId> = if fresh.is_empty() {
+                destinations.iter().map(|(r, _)| *r).collect()
+            } else {
+                fresh
+            };
+            pool[rng.random_range(0..pool.len())]
+        }
+    };
+    Ok(Start {
+        room,
+        roadmap,
+        destinations,
+    })
+}
+
+/// Session `index` of the dataset [`simulate`] makes with `params` and `seed`, alone: the
+/// same world, changes, route, odometry and kidnaps, so a robot can live one session per run
+/// (the lifelong store). One difference: without the earlier sessions, its start room is
+/// drawn from every destination room, not from those the earlier sessions did not start in
+/// (so it may differ from `simulate`'s session `index`). `params.sessions` is ignored.
+pub fn simulate_session_alone(
+    params: &SimParams,
+    seed: u64,
+    index: usize,
+) -> Result<SessionData, SimError> {
+    params.validate()?;
+    let world_params = params.world_params();
+    let world_seed = params
+        .world_seed
+        .unwrap_or_else(|| derive_seed(seed, Stream::World, 0));
+    let world = generate_world(&world_params, world_seed)?;
+    let (session_world, changes) = if index == 0 {
+        (world, Vec::new())
+    } else {
+        let mut rng = stream_rng(seed, Stream::Changes, index as u64);
+        change_world(&mut rng, &world, &params.changes)?
+    };
+    let roadmap = Roadmap::build(&session_world, params.robot.clearance_m);
+    let start = pick_start_room(params, &session_world, roadmap, seed, index, &[])?;
+    simulate_session(params, seed, index, session_world, changes, start)
 }
 
 fn simulate_session(

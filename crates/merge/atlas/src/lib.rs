@@ -67,5 +67,5 @@ pub use events::{
 pub use ids::{EpochId, MapId, MergeId};
 pub use keyframes::{KeyframeRecord, KeyframeStore};
 pub use merge::{LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
-pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};
 pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};
+pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};

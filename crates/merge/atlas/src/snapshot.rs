@@ -93,7 +93,10 @@ impl AtlasSnapshot {
         for (name, graph) in graphs {
             for (node, _) in graph.vertices() {
                 if node.0 >= c.next_node {
-                    return Err(format!("vertex {node} is not below the next id {}", c.next_node));
+                    return Err(format!(
+                        "vertex {node} is not below the next id {}",
+                        c.next_node
+                    ));
                 }
                 if seen.insert(node, name).is_some() {
                     return Err(format!("vertex {node} is in two graphs"));
@@ -104,22 +107,33 @@ impl AtlasSnapshot {
             }
         }
         if let Some(node) = self.keyframes.keys().find(|n| n.0 >= c.next_node) {
-            return Err(format!("keyframe {node} is not below the next id {}", c.next_node));
+            return Err(format!(
+                "keyframe {node} is not below the next id {}",
+                c.next_node
+            ));
         }
         if let Some(map) = self.inactive.keys().find(|m| m.0 >= c.next_map) {
             return Err(format!("{map} is not below the next id {}", c.next_map));
         }
         if let Some(robot) = c.robot {
             if !self.active.contains_vertex(robot) {
-                return Err(format!("the robot's vertex {robot} is not in the active graph"));
+                return Err(format!(
+                    "the robot's vertex {robot} is not in the active graph"
+                ));
             }
         }
         if c.epoch.0 >= c.next_epoch {
-            return Err(format!("{} is not below the next id {}", c.epoch, c.next_epoch));
+            return Err(format!(
+                "{} is not below the next id {}",
+                c.epoch, c.next_epoch
+            ));
         }
         for merge in &c.merges {
             if merge.merge.0 >= c.next_merge {
-                return Err(format!("{} is not below the next id {}", merge.merge, c.next_merge));
+                return Err(format!(
+                    "{} is not below the next id {}",
+                    merge.merge, c.next_merge
+                ));
             }
             if !self.backups.contains_key(&merge.merge) {
                 return Err(format!("{} has no backup", merge.merge));

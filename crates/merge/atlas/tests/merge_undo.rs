@@ -357,7 +357,11 @@ fn inconsistent_snapshots_are_refused() {
     add_path(&mut atlas, &[(1.0, 0.0, 0.0); 4], Se2::identity());
     let good = atlas.snapshot().unwrap();
     let restore = |snapshot| {
-        Atlas::restore(AtlasParams::default(), mapmerge_atlas::MemoryBackups::default(), snapshot)
+        Atlas::restore(
+            AtlasParams::default(),
+            mapmerge_atlas::MemoryBackups::default(),
+            snapshot,
+        )
     };
     assert!(restore(good.clone()).is_ok());
     let mut no_keyframe = good.clone();
@@ -367,11 +371,14 @@ fn inconsistent_snapshots_are_refused() {
     let mut lost_robot = good.clone();
     lost_robot.counters.robot = Some(NodeId(99));
     let mut no_backup = good;
-    no_backup.counters.merges.push(mapmerge_atlas::AppliedMerge {
-        merge: mapmerge_atlas::MergeId(0),
-        map: MapId(0),
-        active_from_inactive: [0.0; 3],
-    });
+    no_backup
+        .counters
+        .merges
+        .push(mapmerge_atlas::AppliedMerge {
+            merge: mapmerge_atlas::MergeId(0),
+            map: MapId(0),
+            active_from_inactive: [0.0; 3],
+        });
     no_backup.counters.next_merge = 1;
     for bad in [no_keyframe, stale_counter, lost_robot, no_backup] {
         assert!(matches!(restore(bad), Err(AtlasError::BadSnapshot(_))));

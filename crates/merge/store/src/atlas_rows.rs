@@ -144,8 +144,7 @@ impl Store {
             )
             .map_err(classify)?;
         write_graphs(&transaction, version, atlas).map_err(classify)?;
-        write_keyframes(&transaction, version, atlas, commit.reference_poses)
-            .map_err(classify)?;
+        write_keyframes(&transaction, version, atlas, commit.reference_poses).map_err(classify)?;
         write_backups(&transaction, version, atlas).map_err(classify)?;
         {
             let mut insert = transaction
@@ -238,19 +237,25 @@ impl Store {
         if crc(&counters) != checksum {
             return Err(corrupt("counters: checksum mismatch".into()));
         }
-        let counters: AtlasCounters = postcard::from_bytes(&counters)
-            .map_err(|e| corrupt(format!("counters: {e}")))?;
+        let counters: AtlasCounters =
+            postcard::from_bytes(&counters).map_err(|e| corrupt(format!("counters: {e}")))?;
         const VISIBLE: &str =
             "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
         let mut active = None;
         let mut inactive = BTreeMap::new();
         let mut statement = self
             .connection
-            .prepare(&format!("SELECT slot, body, checksum FROM graphs WHERE {VISIBLE}"))
+            .prepare(&format!(
+                "SELECT slot, body, checksum FROM graphs WHERE {VISIBLE}"
+            ))
             .map_err(classify)?;
         let rows = statement
             .query_map([version], |row| {
-                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, Vec<u8>>(1)?,
+                    row.get::<_, i64>(2)?,
+                ))
             })
             .map_err(classify)?;
         for row in rows {
@@ -263,8 +268,7 @@ impl Store {
             if slot == ACTIVE_SLOT {
                 active = Some(graph);
             } else {
-                let map = u32::try_from(slot)
-                    .map_err(|_| corrupt(format!("graph slot {slot}")))?;
+                let map = u32::try_from(slot).map_err(|_| corrupt(format!("graph slot {slot}")))?;
                 if inactive.insert(MapId(map), graph).is_some() {
                     return Err(corrupt(format!("two graphs in slot {slot}")));
                 }
@@ -287,11 +291,7 @@ impl Store {
                     row.get::<_, f64>(1)?,
                     [row.get::<_, f64>(2)?, row.get(3)?, row.get(4)?],
                     row.get::<_, Option<i64>>(5)?,
-                    [
-                        row.get::<_, Option<f64>>(6)?,
-                        row.get(7)?,
-                        row.get(8)?,
-                    ],
+                    [row.get::<_, Option<f64>>(6)?, row.get(7)?, row.get(8)?],
                     row.get::<_, Vec<u8>>(9)?,
                     row.get::<_, i64>(10)?,
                 ))
@@ -304,8 +304,9 @@ impl Store {
             if crc(&points) != checksum {
                 return Err(corrupt(format!("keyframe {node}: checksum mismatch")));
             }
-            let points_in_robot = points_from_le_bytes(&points)
-                .ok_or_else(|| corrupt(format!("keyframe {node}: {} bytes of points", points.len())))?;
+            let points_in_robot = points_from_le_bytes(&points).ok_or_else(|| {
+                corrupt(format!("keyframe {node}: {} bytes of points", points.len()))
+            })?;
             let submap = match submap {
                 Some(s) => Some(node_id(s).ok_or_else(|| corrupt(format!("submap id {s}")))?),
                 None => None,
@@ -326,17 +327,25 @@ impl Store {
         let mut backups = BTreeMap::new();
         let mut statement = self
             .connection
-            .prepare(&format!("SELECT merge, body, checksum FROM backups WHERE {VISIBLE}"))
+            .prepare(&format!(
+                "SELECT merge, body, checksum FROM backups WHERE {VISIBLE}"
+            ))
             .map_err(classify)?;
         let rows = statement
             .query_map([version], |row| {
-                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, Vec<u8>>(1)?,
+                    row.get::<_, i64>(2)?,
+                ))
             })
             .map_err(classify)?;
         for row in rows {
             let (merge, body, checksum) = row.map_err(classify)?;
             if crc(&body) != checksum {
-                return Err(corrupt(format!("backup of merge {merge}: checksum mismatch")));
+                return Err(corrupt(format!(
+                    "backup of merge {merge}: checksum mismatch"
+                )));
             }
             let id = u64::try_from(merge).map_err(|_| corrupt(format!("merge id {merge}")))?;
             let graph: PoseGraph2 = postcard::from_bytes(&body)
@@ -364,9 +373,7 @@ impl Store {
         let classify = |e: rusqlite::Error| classify(&self.path, e);
         let mut statement = self
             .connection
-            .prepare(
-                "SELECT body FROM events WHERE ?1 IS NULL OR version = ?1 ORDER BY seq",
-            )
+            .prepare("SELECT body FROM events WHERE ?1 IS NULL OR version = ?1 ORDER BY seq")
             .map_err(classify)?;
         let rows = statement
             .query_map([version], |row| row.get(0))
@@ -389,14 +396,20 @@ impl Store {
                 .map_err(classify)?;
             let rows = statement
                 .query_map([], |row| {
-                    Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                    Ok((
+                        row.get::<_, i64>(0)?,
+                        row.get::<_, Vec<u8>>(1)?,
+                        row.get::<_, i64>(2)?,
+                    ))
                 })
                 .map_err(classify)?;
             let mut with_atlas = BTreeSet::new();
             for row in rows {
                 let (version, counters, checksum) = row.map_err(classify)?;
                 if crc(&counters) != checksum {
-                    return Err(corrupt(format!("version {version}: counters: checksum mismatch")));
+                    return Err(corrupt(format!(
+                        "version {version}: counters: checksum mismatch"
+                    )));
                 }
                 postcard::from_bytes::<AtlasCounters>(&counters)
                     .map_err(|e| corrupt(format!("version {version}: counters: {e}")))?;
@@ -424,7 +437,11 @@ impl Store {
                 .map_err(classify)?;
             let rows = statement
                 .query_map([], |row| {
-                    Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                    Ok((
+                        row.get::<_, i64>(0)?,
+                        row.get::<_, Vec<u8>>(1)?,
+                        row.get::<_, i64>(2)?,
+                    ))
                 })
                 .map_err(classify)?;
             for row in rows {
@@ -442,7 +459,11 @@ impl Store {
             .map_err(classify)?;
         let rows = statement
             .query_map([], |row| {
-                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, Vec<u8>>(1)?,
+                    row.get::<_, i64>(2)?,
+                ))
             })
             .map_err(classify)?;
         for row in rows {
@@ -552,7 +573,13 @@ fn write_keyframes(
         ])?;
     }
     let kept: BTreeSet<i64> = atlas.keyframes.keys().map(|n| sql_id(n.0)).collect();
-    mark_removed(transaction, "keyframes", "node", version, live.difference(&kept))
+    mark_removed(
+        transaction,
+        "keyframes",
+        "node",
+        version,
+        live.difference(&kept),
+    )
 }
 
 /// Backups never change either.
@@ -572,7 +599,13 @@ fn write_backups(
         }
     }
     let kept: BTreeSet<i64> = atlas.backups.keys().map(|m| sql_id(m.0)).collect();
-    mark_removed(transaction, "backups", "merge", version, live.difference(&kept))
+    mark_removed(
+        transaction,
+        "backups",
+        "merge",
+        version,
+        live.difference(&kept),
+    )
 }
 
 fn live_ids(
@@ -580,8 +613,9 @@ fn live_ids(
     table: &str,
     key: &str,
 ) -> rusqlite::Result<BTreeSet<i64>> {
-    let mut statement =
-        transaction.prepare(&format!("SELECT {key} FROM {table} WHERE removed_version IS NULL"))?;
+    let mut statement = transaction.prepare(&format!(
+        "SELECT {key} FROM {table} WHERE removed_version IS NULL"
+    ))?;
     let rows = statement.query_map([], |row| row.get(0))?;
     rows.collect()
 }

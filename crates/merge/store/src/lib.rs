@@ -12,7 +12,7 @@ mod error;
 mod schema;
 mod store;
 
+pub use atlas_rows::{mapped_area_m2, SessionCommit, StoredAtlas};
 pub use error::StoreError;
 pub use schema::SCHEMA_VERSION;
-pub use atlas_rows::{mapped_area_m2, SessionCommit, StoredAtlas};
 pub use store::{Store, StoreInfo, VersionInfo, DEFAULT_KEEP_VERSIONS};

@@ -147,20 +147,22 @@ impl Store {
         connection
             .pragma_update(None, "foreign_keys", true)
             .map_err(classify)?;
-        let transaction = connection
-            .transaction_with_behavior(TransactionBehavior::Exclusive)
-            .map_err(classify)?;
-        let from = usize::try_from(schema_version).unwrap_or(0);
-        for migration in MIGRATIONS.iter().skip(from) {
-            transaction.execute_batch(migration).map_err(classify)?;
+        if schema_version < SCHEMA_VERSION {
+            let transaction = connection
+                .transaction_with_behavior(TransactionBehavior::Exclusive)
+                .map_err(classify)?;
+            let from = usize::try_from(schema_version).unwrap_or(0);
+            for migration in MIGRATIONS.iter().skip(from) {
+                transaction.execute_batch(migration).map_err(classify)?;
+            }
+            transaction
+                .pragma_update(None, "application_id", APPLICATION_ID)
+                .map_err(classify)?;
+            transaction
+                .pragma_update(None, "user_version", SCHEMA_VERSION)
+                .map_err(classify)?;
+            transaction.commit().map_err(classify)?;
         }
-        transaction
-            .pragma_update(None, "application_id", APPLICATION_ID)
-            .map_err(classify)?;
-        transaction
-            .pragma_update(None, "user_version", SCHEMA_VERSION)
-            .map_err(classify)?;
-        transaction.commit().map_err(classify)?;
         connection
             .pragma_update(None, "synchronous", "FULL")
             .map_err(classify)?;
@@ -277,17 +279,25 @@ impl Store {
         for table in VERSIONED_TABLES {
             transaction
                 .execute(
-                    &format!("UPDATE {table} SET removed_version = NULL WHERE removed_version > ?1"),
+                    &format!(
+                        "UPDATE {table} SET removed_version = NULL WHERE removed_version > ?1"
+                    ),
                     [version],
                 )
                 .map_err(classify)?;
             transaction
-                .execute(&format!("DELETE FROM {table} WHERE added_version > ?1"), [version])
+                .execute(
+                    &format!("DELETE FROM {table} WHERE added_version > ?1"),
+                    [version],
+                )
                 .map_err(classify)?;
         }
         for table in ["events", "atlas_state"] {
             transaction
-                .execute(&format!("DELETE FROM {table} WHERE version > ?1"), [version])
+                .execute(
+                    &format!("DELETE FROM {table} WHERE version > ?1"),
+                    [version],
+                )
                 .map_err(classify)?;
         }
         // One statement: foreign keys are checked when it ends, children gone with parents.

@@ -26,7 +26,11 @@ impl Robot {
     }
 
     /// One session; returns its snapshot and the reference pose of each new keyframe.
-    fn session(&mut self, nodes: usize, keep_nodes: usize) -> (AtlasSnapshot, BTreeMap<NodeId, Se2>) {
+    fn session(
+        &mut self,
+        nodes: usize,
+        keep_nodes: usize,
+    ) -> (AtlasSnapshot, BTreeMap<NodeId, Se2>) {
         if self.sessions > 0 {
             self.atlas.end_epoch(EpochEndReason::Restart);
         }
@@ -68,7 +72,12 @@ impl Robot {
     }
 }
 
-fn commit(store: &mut Store, name: &str, atlas: &AtlasSnapshot, reference: &BTreeMap<NodeId, Se2>) -> i64 {
+fn commit(
+    store: &mut Store,
+    name: &str,
+    atlas: &AtlasSnapshot,
+    reference: &BTreeMap<NodeId, Se2>,
+) -> i64 {
     let events = vec![format!("{{\"session\":\"{name}\"}}")];
     store
         .commit_session(&SessionCommit {
@@ -92,7 +101,10 @@ fn a_new_store_keeps_its_versions_across_reopening_and_rolls_back() {
         assert_eq!(store.versions().unwrap(), vec![]);
         assert_eq!(store.load(None).unwrap(), None);
         assert_eq!(commit(&mut store, "monday", &monday, &monday_reference), 1);
-        assert_eq!(commit(&mut store, "tuesday", &tuesday, &tuesday_reference), 2);
+        assert_eq!(
+            commit(&mut store, "tuesday", &tuesday, &tuesday_reference),
+            2
+        );
         store.check().unwrap();
     }
     let mut store = Store::open_existing(&path).unwrap();
