@@ -42,6 +42,9 @@ pub enum EdgeKind {
     Merge,
     /// An absolute pose measurement; `from == to` and `measurement` is `world_from_node`.
     Prior,
+    /// What remains of a removed vertex's edges: an edge of the Chow–Liu tree of their
+    /// marginal ([`PoseGraph::marginalize_vertex`]).
+    Marginal,
 }
 
 /// A measurement between two vertices: `measurement ≈ from⁻¹ · to` (`from_from_to`).
@@ -90,6 +93,14 @@ pub enum GraphError {
         /// End vertex.
         to: NodeId,
         /// What is wrong.
+        reason: &'static str,
+    },
+    /// A vertex that cannot be marginalised.
+    #[error("vertex {node} cannot be marginalised: {reason}")]
+    NotMarginalizable {
+        /// The vertex.
+        node: NodeId,
+        /// Why.
         reason: &'static str,
     },
 }

@@ -21,6 +21,7 @@
 
 mod graph;
 mod ids;
+mod marginalize;
 mod simplify;
 
 pub use graph::{
@@ -28,4 +29,5 @@ pub use graph::{
     UnionRecord, Vertex,
 };
 pub use ids::{EdgeId, NodeId, RobotId, SessionId, VertexMeta};
+pub use marginalize::Marginalized;
 pub use simplify::edge_information_ln_det;

@@ -25,13 +25,13 @@ pub fn edge_information_ln_det<G, const D: usize>(edge: &Edge<G, D>) -> f64 {
 }
 
 /// Disjoint sets over vertex ids (union by size, path halving).
-struct DisjointSets {
+pub(crate) struct DisjointSets {
     parent: Vec<usize>,
     size: Vec<usize>,
 }
 
 impl DisjointSets {
-    fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         Self {
             parent: (0..n).collect(),
             size: vec![1; n],
@@ -53,7 +53,7 @@ impl DisjointSets {
     }
 
     /// Joins the sets of `a` and `b`; false when they were one set already.
-    fn union(&mut self, a: usize, b: usize) -> bool {
+    pub(crate) fn union(&mut self, a: usize, b: usize) -> bool {
         let (a, b) = (self.find(a), self.find(b));
         if a == b {
             return false;

@@ -78,7 +78,7 @@ impl Picture {
                     self.draw_line(&a, &b, style.loop_colour, style.loop_width_px);
                 }
                 EdgeKind::Merge => merges.push((a, b)),
-                EdgeKind::Loop | EdgeKind::Prior => {}
+                EdgeKind::Loop | EdgeKind::Prior | EdgeKind::Marginal => {}
             }
         }
         if style.vertex_radius_px > 0.0 {
