@@ -72,6 +72,10 @@ pub struct AtlasArgs {
     /// their summary only).
     #[arg(long, default_value_t = mapmerge_store::DEFAULT_KEEP_VERSIONS, requires = "store")]
     pub keep_versions: usize,
+    /// Keep every view, local map, vertex and edge (the unpruned baseline; sets
+    /// `atlas.maintenance.prune` to false).
+    #[arg(long)]
+    pub no_prune: bool,
     /// Engine parameters (JSON, `mapmerge_engine::EngineParams`; absent fields keep their
     /// defaults).
     #[arg(long)]
@@ -205,12 +209,14 @@ struct StoreRunReport {
 struct CommittedSession {
     #[serde(flatten)]
     version: mapmerge_store::VersionInfo,
-    /// Snapshotting the atlas and committing it (s).
+    /// Ending the session, maintaining, snapshotting and committing the atlas (s).
     commit_secs: f64,
     /// ATE (m, RMS after rigid alignment) of the session's keyframes against their reference
     /// poses, and of every keyframe of the graph the robot ended in.
     session_ate_m: Option<f64>,
     map_ate_m: Option<f64>,
+    /// What maintenance did before the commit (included in `commit_secs`).
+    maintenance: mapmerge_atlas::MaintenanceReport,
 }
 
 /// Merge edges are judged true within this (m, rad).
@@ -289,7 +295,7 @@ fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
 /// Runs `mapmerge atlas`.
 pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
-    let params: EngineParams = match &args.config {
+    let mut params: EngineParams = match &args.config {
         None => EngineParams::default(),
         Some(path) => {
             let text = std::fs::read_to_string(path)
@@ -298,6 +304,9 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
         }
     };
+    if args.no_prune {
+        params.atlas.maintenance.prune = false;
+    }
     // The store first: a refused store stops the run before any work.
     let opened = Instant::now();
     let mut store = match &args.store {
@@ -341,7 +350,8 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         bar.set_message(session.name.clone());
         let events_before = engine.events().len();
         let first_node = engine.atlas().next_node_id();
-        if s > 0 || resumed_from.is_some() {
+        // A restart ends the epoch, unless the last session ended it (`--store`).
+        if (s > 0 || resumed_from.is_some()) && engine.atlas().active().num_vertices() > 0 {
             engine.end_epoch(EpochEndReason::Restart)?;
         }
         let mut previous_odometry = None;
@@ -565,15 +575,20 @@ fn print_text(report: &Report) {
             .map_or_else(|| "a new atlas".to_owned(), |v| format!("version {v}"));
         for c in &store.committed {
             println!(
-                "  store {}: continued {continued}, committed version {} ({} nodes, {} edges, {} keyframes, {:.0} m², {} bytes; session ATE {} m)",
+                "  store {}: continued {continued}, committed version {} ({} nodes, {} edges, {} keyframes, {} local maps, {:.0} m², {} bytes; session ATE {} m; pruned {} views, {} local maps, {} vertices, {} edges)",
                 store.path.display(),
                 c.version.version,
                 c.version.nodes,
                 c.version.edges,
                 c.version.keyframes,
+                c.version.local_maps,
                 c.version.mapped_area_m2,
                 c.version.bytes,
                 c.session_ate_m.map_or_else(|| "-".to_owned(), |a| format!("{a:.3}")),
+                c.maintenance.views_pruned,
+                c.maintenance.local_maps_pruned,
+                c.maintenance.vertices_marginalized,
+                c.maintenance.edges_pruned,
             );
         }
     }
@@ -718,8 +733,8 @@ fn write_merge_results(
     Ok(())
 }
 
-/// Commits the session that just ended: the atlas as it is (merges into the active graph
-/// still undoable, with their backups), the session's events and the reference poses.
+/// Ends the session ([`Engine::end_session`]: its epoch ends, the atlas is maintained) and
+/// commits it: the atlas, the session's events and the reference poses.
 fn commit_session(
     store: &mut mapmerge_store::Store,
     engine: &mut Engine,
@@ -730,6 +745,17 @@ fn commit_session(
 ) -> anyhow::Result<CommittedSession> {
     let started = Instant::now();
     engine.finish()?;
+    // Accuracy as mapped, before maintenance thins the graph.
+    let active = engine.atlas().active();
+    let session_nodes: Vec<NodeId> = active
+        .vertices()
+        .map(|(n, _)| n)
+        .filter(|n| *n >= first_node)
+        .collect();
+    let all_nodes: Vec<NodeId> = active.vertices().map(|(n, _)| n).collect();
+    let session_ate_m = ate_of(active, &session_nodes, truth_of_node);
+    let map_ate_m = ate_of(active, &all_nodes, truth_of_node);
+    let maintenance = engine.end_session(first_node)?;
     let atlas = engine.atlas().snapshot()?;
     let events = engine
         .events()
@@ -753,18 +779,12 @@ fn commit_session(
         .into_iter()
         .find(|v| v.version == version)
         .ok_or_else(|| anyhow::anyhow!("version {version} was committed but is not listed"))?;
-    let active = engine.atlas().active();
-    let session_nodes: Vec<NodeId> = active
-        .vertices()
-        .map(|(n, _)| n)
-        .filter(|n| *n >= first_node)
-        .collect();
-    let all_nodes: Vec<NodeId> = active.vertices().map(|(n, _)| n).collect();
     Ok(CommittedSession {
         version,
         commit_secs,
-        session_ate_m: ate_of(active, &session_nodes, truth_of_node),
-        map_ate_m: ate_of(active, &all_nodes, truth_of_node),
+        session_ate_m,
+        map_ate_m,
+        maintenance,
     })
 }
 

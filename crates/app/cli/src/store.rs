@@ -8,6 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use clap::{Args, Subcommand};
+use mapmerge_atlas::RenderedMap;
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid, Point2};
 use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
@@ -37,7 +38,8 @@ pub enum StoreCommand {
     /// Delete every version after `--to` (a bad session's version and its successors).
     Rollback(RollbackArgs),
     /// Write each map of a version: its pose graph (g2o), its occupancy grid (map_server
-    /// PGM + YAML) with a picture (PNG), and one TUM trajectory per epoch.
+    /// PGM + YAML; its local maps rendered) with a picture (PNG), and one TUM trajectory per
+    /// epoch.
     Export(ExportArgs),
 }
 
@@ -222,20 +224,29 @@ fn export(args: &ExportArgs) -> anyhow::Result<()> {
         let g2o = args.output.join(format!("{name}.g2o"));
         mapmerge_io::write_graph(&g2o, &AnyGraph::Planar(graph.clone()), GraphFormat::G2o)
             .map_err(anyhow::Error::from)?;
-        // The grid: every keyframe's beams from its vertex.
-        let mut grid = OccupancyGrid::new(args.resolution)?;
-        let model = InsertParams::default().model;
-        for (node, vertex) in graph.vertices() {
-            let Some(keyframe) = atlas.keyframes.get(&node) else {
-                continue;
-            };
-            let ends: Vec<Point2> = keyframe
-                .points_in_robot
-                .iter()
-                .map(|p| vertex.pose.transform_point(p))
-                .collect();
-            grid.insert_rays(&vertex.pose.translation(), &ends, &[], &model)?;
-        }
+        // The grid: the graph's local maps rendered (iRobot Sec. 3.3), else every keyframe's
+        // beams from its vertex (a graph without local maps).
+        let grid = match RenderedMap::render(graph, &atlas.local_maps, args.resolution)
+            .and_then(|rendered| rendered.to_grid())
+        {
+            Some(grid) => grid,
+            None => {
+                let mut grid = OccupancyGrid::new(args.resolution)?;
+                let model = InsertParams::default().model;
+                for (node, vertex) in graph.vertices() {
+                    let Some(keyframe) = atlas.keyframes.get(&node) else {
+                        continue;
+                    };
+                    let ends: Vec<Point2> = keyframe
+                        .points_in_robot
+                        .iter()
+                        .map(|p| vertex.pose.transform_point(p))
+                        .collect();
+                    grid.insert_rays(&vertex.pose.translation(), &ends, &[], &model)?;
+                }
+                grid
+            }
+        };
         let map_yaml = args.output.join(format!("{name}.yaml"));
         mapmerge_io::write_ros_map(
             &map_yaml,

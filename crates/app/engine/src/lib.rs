@@ -23,7 +23,7 @@ use std::sync::Arc;
 
 use mapmerge_atlas::{
     Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo, ConstraintSearch,
-    EpochEndReason, LoopEdge, LoopRecord, MapId, MemoryBackups, MergeReason, MergeRequest,
+    EpochEndReason, LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason, MergeRequest,
     UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
@@ -391,6 +391,16 @@ impl Engine {
         self.refused.clear();
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
+    }
+
+    /// Ends a session of a lifelong robot (iRobot Sec. 4): its epoch ends (a restart), every
+    /// merge becomes final, and the atlas is maintained with `atlas.maintenance`
+    /// ([`Atlas::maintain`]); the session's vertices are those from `first_node` on. The next
+    /// scan starts a new epoch.
+    pub fn end_session(&mut self, first_node: NodeId) -> Result<MaintenanceReport, EngineError> {
+        self.end_epoch(EpochEndReason::Restart)?;
+        let params = self.params.atlas.maintenance.clone();
+        Ok(self.atlas.maintain(&params, first_node)?)
     }
 
     /// Optimises once more if loops wait (call after a log's last scan).

@@ -40,6 +40,9 @@ pub struct AtlasParams {
     pub recognition: RecognitionParams,
     /// The keyframes place recognition and the overlap search match (see [`KeyframeParams`]).
     pub keyframes: KeyframeParams,
+    /// Keeping the lifelong atlas bounded after each session (see
+    /// [`crate::MaintenanceParams`]).
+    pub maintenance: crate::MaintenanceParams,
 }
 
 impl Default for AtlasParams {
@@ -57,6 +60,7 @@ impl Default for AtlasParams {
             merge: MergeParams::default(),
             recognition: RecognitionParams::default(),
             keyframes: KeyframeParams::default(),
+            maintenance: crate::MaintenanceParams::default(),
         }
     }
 }
@@ -103,6 +107,14 @@ pub struct Atlas<B: BackupStore = MemoryBackups> {
     pub(crate) next_map: u32,
     pub(crate) next_merge: u64,
     pub(crate) events: Vec<AtlasEvent>,
+    /// Local maps by anchor vertex ([`crate::LocalMapGrid`]).
+    pub(crate) local_maps: BTreeMap<NodeId, crate::LocalMapGrid>,
+    /// How each view (keyframe) has been used ([`crate::ViewUse`]).
+    pub(crate) views: BTreeMap<NodeId, crate::ViewUse>,
+    /// Maintenance sessions so far ([`Atlas::maintain`]).
+    pub(crate) sessions: u32,
+    /// The first vertex of each of the last `stale_after_sessions` sessions, oldest first.
+    pub(crate) session_first_nodes: Vec<NodeId>,
 }
 
 impl Atlas<MemoryBackups> {
@@ -131,6 +143,10 @@ impl<B: BackupStore> Atlas<B> {
             next_map: 0,
             next_merge: 0,
             events: vec![AtlasEvent::EpochStarted { epoch: EpochId(0) }],
+            local_maps: BTreeMap::new(),
+            views: BTreeMap::new(),
+            sessions: 0,
+            session_first_nodes: Vec::new(),
         })
     }
 
@@ -185,6 +201,11 @@ impl<B: BackupStore> Atlas<B> {
             .chain(self.inactive.values())
             .find_map(|g| g.vertex(node))
             .map(|v| v.pose)
+    }
+
+    /// The local maps by anchor vertex.
+    pub fn local_maps(&self) -> &BTreeMap<NodeId, crate::LocalMapGrid> {
+        &self.local_maps
     }
 
     /// The backups.
@@ -504,6 +525,8 @@ impl<B: BackupStore> Atlas<B> {
             (EpochId::of(&removed.vertex.meta), Some(*map))
         };
         self.keyframes.remove(node);
+        self.local_maps.remove(&node);
+        self.views.remove(&node);
         let event = AtlasEvent::Pruned { node, epoch, map };
         self.events.push(event.clone());
         Ok(event)

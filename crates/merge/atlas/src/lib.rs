@@ -50,6 +50,8 @@ mod error;
 mod events;
 mod ids;
 mod keyframes;
+mod local_maps;
+mod maintenance;
 mod merge;
 mod recognition;
 mod snapshot;
@@ -66,6 +68,8 @@ pub use events::{
 };
 pub use ids::{EpochId, MapId, MergeId};
 pub use keyframes::{KeyframeRecord, KeyframeStore};
+pub use local_maps::{LocalMapGrid, RenderedMap, LOG_ODDS_STEP};
+pub use maintenance::{MaintenanceParams, MaintenanceReport, ViewUse};
 pub use merge::{LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
 pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};
 pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};

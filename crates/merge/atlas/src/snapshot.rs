@@ -21,6 +21,8 @@ use crate::constraints::ConstraintBuilder;
 use crate::error::AtlasError;
 use crate::ids::{EpochId, MapId, MergeId};
 use crate::keyframes::{KeyframeRecord, KeyframeStore};
+use crate::local_maps::{LocalMapGrid, RenderedMap};
+use crate::maintenance::ViewUse;
 
 /// The atlas's bookkeeping besides its graphs, keyframes and backups (small: stored whole
 /// with every version).
@@ -42,6 +44,12 @@ pub struct AtlasCounters {
     pub merges: Vec<AppliedMerge>,
     /// The tracker's local frame of the current epoch in the active graph's frame.
     pub map_from_local: Se2,
+    /// Maintenance sessions so far.
+    pub sessions: u32,
+    /// How each view has been used.
+    pub views: BTreeMap<NodeId, ViewUse>,
+    /// The first vertex of each recent session, oldest first.
+    pub session_first_nodes: Vec<NodeId>,
 }
 
 /// Everything the atlas owns for good (see the module documentation).
@@ -57,6 +65,8 @@ pub struct AtlasSnapshot {
     pub keyframes: BTreeMap<NodeId, KeyframeRecord>,
     /// The backup of every undoable merge.
     pub backups: BTreeMap<MergeId, PoseGraph2>,
+    /// Local maps by anchor vertex.
+    pub local_maps: BTreeMap<NodeId, LocalMapGrid>,
 }
 
 impl AtlasSnapshot {
@@ -75,16 +85,50 @@ impl AtlasSnapshot {
         std::iter::once(&self.active).chain(self.inactive.values())
     }
 
-    /// The tracker's submaps (the atlas's local maps) that some stored keyframe belongs to.
+    /// Local maps.
     pub fn num_local_maps(&self) -> usize {
-        let anchors: std::collections::BTreeSet<NodeId> =
-            self.keyframes.values().filter_map(|k| k.submap).collect();
-        anchors.len()
+        self.local_maps.len()
+    }
+
+    /// The area the atlas has mapped (m²), summed over its graphs (separate graphs may cover
+    /// the same place): the known cells of each graph's rendered local maps, or, for a graph
+    /// without local maps, the cells its keyframes' beams crossed.
+    pub fn mapped_area_m2(&self, resolution_m: f64) -> f64 {
+        let thresholds = mapmerge_grid::ClassThresholds::default();
+        self.graphs()
+            .map(|graph| {
+                if let Some(rendered) = RenderedMap::render(graph, &self.local_maps, resolution_m) {
+                    return rendered.known_area_m2(&thresholds);
+                }
+                let rays: Vec<_> = graph
+                    .vertices()
+                    .filter_map(|(node, vertex)| Some((vertex.pose, self.keyframes.get(&node)?)))
+                    .flat_map(|(pose, keyframe)| {
+                        let origin = pose.translation();
+                        keyframe
+                            .points_in_robot
+                            .iter()
+                            .map(move |p| (origin, pose.transform_point(p)))
+                            .collect::<Vec<_>>()
+                    })
+                    .collect();
+                // Coarser cells for a site too large for the grid.
+                let mut resolution = resolution_m;
+                loop {
+                    match mapmerge_grid::FreeSpace::from_rays(resolution, rays.iter().copied()) {
+                        Ok(free) => break free.free_cells() as f64 * resolution * resolution,
+                        Err(_) if resolution < 100.0 => resolution *= 2.0,
+                        Err(_) => break 0.0,
+                    }
+                }
+            })
+            .sum()
     }
 
     /// Checks what [`Atlas::restore`] relies on: ids below the counters, no vertex in two
-    /// graphs, a keyframe for every vertex, the robot in the active graph, a backup for every
-    /// undoable merge. The reason names the first violation.
+    /// graphs, the robot in the active graph, a backup for every undoable merge, finite
+    /// local maps of the right size. The reason names the first violation. (A vertex may lack
+    /// a keyframe: maintenance keeps vertices that anchor only a local map.)
     pub fn validate(&self) -> Result<(), String> {
         let c = &self.counters;
         let mut seen: BTreeMap<NodeId, &'static str> = BTreeMap::new();
@@ -100,9 +144,6 @@ impl AtlasSnapshot {
                 }
                 if seen.insert(node, name).is_some() {
                     return Err(format!("vertex {node} is in two graphs"));
-                }
-                if !self.keyframes.contains_key(&node) {
-                    return Err(format!("vertex {node} has no keyframe"));
                 }
             }
         }
@@ -142,6 +183,15 @@ impl AtlasSnapshot {
         if !c.map_from_local.is_finite() {
             return Err("the tracker's frame is not finite".into());
         }
+        for (anchor, map) in &self.local_maps {
+            let cells = map.width as usize * map.height as usize;
+            if map.cells.len() != cells
+                || !(map.resolution_m.is_finite() && map.resolution_m > 0.0)
+                || !map.origin_m.iter().all(|x| x.is_finite())
+            {
+                return Err(format!("the local map at {anchor} is malformed"));
+            }
+        }
         Ok(())
     }
 }
@@ -165,6 +215,9 @@ impl<B: BackupStore> Atlas<B> {
                 robot: self.robot,
                 merges: self.merges.clone(),
                 map_from_local: self.map_from_local,
+                sessions: self.sessions,
+                views: self.views.clone(),
+                session_first_nodes: self.session_first_nodes.clone(),
             },
             active: self.active.clone(),
             inactive: self.inactive.clone(),
@@ -174,6 +227,7 @@ impl<B: BackupStore> Atlas<B> {
                 .map(|(node, record)| (node, record.clone()))
                 .collect(),
             backups,
+            local_maps: self.local_maps.clone(),
         })
     }
 
@@ -212,6 +266,10 @@ impl<B: BackupStore> Atlas<B> {
             next_map: c.next_map,
             next_merge: c.next_merge,
             events: Vec::new(),
+            local_maps: snapshot.local_maps,
+            views: c.views,
+            sessions: c.sessions,
+            session_first_nodes: c.session_first_nodes,
         };
         let maps: Vec<MapId> = atlas.inactive.keys().copied().collect();
         for map in maps {

@@ -2,15 +2,13 @@
 //! versions they are valid in (docs/formats.md, "The lifelong store").
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
 use std::time::{SystemTime, UNIX_EPOCH};
 
 use mapmerge_atlas::{
-    points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot, KeyframeRecord, MapId,
-    MergeId,
+    points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot, KeyframeRecord,
+    LocalMapGrid, MapId, MergeId,
 };
 use mapmerge_geometry::Se2;
-use mapmerge_grid::FreeSpace;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
 
@@ -43,48 +41,16 @@ pub struct StoredAtlas {
     pub reference_poses: BTreeMap<NodeId, Se2>,
 }
 
-/// Cell side of the free-space grid that measures a version's mapped area (m).
-const AREA_RESOLUTION_M: f64 = 0.1;
-
-/// Area seen by the keyframes of each graph (m²): the cells their beams crossed, summed over
-/// the graphs (each graph in its own frame; separate graphs may cover the same place).
-pub fn mapped_area_m2(atlas: &AtlasSnapshot) -> f64 {
-    atlas
-        .graphs()
-        .map(|graph| {
-            let rays = graph.vertices().flat_map(|(node, vertex)| {
-                let points = atlas
-                    .keyframes
-                    .get(&node)
-                    .map(|k| Arc::clone(&k.points_in_robot));
-                let origin = vertex.pose.translation();
-                let pose = vertex.pose;
-                points
-                    .into_iter()
-                    .flat_map(move |p| p.to_vec())
-                    .map(move |p| (origin, pose.transform_point(&p)))
-            });
-            // Coarser cells for a site too large for the grid.
-            let rays: Vec<_> = rays.collect();
-            let mut resolution_m = AREA_RESOLUTION_M;
-            loop {
-                match FreeSpace::from_rays(resolution_m, rays.iter().copied()) {
-                    Ok(free) => break free.free_cells() as f64 * resolution_m * resolution_m,
-                    Err(_) if resolution_m < 100.0 => resolution_m *= 2.0,
-                    Err(_) => break 0.0,
-                }
-            }
-        })
-        .sum()
-}
+/// Cell side of the rendered map that measures a version's mapped area (m).
+const AREA_RESOLUTION_M: f64 = 0.05;
 
 /// The CRC-32 stored beside every blob.
-fn crc(bytes: &[u8]) -> i64 {
+pub(crate) fn crc(bytes: &[u8]) -> i64 {
     i64::from(crc32fast::hash(bytes))
 }
 
 /// Postcard's encoding, its error as SQLite's (it fails the transaction).
-fn encode<T: serde::Serialize>(value: &T) -> rusqlite::Result<Vec<u8>> {
+pub(crate) fn encode<T: serde::Serialize>(value: &T) -> rusqlite::Result<Vec<u8>> {
     postcard::to_stdvec(value).map_err(|e| rusqlite::Error::ToSqlConversionFailure(Box::new(e)))
 }
 
@@ -105,7 +71,7 @@ impl Store {
         let created_unix_s = SystemTime::now()
             .duration_since(UNIX_EPOCH)
             .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
-        let mapped_area_m2 = mapped_area_m2(atlas);
+        let mapped_area_m2 = atlas.mapped_area_m2(AREA_RESOLUTION_M);
         let keep = i64::try_from(self.keep_versions).unwrap_or(i64::MAX);
         let transaction = self
             .connection
@@ -145,7 +111,11 @@ impl Store {
             .map_err(classify)?;
         write_graphs(&transaction, version, atlas).map_err(classify)?;
         write_keyframes(&transaction, version, atlas, commit.reference_poses).map_err(classify)?;
-        write_backups(&transaction, version, atlas).map_err(classify)?;
+        let backups = atlas.backups.iter().map(|(merge, graph)| (sql_id(merge.0), graph));
+        write_immutable(&transaction, "backups", "merge", version, backups).map_err(classify)?;
+        let local_maps = atlas.local_maps.iter().map(|(anchor, map)| (sql_id(anchor.0), map));
+        write_immutable(&transaction, "local_maps", "anchor", version, local_maps)
+            .map_err(classify)?;
         {
             let mut insert = transaction
                 .prepare("INSERT INTO events (version, body) VALUES (?1, ?2)")
@@ -324,40 +294,23 @@ impl Store {
                 reference_poses.insert(node, Se2::new(x, y, yaw));
             }
         }
-        let mut backups = BTreeMap::new();
-        let mut statement = self
-            .connection
-            .prepare(&format!(
-                "SELECT merge, body, checksum FROM backups WHERE {VISIBLE}"
-            ))
-            .map_err(classify)?;
-        let rows = statement
-            .query_map([version], |row| {
-                Ok((
-                    row.get::<_, i64>(0)?,
-                    row.get::<_, Vec<u8>>(1)?,
-                    row.get::<_, i64>(2)?,
-                ))
-            })
-            .map_err(classify)?;
-        for row in rows {
-            let (merge, body, checksum) = row.map_err(classify)?;
-            if crc(&body) != checksum {
-                return Err(corrupt(format!(
-                    "backup of merge {merge}: checksum mismatch"
-                )));
-            }
-            let id = u64::try_from(merge).map_err(|_| corrupt(format!("merge id {merge}")))?;
-            let graph: PoseGraph2 = postcard::from_bytes(&body)
-                .map_err(|e| corrupt(format!("backup of merge {merge}: {e}")))?;
-            backups.insert(MergeId(id), graph);
-        }
+        let backups = self
+            .load_blobs::<PoseGraph2>("backups", "merge", version)?
+            .into_iter()
+            .map(|(id, graph)| Ok((MergeId(id_of(id).ok_or_else(|| corrupt(format!("merge id {id}")))?), graph)))
+            .collect::<Result<_, StoreError>>()?;
+        let local_maps = self
+            .load_blobs::<LocalMapGrid>("local_maps", "anchor", version)?
+            .into_iter()
+            .map(|(id, map)| Ok((node_id(id).ok_or_else(|| corrupt(format!("anchor id {id}")))?, map)))
+            .collect::<Result<_, StoreError>>()?;
         let atlas = AtlasSnapshot {
             counters,
             active: active.unwrap_or_default(),
             inactive,
             keyframes,
             backups,
+            local_maps,
         };
         atlas.validate().map_err(corrupt)?;
         Ok(Some(StoredAtlas {
@@ -379,6 +332,43 @@ impl Store {
             .query_map([version], |row| row.get(0))
             .map_err(classify)?;
         rows.collect::<Result<_, _>>().map_err(classify)
+    }
+
+    /// The rows of a table of immutable blobs (`backups`, `local_maps`) valid in `version`,
+    /// checksummed and decoded, by key.
+    fn load_blobs<T: serde::de::DeserializeOwned>(
+        &self,
+        table: &str,
+        key: &str,
+        version: i64,
+    ) -> Result<BTreeMap<i64, T>, StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let corrupt = |reason: String| StoreError::Corrupt {
+            path: self.path.clone(),
+            reason: format!("version {version}: {table} row {reason}"),
+        };
+        let mut statement = self
+            .connection
+            .prepare(&format!(
+                "SELECT {key}, body, checksum FROM {table}
+                 WHERE added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)"
+            ))
+            .map_err(classify)?;
+        let rows = statement
+            .query_map([version], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+            })
+            .map_err(classify)?;
+        let mut blobs = BTreeMap::new();
+        for row in rows {
+            let (id, body, checksum) = row.map_err(classify)?;
+            if crc(&body) != checksum {
+                return Err(corrupt(format!("{id}: checksum mismatch")));
+            }
+            let value = postcard::from_bytes(&body).map_err(|e| corrupt(format!("{id}: {e}")))?;
+            blobs.insert(id, value);
+        }
+        Ok(blobs)
     }
 
     /// The rows half of [`Store::check`]: every retained version has counters, every stored
@@ -430,7 +420,7 @@ impl Store {
                 )));
             }
         }
-        for (table, key) in [("graphs", "id"), ("backups", "merge")] {
+        for (table, key) in [("graphs", "id"), ("backups", "merge"), ("local_maps", "anchor")] {
             let mut statement = self
                 .connection
                 .prepare(&format!("SELECT {key}, body, checksum FROM {table}"))
@@ -449,8 +439,12 @@ impl Store {
                 if crc(&body) != checksum {
                     return Err(corrupt(format!("{table} row {id}: checksum mismatch")));
                 }
-                postcard::from_bytes::<PoseGraph2>(&body)
-                    .map_err(|e| corrupt(format!("{table} row {id}: {e}")))?;
+                let decoded = if table == "local_maps" {
+                    postcard::from_bytes::<LocalMapGrid>(&body).map(|_| ())
+                } else {
+                    postcard::from_bytes::<PoseGraph2>(&body).map(|_| ())
+                };
+                decoded.map_err(|e| corrupt(format!("{table} row {id}: {e}")))?;
             }
         }
         let mut statement = self
@@ -479,8 +473,12 @@ impl Store {
     }
 }
 
+fn id_of(value: i64) -> Option<u64> {
+    u64::try_from(value).ok()
+}
+
 fn node_id(value: i64) -> Option<NodeId> {
-    u64::try_from(value).ok().map(NodeId)
+    id_of(value).map(NodeId)
 }
 
 fn sql_id(value: u64) -> i64 {
@@ -582,30 +580,28 @@ fn write_keyframes(
     )
 }
 
-/// Backups never change either.
-fn write_backups(
+/// Backups and local maps never change: new ones (by key) get a row, those gone are marked
+/// removed. Only new ones are encoded.
+fn write_immutable<'a, T: serde::Serialize + 'a>(
     transaction: &Transaction<'_>,
+    table: &str,
+    key: &str,
     version: i64,
-    atlas: &AtlasSnapshot,
+    items: impl Iterator<Item = (i64, &'a T)>,
 ) -> rusqlite::Result<()> {
-    let live = live_ids(transaction, "backups", "merge")?;
-    for (merge, graph) in &atlas.backups {
-        if !live.contains(&sql_id(merge.0)) {
-            let body = encode(graph)?;
-            transaction.execute(
-                "INSERT INTO backups (merge, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)",
-                params![sql_id(merge.0), version, body, crc(&body)],
-            )?;
+    let live = live_ids(transaction, table, key)?;
+    let mut kept = BTreeSet::new();
+    let mut insert = transaction.prepare(&format!(
+        "INSERT INTO {table} ({key}, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)"
+    ))?;
+    for (id, value) in items {
+        kept.insert(id);
+        if !live.contains(&id) {
+            let body = encode(value)?;
+            insert.execute(params![id, version, body, crc(&body)])?;
         }
     }
-    let kept: BTreeSet<i64> = atlas.backups.keys().map(|m| sql_id(m.0)).collect();
-    mark_removed(
-        transaction,
-        "backups",
-        "merge",
-        version,
-        live.difference(&kept),
-    )
+    mark_removed(transaction, table, key, version, live.difference(&kept))
 }
 
 fn live_ids(

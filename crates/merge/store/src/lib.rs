@@ -9,10 +9,11 @@
 
 mod atlas_rows;
 mod error;
+mod legacy;
 mod schema;
 mod store;
 
-pub use atlas_rows::{mapped_area_m2, SessionCommit, StoredAtlas};
+pub use atlas_rows::{SessionCommit, StoredAtlas};
 pub use error::StoreError;
 pub use schema::SCHEMA_VERSION;
 pub use store::{Store, StoreInfo, VersionInfo, DEFAULT_KEEP_VERSIONS};

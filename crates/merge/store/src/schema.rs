@@ -2,8 +2,17 @@
 //!
 //! A store is a SQLite file whose `PRAGMA application_id` is [`APPLICATION_ID`] and whose
 //! `PRAGMA user_version` is its schema version. `MIGRATIONS[k]` takes a store from schema
-//! version `k` to `k + 1` (version 0 is the empty file); every migration runs in the
+//! version `k` to `k + 1` (version 0 is the empty file): its SQL, then its step in Rust for
+//! what SQL cannot do (re-encoding blobs whose type grew). Every migration runs in the
 //! transaction that opens the store, so an upgrade is all or nothing.
+
+use rusqlite::Transaction;
+
+/// One migration: SQL, then an optional step in Rust.
+pub(crate) struct Migration {
+    pub(crate) sql: &'static str,
+    pub(crate) then: Option<fn(&Transaction<'_>) -> rusqlite::Result<()>>,
+}
 
 /// "mmrg": marks a SQLite file as a mapmerge store.
 pub const APPLICATION_ID: i64 = 0x6d6d_7267;
@@ -12,9 +21,10 @@ pub const APPLICATION_ID: i64 = 0x6d6d_7267;
 pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
 
 /// The migrations, oldest first (see the module documentation).
-pub(crate) const MIGRATIONS: [&str; 2] = [
+pub(crate) const MIGRATIONS: [Migration; 3] = [
     // 0 → 1: map versions, one per committed session.
-    "CREATE TABLE versions (
+    Migration {
+        sql: "CREATE TABLE versions (
          version INTEGER PRIMARY KEY,
          parent INTEGER REFERENCES versions(version),
          session TEXT NOT NULL,
@@ -26,10 +36,13 @@ pub(crate) const MIGRATIONS: [&str; 2] = [
          mapped_area_m2 REAL NOT NULL,
          bytes INTEGER NOT NULL
      ) STRICT;",
-    // 1 → 2: the atlas itself. Every blob has the CRC-32 of its bytes beside it. Rows of graphs, keyframes and backups are shared by the
-    // versions they are valid in: version v sees a row when
-    // added_version <= v < removed_version (no removed_version: still valid).
-    "ALTER TABLE versions ADD COLUMN retained INTEGER NOT NULL DEFAULT 1;
+        then: None,
+    },
+    // 1 → 2: the atlas itself. Every blob has the CRC-32 of its bytes beside it. Rows of
+    // graphs, keyframes and backups are shared by the versions they are valid in: version v
+    // sees a row when added_version <= v < removed_version (no removed_version: still valid).
+    Migration {
+        sql: "ALTER TABLE versions ADD COLUMN retained INTEGER NOT NULL DEFAULT 1;
      CREATE TABLE atlas_state (
          version INTEGER PRIMARY KEY REFERENCES versions(version),
          counters BLOB NOT NULL,
@@ -73,10 +86,24 @@ pub(crate) const MIGRATIONS: [&str; 2] = [
          body TEXT NOT NULL
      ) STRICT;
      CREATE INDEX events_by_version ON events(version);",
+        then: None,
+    },
+    // 2 → 3: local maps (iRobot Sec. 3.3), one per anchor vertex, postcard
+    // `LocalMapGrid` bodies; the counters gain the maintenance sessions and the views' use.
+    Migration {
+        sql: "CREATE TABLE local_maps (
+         anchor INTEGER PRIMARY KEY,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         body BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;",
+        then: Some(crate::legacy::counters_2_to_3),
+    },
 ];
 
 /// The slot of the active graph in `graphs` (an inactive graph's slot is its map id).
 pub(crate) const ACTIVE_SLOT: i64 = -1;
 
 /// The tables whose rows carry `added_version` and `removed_version`.
-pub(crate) const VERSIONED_TABLES: [&str; 3] = ["graphs", "keyframes", "backups"];
+pub(crate) const VERSIONED_TABLES: [&str; 4] = ["graphs", "keyframes", "backups", "local_maps"];

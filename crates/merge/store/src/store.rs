@@ -153,7 +153,10 @@ impl Store {
                 .map_err(classify)?;
             let from = usize::try_from(schema_version).unwrap_or(0);
             for migration in MIGRATIONS.iter().skip(from) {
-                transaction.execute_batch(migration).map_err(classify)?;
+                transaction.execute_batch(migration.sql).map_err(classify)?;
+                if let Some(step) = migration.then {
+                    step(&transaction).map_err(classify)?;
+                }
             }
             transaction
                 .pragma_update(None, "application_id", APPLICATION_ID)
