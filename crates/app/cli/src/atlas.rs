@@ -217,6 +217,37 @@ struct CommittedSession {
     map_ate_m: Option<f64>,
     /// What maintenance did before the commit (included in `commit_secs`).
     maintenance: mapmerge_atlas::MaintenanceReport,
+    /// The site map (the largest graph) alone: counts and mapped area.
+    site: Option<SiteMap>,
+    /// Graphs in the atlas.
+    graphs: usize,
+}
+
+/// The site map's size.
+#[derive(Serialize)]
+struct SiteMap {
+    nodes: usize,
+    edges: usize,
+    keyframes: usize,
+    local_maps: usize,
+    mapped_area_m2: f64,
+}
+
+impl SiteMap {
+    fn of(atlas: &mapmerge_atlas::AtlasSnapshot) -> Option<Self> {
+        let graph = atlas.site_graph()?;
+        let holds = |node: &NodeId| graph.contains_vertex(*node);
+        Some(Self {
+            nodes: graph.num_vertices(),
+            edges: graph.num_edges(),
+            keyframes: atlas.keyframes.keys().filter(|n| holds(n)).count(),
+            local_maps: atlas.local_maps.keys().filter(|n| holds(n)).count(),
+            mapped_area_m2: mapmerge_atlas::RenderedMap::render(graph, &atlas.local_maps, 0.05)
+                .map_or(0.0, |r| {
+                    r.known_area_m2(&mapmerge_grid::ClassThresholds::default())
+                }),
+        })
+    }
 }
 
 /// Merge edges are judged true within this (m, rad).
@@ -785,6 +816,8 @@ fn commit_session(
         session_ate_m,
         map_ate_m,
         maintenance,
+        site: SiteMap::of(&atlas),
+        graphs: atlas.graphs().filter(|g| g.num_vertices() > 0).count(),
     })
 }
 

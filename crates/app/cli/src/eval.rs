@@ -75,6 +75,9 @@ enum EvalCommand {
     /// Score the assembly of `mapmerge split` segments against their kept-apart truth (loop
     /// edge precision/recall, groups, ATE per group, order invariance).
     Assemble(crate::assemble_eval::AssembleEvalArgs),
+    /// The erroneous-protrusion detector (iRobot Sec. 5.4) on simulated slips and new space:
+    /// trained on tuning seeds, scored on held-out seeds.
+    Protrusions(crate::protrusion_eval::ProtrusionEvalArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -174,6 +177,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::InvalidMerge(a) => crate::invalid_merge_eval::invalid_merge(a),
         EvalCommand::Calibrate(a) => crate::calibrate_eval::calibrate(a),
         EvalCommand::Assemble(a) => crate::assemble_eval::run(a),
+        EvalCommand::Protrusions(a) => crate::protrusion_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

@@ -19,6 +19,7 @@ mod grid_merge;
 mod grid_merge_eval;
 mod invalid_merge_eval;
 mod optimize;
+mod protrusion_eval;
 mod render;
 mod sim;
 mod simulate;

@@ -37,10 +37,31 @@ pub enum StoreCommand {
     Check(SiteArgs),
     /// Delete every version after `--to` (a bad session's version and its successors).
     Rollback(RollbackArgs),
+    /// Look for erroneous protrusions (iRobot Sec. 5.4) in a version: the space new since
+    /// its parent version, classified region by region as protrusion or new space; then
+    /// optionally remove them (a new version) or roll the version back.
+    Protrusions(ProtrusionArgs),
     /// Write each map of a version: its pose graph (g2o), its occupancy grid (map_server
     /// PGM + YAML; its local maps rendered) with a picture (PNG), and one TUM trajectory per
     /// epoch.
     Export(ExportArgs),
+}
+
+/// Arguments of `mapmerge store protrusions`.
+#[derive(Args, Debug)]
+pub struct ProtrusionArgs {
+    #[command(flatten)]
+    pub site: SiteArgs,
+    /// The version to check against its parent (default: the newest).
+    #[arg(long)]
+    pub version: Option<i64>,
+    /// Remove detected protrusions: the version's new local maps lose those cells, committed
+    /// as a new version.
+    #[arg(long, conflicts_with = "rollback")]
+    pub remove: bool,
+    /// Roll the version back (to its parent) when a protrusion is detected.
+    #[arg(long)]
+    pub rollback: bool,
 }
 
 /// Arguments of `mapmerge store export`.
@@ -181,8 +202,147 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
             }
         }
         StoreCommand::Export(export_args) => export(export_args)?,
+        StoreCommand::Protrusions(protrusion_args) => protrusions(protrusion_args)?,
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// One region of new space as `store protrusions` reports it.
+#[derive(Serialize)]
+struct RegionReport {
+    centre_m: [f64; 2],
+    features: mapmerge_atlas::RegionFeatures,
+    protrusion: bool,
+}
+
+/// Runs `mapmerge store protrusions`.
+fn protrusions(args: &ProtrusionArgs) -> anyhow::Result<()> {
+    let mut store = open(&args.site)?;
+    let Some(child) = store.load(args.version).map_err(refused)? else {
+        return Err(crate::bad_input(format!(
+            "{}: the store has no version yet",
+            args.site.site.display()
+        )));
+    };
+    let parent_version = store
+        .versions()
+        .map_err(refused)?
+        .into_iter()
+        .find(|v| v.version == child.version)
+        .and_then(|v| v.parent)
+        .ok_or_else(|| {
+            crate::bad_input(format!(
+                "version {} has no parent to compare with",
+                child.version
+            ))
+        })?;
+    let parent = store
+        .load(Some(parent_version))
+        .map_err(refused)?
+        .ok_or_else(|| crate::bad_input(format!("no version {parent_version}")))?;
+    let params = mapmerge_atlas::ProtrusionParams::default();
+    let classifier = mapmerge_atlas::ProtrusionClassifier::trained().map_err(anyhow::Error::msg)?;
+    let (rendered, regions) = mapmerge_atlas::new_regions(&parent.atlas, &child.atlas, &params)
+        .unwrap_or_else(|| {
+            (
+                mapmerge_atlas::RenderedMap {
+                    geometry: mapmerge_grid::GridGeometry {
+                        resolution_m: params.resolution_m,
+                        origin_m: Point2::zeros(),
+                        width: 0,
+                        height: 0,
+                    },
+                    sums: Vec::new(),
+                    contributions: BTreeMap::new(),
+                },
+                Vec::new(),
+            )
+        });
+    let features: Vec<_> = regions.iter().map(|r| r.features).collect();
+    let verdicts = classifier.predict(&features).map_err(anyhow::Error::msg)?;
+    let found: Vec<&mapmerge_atlas::Region> = regions
+        .iter()
+        .zip(&verdicts)
+        .filter(|(_, p)| **p)
+        .map(|(r, _)| r)
+        .collect();
+    let mut new_version = None;
+    let mut rolled_back = false;
+    if !found.is_empty() && args.remove {
+        let mut atlas = child.atlas.clone();
+        mapmerge_atlas::remove_regions(&parent.atlas, &mut atlas, &rendered, &found);
+        let session = format!("protrusions removed from version {}", child.version);
+        new_version = Some(
+            store
+                .commit_session(&mapmerge_store::SessionCommit {
+                    session: &session,
+                    atlas: &atlas,
+                    events: &[],
+                    reference_poses: &child.reference_poses,
+                })
+                .map_err(refused)?,
+        );
+    } else if !found.is_empty() && args.rollback {
+        store.rollback_to(parent_version).map_err(refused)?;
+        rolled_back = true;
+    }
+    let report: Vec<RegionReport> = regions
+        .iter()
+        .zip(&verdicts)
+        .map(|(r, p)| RegionReport {
+            centre_m: r.centre_m,
+            features: r.features,
+            protrusion: *p,
+        })
+        .collect();
+    if args.site.json {
+        #[derive(Serialize)]
+        struct Report<'a> {
+            version: i64,
+            parent: i64,
+            regions: &'a [RegionReport],
+            protrusions: usize,
+            new_version: Option<i64>,
+            rolled_back: bool,
+        }
+        print_json(&Report {
+            version: child.version,
+            parent: parent_version,
+            regions: &report,
+            protrusions: found.len(),
+            new_version,
+            rolled_back,
+        })?;
+    } else {
+        println!(
+            "version {} against {parent_version}: {} regions of new space, {} protrusions",
+            child.version,
+            report.len(),
+            found.len()
+        );
+        for r in &report {
+            println!(
+                "  ({:.1}, {:.1}) m: {:.2} m², mean distance {:.2} m, minor axis {:.2} m -> {}",
+                r.centre_m[0],
+                r.centre_m[1],
+                r.features.area_m2,
+                r.features.mean_distance_m,
+                r.features.minor_axis_m,
+                if r.protrusion {
+                    "protrusion"
+                } else {
+                    "new space"
+                }
+            );
+        }
+        if let Some(v) = new_version {
+            println!("removed: version {v}");
+        }
+        if rolled_back {
+            println!("rolled back to version {parent_version}");
+        }
+    }
+    Ok(())
 }
 
 /// One exported map's files.

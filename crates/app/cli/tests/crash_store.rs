@@ -32,7 +32,11 @@ impl Moments {
 }
 
 /// Starts one simulated session into the store.
-fn start_session(site: &std::path::Path, index: usize, output: &std::path::Path) -> std::process::Child {
+fn start_session(
+    site: &std::path::Path,
+    index: usize,
+    output: &std::path::Path,
+) -> std::process::Child {
     Command::new(BIN)
         .args([
             "atlas",
@@ -126,8 +130,9 @@ fn sigkill_at_random_moments_loses_no_committed_version_and_corrupts_nothing() {
                 killed_late += usize::from(fraction >= 0.85);
             }
         }
-        let store = Store::open_existing(&site)
-            .unwrap_or_else(|e| panic!("session {k}, killed after {wait:?}: the store does not open: {e}"));
+        let store = Store::open_existing(&site).unwrap_or_else(|e| {
+            panic!("session {k}, killed after {wait:?}: the store does not open: {e}")
+        });
         store
             .check()
             .unwrap_or_else(|e| panic!("session {k}, killed after {wait:?}: {e}"));

@@ -116,6 +116,18 @@ fn the_atlas_lives_on_in_a_store_that_the_store_commands_read_export_and_roll_ba
     ]);
     assert_eq!(old["version"], 1);
 
+    // Protrusions: Tuesday against Monday, region by region.
+    let checked = ok_json(&["store", "protrusions", p(&site), "--json"]);
+    assert_eq!(checked["version"], 2);
+    assert_eq!(checked["parent"], 1);
+    for region in checked["regions"].as_array().unwrap() {
+        assert!(region["features"]["area_m2"].as_f64().unwrap() >= 0.25);
+        assert!(region["protrusion"].is_boolean());
+    }
+    assert_eq!(checked["rolled_back"], false);
+    let first = run(&["store", "protrusions", p(&site), "--version", "1"]);
+    assert_eq!(first.status.code(), Some(2), "version 1 has no parent");
+
     // Roll back Tuesday and live it again: version 2 once more, continuing version 1.
     let rolled = ok_json(&["store", "rollback", p(&site), "--to", "1", "--json"]);
     assert_eq!(rolled["deleted_versions"], 1);

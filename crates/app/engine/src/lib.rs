@@ -23,8 +23,8 @@ use std::sync::Arc;
 
 use mapmerge_atlas::{
     Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo, ConstraintSearch,
-    EpochEndReason, LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason, MergeRequest,
-    UnmergeReason,
+    EpochEndReason, LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason,
+    MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{

@@ -50,7 +50,11 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
             if edge.is_prior() {
                 return Err(refuse("the vertex has a prior"));
             }
-            let other = if edge.from == node { edge.to } else { edge.from };
+            let other = if edge.from == node {
+                edge.to
+            } else {
+                edge.from
+            };
             if !neighbours.contains(&other) {
                 neighbours.push(other);
             }
@@ -135,7 +139,12 @@ impl<G: LieGroup<D>, const D: usize> PoseGraph<G, D> {
                     + a_j * sigma_block(j, j) * a_j.transpose();
                 let c = (c + c.transpose()) * 0.5;
                 let cholesky = c.cholesky()?;
-                let ln_det: f64 = cholesky.l_dirty().diagonal().iter().map(|d| 2.0 * d.ln()).sum();
+                let ln_det: f64 = cholesky
+                    .l_dirty()
+                    .diagonal()
+                    .iter()
+                    .map(|d| 2.0 * d.ln())
+                    .sum();
                 let information = cholesky.inverse();
                 let information = (information + information.transpose()) * 0.5;
                 if !(ln_det.is_finite() && information.iter().all(|x| x.is_finite())) {

@@ -27,7 +27,10 @@ fn information(graph: &PoseGraph2, gauge: NodeId) -> (DMatrix<f64>, Vec<NodeId>)
             graph.vertex(edge.from).unwrap().pose,
             graph.vertex(edge.to).unwrap().pose,
         );
-        let (_, j_from, j_to) = edge.measurement.inverse().relative_error_jacobians(&from, &to);
+        let (_, j_from, j_to) = edge
+            .measurement
+            .inverse()
+            .relative_error_jacobians(&from, &to);
         let blocks = [(index.get(&edge.from), j_from), (index.get(&edge.to), j_to)];
         for (p, jp) in &blocks {
             for (q, jq) in &blocks {
@@ -68,7 +71,15 @@ fn covariance(graph: &PoseGraph2, gauge: NodeId) -> Option<DMatrix<f64>> {
 /// KL(N(0, p) ‖ N(0, q)).
 fn kl(p: &DMatrix<f64>, q: &DMatrix<f64>) -> f64 {
     let q_inv = q.clone().try_inverse().unwrap();
-    let ln_det = |m: &DMatrix<f64>| m.clone().cholesky().unwrap().l().diagonal().map(|d| 2.0 * d.ln()).sum();
+    let ln_det = |m: &DMatrix<f64>| {
+        m.clone()
+            .cholesky()
+            .unwrap()
+            .l()
+            .diagonal()
+            .map(|d| 2.0 * d.ln())
+            .sum()
+    };
     0.5 * ((&q_inv * p).trace() - p.nrows() as f64 + ln_det(q) - ln_det(p))
 }
 
@@ -78,7 +89,17 @@ fn se2() -> impl Strategy<Value = (f64, f64, f64)> {
 
 fn information_matrix() -> impl Strategy<Value = Matrix3<f64>> {
     (1.0f64..3.0, 1.0f64..3.0, 0.5f64..2.5, -0.5f64..0.5).prop_map(|(a, b, c, r)| {
-        let l = Matrix3::new(10f64.powf(a), 0.0, 0.0, r * 10.0, 10f64.powf(b), 0.0, 0.0, r, 10f64.powf(c));
+        let l = Matrix3::new(
+            10f64.powf(a),
+            0.0,
+            0.0,
+            r * 10.0,
+            10f64.powf(b),
+            0.0,
+            0.0,
+            r,
+            10f64.powf(c),
+        );
         l * l.transpose() * 0.01 + Matrix3::identity()
     })
 }
@@ -95,7 +116,8 @@ fn random_graph(
     g.add_vertex(NodeId(0), Vertex::new(pose)).unwrap();
     for (k, (dx, dy, dt)) in steps.iter().enumerate() {
         pose = pose.compose(&Se2::new(*dx, *dy, *dt));
-        g.add_vertex(NodeId(k as u64 + 1), Vertex::new(pose)).unwrap();
+        g.add_vertex(NodeId(k as u64 + 1), Vertex::new(pose))
+            .unwrap();
     }
     let n = steps.len() + 1;
     let pairs = (0..n - 1).map(|k| (k, k + 1)).chain(
@@ -106,14 +128,22 @@ fn random_graph(
     );
     for (k, (a, b)) in pairs.enumerate() {
         let (from, to) = (NodeId(a as u64), NodeId(b as u64));
-        let truth = g.vertex(from).unwrap().pose.between(&g.vertex(to).unwrap().pose);
+        let truth = g
+            .vertex(from)
+            .unwrap()
+            .pose
+            .between(&g.vertex(to).unwrap().pose);
         let noise = Se2::new(0.01 * (k as f64).sin(), 0.01 * (k as f64).cos(), 0.002);
         g.add_edge(Edge {
             from,
             to,
             measurement: truth.compose(&noise),
             information: infos[k % infos.len()],
-            kind: if b == a + 1 { EdgeKind::Odometry } else { EdgeKind::Loop },
+            kind: if b == a + 1 {
+                EdgeKind::Odometry
+            } else {
+                EdgeKind::Loop
+            },
         })
         .unwrap();
     }
@@ -191,7 +221,17 @@ fn star() -> PoseGraph2 {
             from: NodeId(0),
             to: NodeId(k),
             measurement: poses[0].between(&poses[k as usize]),
-            information: Matrix3::new(scale, 0.1, 0.0, 0.1, 2.0 * scale, 0.0, 0.0, 0.0, 0.5 * scale),
+            information: Matrix3::new(
+                scale,
+                0.1,
+                0.0,
+                0.1,
+                2.0 * scale,
+                0.0,
+                0.0,
+                0.0,
+                0.5 * scale,
+            ),
             kind: EdgeKind::Loop,
         })
         .unwrap();
@@ -226,7 +266,10 @@ fn every_tree_edge_keeps_its_pairs_exact_marginal_and_the_tree_beats_a_chain() {
             + jb * block(ib, ib) * jb.transpose()
     };
     for (_, edge) in &result.added {
-        let (a, b) = (relative(&exact, edge.from, edge.to), relative(&approx, edge.from, edge.to));
+        let (a, b) = (
+            relative(&exact, edge.from, edge.to),
+            relative(&approx, edge.from, edge.to),
+        );
         assert!((a - b).amax() <= 1e-9 * a.amax(), "{a} vs {b}");
     }
     // Kruskal's tree is the closest: a chain over the same vertices is further.
@@ -239,7 +282,11 @@ fn every_tree_edge_keeps_its_pairs_exact_marginal_and_the_tree_beats_a_chain() {
             .add_edge(Edge {
                 from: a,
                 to: b,
-                measurement: graph.vertex(a).unwrap().pose.between(&graph.vertex(b).unwrap().pose),
+                measurement: graph
+                    .vertex(a)
+                    .unwrap()
+                    .pose
+                    .between(&graph.vertex(b).unwrap().pose),
                 information: covariance_ab.try_inverse().unwrap(),
                 kind: EdgeKind::Marginal,
             })

@@ -53,6 +53,7 @@ mod keyframes;
 mod local_maps;
 mod maintenance;
 mod merge;
+mod protrusion;
 mod recognition;
 mod snapshot;
 
@@ -71,5 +72,9 @@ pub use keyframes::{KeyframeRecord, KeyframeStore};
 pub use local_maps::{LocalMapGrid, RenderedMap, LOG_ODDS_STEP};
 pub use maintenance::{MaintenanceParams, MaintenanceReport, ViewUse};
 pub use merge::{LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
+pub use protrusion::{
+    align_graphs, new_regions, remove_regions, FeatureSet, LabelledRegion, ProtrusionClassifier,
+    ProtrusionParams, Region, RegionFeatures, DEFAULT_DEPTH, DEFAULT_MIN_LEAF,
+};
 pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};
 pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};

@@ -175,7 +175,7 @@ impl RenderedMap {
                 hi = hi.sup(&p);
             }
         }
-        if placed.is_empty() || !(resolution_m > 0.0) {
+        if placed.is_empty() || resolution_m.is_nan() || resolution_m <= 0.0 {
             return None;
         }
         let width = ((hi.x - lo.x) / resolution_m).ceil() as usize + 1;
@@ -189,8 +189,24 @@ impl RenderedMap {
             width,
             height,
         };
-        let mut sums = vec![0.0f32; width * height];
+        Some(Self::render_into(graph, local_maps, geometry))
+    }
+
+    /// Renders the local maps of `graph`'s vertices on a given grid (what falls outside it is
+    /// left out), as [`RenderedMap::render`] does.
+    pub fn render_into(
+        graph: &PoseGraph2,
+        local_maps: &BTreeMap<NodeId, LocalMapGrid>,
+        geometry: GridGeometry,
+    ) -> Self {
+        let (lo, resolution_m) = (geometry.origin_m, geometry.resolution_m);
+        let (width, height) = (geometry.width, geometry.height);
+        let mut sums = vec![0.0f32; geometry.len()];
         let mut contributions = BTreeMap::new();
+        let placed = local_maps
+            .iter()
+            .filter_map(|(anchor, map)| Some((*anchor, graph.vertex(*anchor)?.pose, map)))
+            .filter(|(_, pose, map)| pose.is_finite() && map.width > 0);
         for (anchor, map_from_anchor, map) in placed {
             let anchor_from_map = map_from_anchor.inverse();
             let mut blo = Point2::new(f64::INFINITY, f64::INFINITY);
@@ -200,11 +216,19 @@ impl RenderedMap {
                 blo = blo.inf(&p);
                 bhi = bhi.sup(&p);
             }
-            let cell = |v: f64, origin: f64, n: usize| {
-                (((v - origin) / resolution_m).floor().max(0.0) as usize).min(n - 1)
+            // The cells of the box, clipped to the grid (none when it lies outside).
+            let range = |from: f64, to: f64, origin: f64, n: usize| {
+                let a = ((from - origin) / resolution_m).floor().max(0.0);
+                let b = ((to - origin) / resolution_m).floor().min(n as f64 - 1.0);
+                (a <= b).then_some((a as usize, b as usize))
             };
-            let (x0, x1) = (cell(blo.x, lo.x, width), cell(bhi.x, lo.x, width));
-            let (y0, y1) = (cell(blo.y, lo.y, height), cell(bhi.y, lo.y, height));
+            let (Some((x0, x1)), Some((y0, y1))) = (
+                range(blo.x, bhi.x, lo.x, width),
+                range(blo.y, bhi.y, lo.y, height),
+            ) else {
+                contributions.insert(anchor, Vec::new());
+                continue;
+            };
             let mut added = Vec::new();
             for y in y0..=y1 {
                 for x in x0..=x1 {
@@ -224,11 +248,11 @@ impl RenderedMap {
             }
             contributions.insert(anchor, added);
         }
-        Some(Self {
+        Self {
             geometry,
             sums,
             contributions,
-        })
+        }
     }
 
     /// The class of every cell.

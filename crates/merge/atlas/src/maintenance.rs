@@ -3,20 +3,20 @@
 //!
 //! 1. builds a local map for each of the session's tracker submaps from its keyframes
 //!    ([`crate::LocalMapGrid`]);
-//! 1b. drops fragments: inactive graphs, other than the largest, that no session of the last
+//! 2. drops fragments: inactive graphs, other than the largest, that no session of the last
 //!    `stale_after_sessions` added to (epochs place recognition never joined to the site's
 //!    map; iRobot keeps one map per robot);
-//! 2. counts which older views (keyframes) the session re-observed: a loop or merge edge
+//! 3. counts which older views (keyframes) the session re-observed: a loop or merge edge
 //!    between one of its vertices and the older vertex (Sec. 4.1's observation statistics);
-//! 3. prunes views: from the most useful down, a view is kept unless a kept view of the same
+//! 4. prunes views: from the most useful down, a view is kept unless a kept view of the same
 //!    graph lies within `view_radius_m` and `view_heading_rad`, so every region keeps a view
 //!    to relocalise from (Sec. 4.1);
-//! 4. prunes local maps greedily, oldest first, while the rendered map's class changes stay
+//! 5. prunes local maps greedily, oldest first, while the rendered map's class changes stay
 //!    within `local_map_tolerance` of its known cells (Sec. 4.3, Eq. 9, with q = the
 //!    fraction of cells whose class changes);
-//! 5. marginalises every vertex that anchors neither a view nor a local map by a Chow–Liu
+//! 6. marginalises every vertex that anchors neither a view nor a local map by a Chow–Liu
 //!    tree ([`mapmerge_posegraph::PoseGraph::marginalize_vertex`], Sec. 4.2);
-//! 6. prunes edges to `max_edges_per_vertex · |V|` ([`mapmerge_posegraph::PoseGraph::prune_edges`]).
+//! 7. prunes edges to `max_edges_per_vertex · |V|` ([`mapmerge_posegraph::PoseGraph::prune_edges`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Instant;
@@ -44,7 +44,8 @@ pub struct MaintenanceParams {
     /// A view is redundant when a kept view of its graph lies within this distance (m)
     /// (default: 1.5)…
     pub view_radius_m: f64,
-    /// … and heading (rad) (default: π/2, for 180° lasers).
+    /// … and heading (rad) (default: π, any heading: a 360° scan relocalises from any
+    /// direction; use π/2 for lasers of 180°).
     pub view_heading_rad: f64,
     /// Sessions that count as recent for a view's short-term use (default: 5).
     pub recent_sessions: u32,
@@ -65,7 +66,7 @@ impl Default for MaintenanceParams {
             prune: true,
             resolution_m: 0.05,
             view_radius_m: 1.5,
-            view_heading_rad: std::f64::consts::FRAC_PI_2,
+            view_heading_rad: std::f64::consts::PI,
             recent_sessions: 5,
             local_map_tolerance: 0.01,
             max_edges_per_vertex: 2.0,
@@ -206,7 +207,10 @@ impl<B: BackupStore> Atlas<B> {
             .iter()
             .filter(|(m, g)| {
                 Some(**m) != largest
-                    && g.vertices().map(|(n, _)| n).max().is_none_or(|n| n < oldest_recent)
+                    && g.vertices()
+                        .map(|(n, _)| n)
+                        .max()
+                        .is_none_or(|n| n < oldest_recent)
             })
             .map(|(m, _)| *m)
             .collect();
@@ -448,7 +452,8 @@ impl<B: BackupStore> Atlas<B> {
     /// (and is not the robot's) is marginalised. Returns how many.
     fn marginalize_bare_vertices(&mut self) -> Result<usize, AtlasError> {
         let robot = self.robot;
-        let bare = |graph: &PoseGraph2, keyframes: &crate::KeyframeStore,
+        let bare = |graph: &PoseGraph2,
+                    keyframes: &crate::KeyframeStore,
                     local_maps: &BTreeMap<NodeId, LocalMapGrid>| {
             graph
                 .vertices()

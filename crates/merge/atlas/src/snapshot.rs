@@ -90,6 +90,14 @@ impl AtlasSnapshot {
         self.local_maps.len()
     }
 
+    /// The site map: the largest graph (most vertices), where a lifelong robot's sessions
+    /// join; `None` without vertices.
+    pub fn site_graph(&self) -> Option<&PoseGraph2> {
+        self.graphs()
+            .filter(|g| g.num_vertices() > 0)
+            .max_by_key(|g| g.num_vertices())
+    }
+
     /// The area the atlas has mapped (m²), summed over its graphs (separate graphs may cover
     /// the same place): the known cells of each graph's rendered local maps, or, for a graph
     /// without local maps, the cells its keyframes' beams crossed.

@@ -364,8 +364,18 @@ fn inconsistent_snapshots_are_refused() {
         )
     };
     assert!(restore(good.clone()).is_ok());
-    let mut no_keyframe = good.clone();
-    no_keyframe.keyframes.pop_first();
+    let mut bad_local_map = good.clone();
+    bad_local_map.local_maps.insert(
+        NodeId(0),
+        mapmerge_atlas::LocalMapGrid {
+            resolution_m: 0.05,
+            origin_m: [0.0, 0.0],
+            width: 3,
+            height: 2,
+            cells: vec![1; 5],
+            keyframes: 1,
+        },
+    );
     let mut stale_counter = good.clone();
     stale_counter.counters.next_node = 2;
     let mut lost_robot = good.clone();
@@ -380,7 +390,7 @@ fn inconsistent_snapshots_are_refused() {
             active_from_inactive: [0.0; 3],
         });
     no_backup.counters.next_merge = 1;
-    for bad in [no_keyframe, stale_counter, lost_robot, no_backup] {
+    for bad in [bad_local_map, stale_counter, lost_robot, no_backup] {
         assert!(matches!(restore(bad), Err(AtlasError::BadSnapshot(_))));
     }
 }

@@ -214,3 +214,108 @@ fn merges_onto_the_true_transform_after(params: AtlasParams, restore: bool) {
         .unwrap();
     assert_eq!(atlas.inactive(MapId(0)), Some(&before));
 }
+
+/// Twelve sessions touring the room, each merged into the map (forced, at the true pose) and
+/// maintained: views, local maps and vertices stop growing, every vertex keeps a keyframe or
+/// a local map, and the rendered map stays within a few percent of the unpruned one.
+#[test]
+fn maintenance_keeps_the_atlas_bounded_and_its_map_close_to_the_unpruned_one() {
+    use mapmerge_atlas::{MaintenanceParams, MergeRequest, RenderedMap};
+    use mapmerge_grid::ClassThresholds;
+    let world = world();
+    let tour = along(&[
+        (0.0, 0.0),
+        (12.0, 0.0),
+        (12.0, 4.0),
+        (16.0, 5.0),
+        (16.0, 8.0),
+        (8.0, 8.0),
+        (1.0, 8.0),
+        (1.5, 1.0),
+    ]);
+    let run = |prune: bool| {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        let params = MaintenanceParams {
+            prune,
+            ..MaintenanceParams::default()
+        };
+        let mut counts = Vec::new();
+        for session in 0..12 {
+            let first = atlas.next_node_id();
+            // Each session drives the tour from a different start.
+            let mut path = tour.clone();
+            path.rotate_left((session * 7) % tour.len());
+            add_epoch(&mut atlas, &world, &path, &Se2::identity());
+            if session > 0 {
+                let map = atlas.inactive_maps().next().map(|(m, _)| m).unwrap();
+                atlas
+                    .merge(MergeRequest::forced(map, Se2::identity(), "test"), None)
+                    .unwrap();
+                // Maintenance waits while the merge can be undone.
+                assert!(atlas.maintain(&params, first).is_err());
+            }
+            atlas.end_epoch(EpochEndReason::Restart);
+            let report = atlas.maintain(&params, first).unwrap();
+            assert_eq!(report.session, session as u32);
+            let snapshot = atlas.snapshot().unwrap();
+            assert_eq!(snapshot.inactive.len(), 1);
+            for graph in snapshot.graphs() {
+                for (node, _) in graph.vertices() {
+                    assert!(
+                        snapshot.keyframes.contains_key(&node)
+                            || snapshot.local_maps.contains_key(&node),
+                        "vertex {node} anchors nothing"
+                    );
+                }
+            }
+            counts.push((
+                snapshot.num_vertices(),
+                snapshot.keyframes.len(),
+                snapshot.local_maps.len(),
+            ));
+        }
+        (atlas, counts)
+    };
+    let (pruned, counts) = run(true);
+    let (unpruned, unpruned_counts) = run(false);
+    // Unpruned, everything grows with the sessions; pruned, it stops.
+    assert!(unpruned_counts[11].1 > 10 * unpruned_counts[0].1 / 2);
+    // No trend: the last four sessions' mean is within 30 % of sessions 2–5's, and no
+    // session holds twice as much.
+    for which in 0..3 {
+        let pick = |c: &(usize, usize, usize)| [c.0, c.1, c.2][which];
+        let mean = |range: std::ops::Range<usize>| {
+            range.clone().map(|k| pick(&counts[k])).sum::<usize>() as f64 / range.len() as f64
+        };
+        let (early, late) = (mean(2..6), mean(8..12));
+        assert!(late <= 1.3 * early, "{counts:?}");
+        assert!(
+            counts.iter().skip(2).all(|c| pick(c) as f64 <= 2.0 * early),
+            "{counts:?}"
+        );
+    }
+    assert!(
+        counts[11].1 < unpruned_counts[11].1 / 4,
+        "{counts:?} vs {unpruned_counts:?}"
+    );
+    // The rendered maps agree on the classes of almost every known cell.
+    let render = |atlas: &Atlas| {
+        let graph = atlas.inactive_maps().next().unwrap().1.clone();
+        let rendered = RenderedMap::render(&graph, atlas.local_maps(), 0.1).unwrap();
+        rendered.to_grid().unwrap()
+    };
+    let (a, b) = (render(&pruned), render(&unpruned));
+    let thresholds = ClassThresholds::default();
+    let (mut known, mut differ) = (0usize, 0usize);
+    for (_, p, l) in b.cells() {
+        let class = thresholds.classify(l);
+        if class != mapmerge_grid::CellClass::Unknown {
+            known += 1;
+            differ += usize::from(thresholds.classify(a.log_odds_at(&p)) != class);
+        }
+    }
+    assert!(
+        differ as f64 <= 0.1 * known as f64,
+        "{differ} of {known} cells differ"
+    );
+}

@@ -109,13 +109,20 @@ impl Store {
                 params![version, counters, crc(&counters)],
             )
             .map_err(classify)?;
-        write_graphs(&transaction, version, atlas).map_err(classify)?;
+        let graphs = std::iter::once((ACTIVE_SLOT, &atlas.active))
+            .chain(atlas.inactive.iter().map(|(m, g)| (i64::from(m.0), g)));
+        write_slots(&transaction, "graphs", "slot", version, graphs).map_err(classify)?;
         write_keyframes(&transaction, version, atlas, commit.reference_poses).map_err(classify)?;
-        let backups = atlas.backups.iter().map(|(merge, graph)| (sql_id(merge.0), graph));
+        let backups = atlas
+            .backups
+            .iter()
+            .map(|(merge, graph)| (sql_id(merge.0), graph));
         write_immutable(&transaction, "backups", "merge", version, backups).map_err(classify)?;
-        let local_maps = atlas.local_maps.iter().map(|(anchor, map)| (sql_id(anchor.0), map));
-        write_immutable(&transaction, "local_maps", "anchor", version, local_maps)
-            .map_err(classify)?;
+        let local_maps = atlas
+            .local_maps
+            .iter()
+            .map(|(anchor, map)| (sql_id(anchor.0), map));
+        write_slots(&transaction, "local_maps", "anchor", version, local_maps).map_err(classify)?;
         {
             let mut insert = transaction
                 .prepare("INSERT INTO events (version, body) VALUES (?1, ?2)")
@@ -297,12 +304,22 @@ impl Store {
         let backups = self
             .load_blobs::<PoseGraph2>("backups", "merge", version)?
             .into_iter()
-            .map(|(id, graph)| Ok((MergeId(id_of(id).ok_or_else(|| corrupt(format!("merge id {id}")))?), graph)))
+            .map(|(id, graph)| {
+                Ok((
+                    MergeId(id_of(id).ok_or_else(|| corrupt(format!("merge id {id}")))?),
+                    graph,
+                ))
+            })
             .collect::<Result<_, StoreError>>()?;
         let local_maps = self
             .load_blobs::<LocalMapGrid>("local_maps", "anchor", version)?
             .into_iter()
-            .map(|(id, map)| Ok((node_id(id).ok_or_else(|| corrupt(format!("anchor id {id}")))?, map)))
+            .map(|(id, map)| {
+                Ok((
+                    node_id(id).ok_or_else(|| corrupt(format!("anchor id {id}")))?,
+                    map,
+                ))
+            })
             .collect::<Result<_, StoreError>>()?;
         let atlas = AtlasSnapshot {
             counters,
@@ -334,7 +351,7 @@ impl Store {
         rows.collect::<Result<_, _>>().map_err(classify)
     }
 
-    /// The rows of a table of immutable blobs (`backups`, `local_maps`) valid in `version`,
+    /// The blobs of `table` (`backups` by merge, `local_maps` by anchor) valid in `version`,
     /// checksummed and decoded, by key.
     fn load_blobs<T: serde::de::DeserializeOwned>(
         &self,
@@ -356,7 +373,11 @@ impl Store {
             .map_err(classify)?;
         let rows = statement
             .query_map([version], |row| {
-                Ok((row.get::<_, i64>(0)?, row.get::<_, Vec<u8>>(1)?, row.get::<_, i64>(2)?))
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, Vec<u8>>(1)?,
+                    row.get::<_, i64>(2)?,
+                ))
             })
             .map_err(classify)?;
         let mut blobs = BTreeMap::new();
@@ -420,7 +441,7 @@ impl Store {
                 )));
             }
         }
-        for (table, key) in [("graphs", "id"), ("backups", "merge"), ("local_maps", "anchor")] {
+        for (table, key) in [("graphs", "id"), ("backups", "merge"), ("local_maps", "id")] {
             let mut statement = self
                 .connection
                 .prepare(&format!("SELECT {key}, body, checksum FROM {table}"))
@@ -485,50 +506,48 @@ fn sql_id(value: u64) -> i64 {
     i64::try_from(value).unwrap_or(i64::MAX)
 }
 
-/// Graphs: a slot whose graph changed gets a new row, the old one is marked removed; slots
-/// that are gone are marked removed.
-fn write_graphs(
+/// Graphs by slot, local maps by anchor: a slot whose value changed gets a new row and the old
+/// one is marked removed; slots that are gone are marked removed.
+fn write_slots<'a, T: serde::Serialize + 'a>(
     transaction: &Transaction<'_>,
+    table: &str,
+    slot_column: &str,
     version: i64,
-    atlas: &AtlasSnapshot,
+    items: impl Iterator<Item = (i64, &'a T)>,
 ) -> rusqlite::Result<()> {
     let mut live: BTreeMap<i64, (i64, Vec<u8>)> = BTreeMap::new();
     {
-        let mut statement = transaction
-            .prepare("SELECT slot, id, body FROM graphs WHERE removed_version IS NULL")?;
+        let mut statement = transaction.prepare(&format!(
+            "SELECT {slot_column}, id, body FROM {table} WHERE removed_version IS NULL"
+        ))?;
         let rows = statement.query_map([], |row| Ok((row.get(0)?, row.get(1)?, row.get(2)?)))?;
         for row in rows {
             let (slot, id, body) = row?;
             live.insert(slot, (id, body));
         }
     }
-    let graphs = std::iter::once((ACTIVE_SLOT, &atlas.active))
-        .chain(atlas.inactive.iter().map(|(m, g)| (i64::from(m.0), g)));
+    let mut remove = transaction.prepare(&format!(
+        "UPDATE {table} SET removed_version = ?1 WHERE id = ?2"
+    ))?;
+    let mut insert = transaction.prepare(&format!(
+        "INSERT INTO {table} ({slot_column}, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)"
+    ))?;
     let mut kept = BTreeSet::new();
-    for (slot, graph) in graphs {
-        let body = encode(graph)?;
+    for (slot, value) in items {
+        let body = encode(value)?;
         kept.insert(slot);
         match live.get(&slot) {
             Some((_, old)) if *old == body => continue,
             Some((id, _)) => {
-                transaction.execute(
-                    "UPDATE graphs SET removed_version = ?1 WHERE id = ?2",
-                    [version, *id],
-                )?;
+                remove.execute([version, *id])?;
             }
             None => {}
         }
-        transaction.execute(
-            "INSERT INTO graphs (slot, added_version, body, checksum) VALUES (?1, ?2, ?3, ?4)",
-            params![slot, version, body, crc(&body)],
-        )?;
+        insert.execute(params![slot, version, body, crc(&body)])?;
     }
     for (slot, (id, _)) in &live {
         if !kept.contains(slot) {
-            transaction.execute(
-                "UPDATE graphs SET removed_version = ?1 WHERE id = ?2",
-                [version, *id],
-            )?;
+            remove.execute([version, *id])?;
         }
     }
     Ok(())
@@ -580,8 +599,8 @@ fn write_keyframes(
     )
 }
 
-/// Backups and local maps never change: new ones (by key) get a row, those gone are marked
-/// removed. Only new ones are encoded.
+/// Backups never change: new ones (by key) get a row, those gone are marked removed. Only new
+/// ones are encoded.
 fn write_immutable<'a, T: serde::Serialize + 'a>(
     transaction: &Transaction<'_>,
     table: &str,

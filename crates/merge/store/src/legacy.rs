@@ -31,11 +31,12 @@ pub(crate) fn counters_2_to_3(transaction: &Transaction<'_>) -> rusqlite::Result
         let rows = statement.query_map([], |row| Ok((row.get(0)?, row.get(1)?)))?;
         rows.collect::<Result<_, _>>()?
     };
-    let mut update =
-        transaction.prepare("UPDATE atlas_state SET counters = ?1, checksum = ?2 WHERE version = ?3")?;
+    let mut update = transaction
+        .prepare("UPDATE atlas_state SET counters = ?1, checksum = ?2 WHERE version = ?3")?;
     for (version, bytes) in rows {
-        let old: CountersV2 = postcard::from_bytes(&bytes)
-            .map_err(|e| rusqlite::Error::FromSqlConversionFailure(1, rusqlite::types::Type::Blob, Box::new(e)))?;
+        let old: CountersV2 = postcard::from_bytes(&bytes).map_err(|e| {
+            rusqlite::Error::FromSqlConversionFailure(1, rusqlite::types::Type::Blob, Box::new(e))
+        })?;
         let new = AtlasCounters {
             epoch: old.epoch,
             next_node: old.next_node,

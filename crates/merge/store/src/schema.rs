@@ -88,16 +88,19 @@ pub(crate) const MIGRATIONS: [Migration; 3] = [
      CREATE INDEX events_by_version ON events(version);",
         then: None,
     },
-    // 2 → 3: local maps (iRobot Sec. 3.3), one per anchor vertex, postcard
-    // `LocalMapGrid` bodies; the counters gain the maintenance sessions and the views' use.
+    // 2 → 3: local maps (iRobot Sec. 3.3), one per anchor vertex (a new row when it is
+    // edited), postcard `LocalMapGrid` bodies; the counters gain the maintenance sessions,
+    // the views' use and the recent sessions' first vertices.
     Migration {
         sql: "CREATE TABLE local_maps (
-         anchor INTEGER PRIMARY KEY,
+         id INTEGER PRIMARY KEY,
+         anchor INTEGER NOT NULL,
          added_version INTEGER NOT NULL REFERENCES versions(version),
          removed_version INTEGER REFERENCES versions(version),
          body BLOB NOT NULL,
          checksum INTEGER NOT NULL
-     ) STRICT;",
+     ) STRICT;
+     CREATE INDEX local_maps_by_validity ON local_maps(removed_version, added_version);",
         then: Some(crate::legacy::counters_2_to_3),
     },
 ];

@@ -88,9 +88,16 @@ fn a_schema_1_store_is_upgraded_and_its_atlas_starts_with_the_next_session() {
 }
 
 #[test]
-fn a_schema_2_store_is_continued() {
+fn stores_of_schema_2_on_are_continued() {
+    for schema in 2..=SCHEMA_VERSION {
+        continued(schema);
+    }
+}
+
+/// The golden store of `schema`, upgraded, restored into an atlas and given one more session.
+fn continued(schema: i64) {
     let dir = tempfile::tempdir().unwrap();
-    let (mut store, listed) = upgraded(2, dir.path());
+    let (mut store, listed) = upgraded(schema, dir.path());
     let stored = store.load(None).unwrap().unwrap();
     assert_eq!(stored.version, listed.last().unwrap().0);
     assert!(stored.atlas.num_vertices() > 0);

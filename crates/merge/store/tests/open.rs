@@ -191,7 +191,7 @@ fn an_inconsistent_atlas_is_refused_and_nothing_is_written() {
     let path = dir.path().join("site.mapmerge");
     let mut store = Store::open(&path).unwrap();
     let (mut atlas, reference) = Robot::new().session(3, 10);
-    atlas.keyframes.pop_first();
+    atlas.counters.next_node = 1; // below ids in use
     let error = store
         .commit_session(&SessionCommit {
             session: "bad",
