@@ -4,6 +4,7 @@
 #
 #   scripts/bench_store.sh [--world office] [--seed 3] [--sessions 200] [--duration 60]
 #                          [--no-prune] [--out-dir bench-out/store/NAME] [--keep-versions 10]
+#                          [--config ENGINE.json]
 #
 # Writes OUT/sessions/K.json (each run's `--json` report, with `wall_s`, the process's wall
 # time, added) and OUT/table.md (scripts/store_table.py). A run that stops (a failed
@@ -11,7 +12,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/bench_common.sh
-world=office seed=3 sessions=200 duration=60 prune=1 keep=10 out=""
+world=office seed=3 sessions=200 duration=60 prune=1 keep=10 out="" config=""
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --world) world=$2; shift 2 ;;
@@ -21,6 +22,7 @@ while [[ $# -gt 0 ]]; do
     --no-prune) prune=0; shift ;;
     --keep-versions) keep=$2; shift 2 ;;
     --out-dir) out=$2; shift 2 ;;
+    --config) config=$2; shift 2 ;;
     *) echo "unknown option $1" >&2; exit 2 ;;
   esac
 done
@@ -31,6 +33,7 @@ mkdir -p "$out/sessions"
 rm -f "$out/site.mapmerge" "$out/site.mapmerge-wal" "$out"/sessions/*.json
 extra=()
 [[ $prune == 1 ]] || extra+=(--no-prune)
+[[ -z $config ]] || extra+=(--config "$config")
 for ((k = 0; k < sessions; k++)); do
   start=$(date +%s.%N)
   if ! "$bin" atlas --sim "$world" --seed "$seed" --session-index "$k" --duration "$duration" \

@@ -195,12 +195,7 @@ pub struct SessionData {
 /// Simulates a dataset; the same parameters and seed give the same dataset, bit for bit, on
 /// any number of threads.
 pub fn simulate(params: &SimParams, seed: u64) -> Result<Dataset, SimError> {
-    params.validate()?;
-    let world_params = params.world_params();
-    let world_seed = params
-        .world_seed
-        .unwrap_or_else(|| derive_seed(seed, Stream::World, 0));
-    let world = generate_world(&world_params, world_seed)?;
+    let world = session_zero_world(params, seed)?;
     // Worlds first (sequentially: cheap), then the sessions in parallel.
     let mut worlds = Vec::with_capacity(params.sessions);
     for index in 0..params.sessions {
@@ -312,6 +307,15 @@ fn pick_start_room(
     })
 }
 
+/// The world of session 0 (validating the parameters first).
+fn session_zero_world(params: &SimParams, seed: u64) -> Result<World, SimError> {
+    params.validate()?;
+    let world_seed = params
+        .world_seed
+        .unwrap_or_else(|| derive_seed(seed, Stream::World, 0));
+    generate_world(&params.world_params(), world_seed)
+}
+
 /// Session `index` of the dataset [`simulate`] makes with `params` and `seed`, alone: the
 /// same world, changes, route, odometry and kidnaps, so a robot can live one session per run
 /// (the lifelong store). One difference: without the earlier sessions, its start room is
@@ -322,12 +326,7 @@ pub fn simulate_session_alone(
     seed: u64,
     index: usize,
 ) -> Result<SessionData, SimError> {
-    params.validate()?;
-    let world_params = params.world_params();
-    let world_seed = params
-        .world_seed
-        .unwrap_or_else(|| derive_seed(seed, Stream::World, 0));
-    let world = generate_world(&world_params, world_seed)?;
+    let world = session_zero_world(params, seed)?;
     let (session_world, changes) = if index == 0 {
         (world, Vec::new())
     } else {

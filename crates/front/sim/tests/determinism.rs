@@ -72,3 +72,29 @@ fn every_preset_generates_deterministically() {
         }
     }
 }
+
+#[test]
+fn a_session_simulated_alone_is_that_session_of_the_whole_simulation() {
+    // With named start rooms (so the earlier sessions' rooms do not matter), session k alone
+    // is session k of the dataset: same world changes, route, noise and kidnaps.
+    let whole = simulate(&params(), 11).unwrap();
+    let mut named = params();
+    named.start_rooms = whole
+        .sessions
+        .iter()
+        .map(|s| {
+            s.world
+                .room(s.start_room)
+                .map(|r| r.name.clone())
+                .unwrap_or_default()
+        })
+        .collect();
+    let whole = simulate(&named, 11).unwrap();
+    for (k, session) in whole.sessions.iter().enumerate() {
+        let alone = mapmerge_sim::simulate_session_alone(&named, 11, k).unwrap();
+        assert_eq!(&alone, session, "session {k}");
+    }
+    // Session 0 needs no names: no earlier session chose a room before it.
+    let first = mapmerge_sim::simulate_session_alone(&params(), 11, 0).unwrap();
+    assert_eq!(first, simulate(&params(), 11).unwrap().sessions[0]);
+}

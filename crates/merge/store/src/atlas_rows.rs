@@ -14,7 +14,7 @@ use rusqlite::{params, OptionalExtension, Transaction, TransactionBehavior};
 
 use crate::error::StoreError;
 use crate::schema::ACTIVE_SLOT;
-use crate::store::{classify, Store, VersionInfo};
+use crate::store::{classify, require_retained, Store, VersionInfo};
 
 /// One session to commit as a new version.
 #[derive(Clone, Copy, Debug)]
@@ -40,6 +40,9 @@ pub struct StoredAtlas {
     /// The reference poses stored with its keyframes.
     pub reference_poses: BTreeMap<NodeId, Se2>,
 }
+
+/// The rows a version `?1` sees.
+const VISIBLE: &str = "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
 
 /// Cell side of the rendered map that measures a version's mapped area (m).
 const AREA_RESOLUTION_M: f64 = 0.05;
@@ -168,78 +171,34 @@ impl Store {
                 }
             }
         };
-        let retained: Option<bool> = self
-            .connection
-            .query_row(
-                "SELECT retained FROM versions WHERE version = ?1",
-                [version],
-                |row| row.get(0),
-            )
-            .optional()
-            .map_err(classify)?;
-        match retained {
-            None => {
-                return Err(StoreError::NoSuchVersion {
-                    path: path.clone(),
-                    version,
-                })
-            }
-            Some(false) => {
-                return Err(StoreError::NotRetained {
-                    path: path.clone(),
-                    version,
-                })
-            }
-            Some(true) => {}
-        }
+        require_retained(&self.connection, path, version)?;
         let corrupt = |reason: String| StoreError::Corrupt {
             path: path.clone(),
             reason: format!("version {version}: {reason}"),
         };
-        let counters: Option<(Vec<u8>, i64)> = self
-            .connection
-            .query_row(
-                "SELECT counters, checksum FROM atlas_state WHERE version = ?1",
-                [version],
-                |row| Ok((row.get(0)?, row.get(1)?)),
-            )
-            .optional()
-            .map_err(classify)?;
-        let Some((counters, checksum)) = counters else {
+        let Some((_, counters)) = self
+            .checked_blobs(
+                "SELECT version, counters, checksum FROM atlas_state WHERE version = ?1",
+                Some(version),
+                "atlas_state",
+            )?
+            .pop()
+        else {
             return Err(StoreError::NoAtlas {
                 path: path.clone(),
                 version,
             });
         };
-        if crc(&counters) != checksum {
-            return Err(corrupt("counters: checksum mismatch".into()));
-        }
         let counters: AtlasCounters =
             postcard::from_bytes(&counters).map_err(|e| corrupt(format!("counters: {e}")))?;
-        const VISIBLE: &str =
-            "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
         let mut active = None;
         let mut inactive = BTreeMap::new();
-        let mut statement = self
-            .connection
-            .prepare(&format!(
-                "SELECT slot, body, checksum FROM graphs WHERE {VISIBLE}"
-            ))
-            .map_err(classify)?;
-        let rows = statement
-            .query_map([version], |row| {
-                Ok((
-                    row.get::<_, i64>(0)?,
-                    row.get::<_, Vec<u8>>(1)?,
-                    row.get::<_, i64>(2)?,
-                ))
-            })
-            .map_err(classify)?;
-        for row in rows {
-            let (slot, body, checksum) = row.map_err(classify)?;
-            if crc(&body) != checksum {
-                return Err(corrupt(format!("graph in slot {slot}: checksum mismatch")));
-            }
+        let graphs = self.checked_blobs(
+            &format!("SELECT slot, body, checksum FROM graphs WHERE {VISIBLE}"),
+            Some(version),
+            "graphs",
+        )?;
+        for (slot, body) in graphs {
             let graph: PoseGraph2 = postcard::from_bytes(&body)
                 .map_err(|e| corrupt(format!("graph in slot {slot}: {e}")))?;
             if slot == ACTIVE_SLOT {
@@ -351,6 +310,43 @@ impl Store {
         rows.collect::<Result<_, _>>().map_err(classify)
     }
 
+    /// The `(key, blob)` pairs `sql` selects as `key, blob, checksum` (with `?1` bound to
+    /// `version` when given), each blob checked against its CRC-32; a mismatch is corruption
+    /// of `table`.
+    fn checked_blobs(
+        &self,
+        sql: &str,
+        version: Option<i64>,
+        table: &str,
+    ) -> Result<Vec<(i64, Vec<u8>)>, StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let mut statement = self.connection.prepare(sql).map_err(classify)?;
+        let read = |row: &rusqlite::Row<'_>| {
+            Ok((
+                row.get::<_, i64>(0)?,
+                row.get::<_, Vec<u8>>(1)?,
+                row.get::<_, i64>(2)?,
+            ))
+        };
+        let rows = match version {
+            Some(v) => statement.query_map([v], read),
+            None => statement.query_map([], read),
+        }
+        .map_err(classify)?;
+        let mut blobs = Vec::new();
+        for row in rows {
+            let (id, blob, checksum) = row.map_err(classify)?;
+            if crc(&blob) != checksum {
+                return Err(StoreError::Corrupt {
+                    path: self.path.clone(),
+                    reason: format!("{table} row {id}: checksum mismatch"),
+                });
+            }
+            blobs.push((id, blob));
+        }
+        Ok(blobs)
+    }
+
     /// The blobs of `table` (`backups` by merge, `local_maps` by anchor) valid in `version`,
     /// checksummed and decoded, by key.
     fn load_blobs<T: serde::de::DeserializeOwned>(
@@ -359,33 +355,17 @@ impl Store {
         key: &str,
         version: i64,
     ) -> Result<BTreeMap<i64, T>, StoreError> {
-        let classify = |e: rusqlite::Error| classify(&self.path, e);
         let corrupt = |reason: String| StoreError::Corrupt {
             path: self.path.clone(),
             reason: format!("version {version}: {table} row {reason}"),
         };
-        let mut statement = self
-            .connection
-            .prepare(&format!(
-                "SELECT {key}, body, checksum FROM {table}
-                 WHERE added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)"
-            ))
-            .map_err(classify)?;
-        let rows = statement
-            .query_map([version], |row| {
-                Ok((
-                    row.get::<_, i64>(0)?,
-                    row.get::<_, Vec<u8>>(1)?,
-                    row.get::<_, i64>(2)?,
-                ))
-            })
-            .map_err(classify)?;
+        let rows = self.checked_blobs(
+            &format!("SELECT {key}, body, checksum FROM {table} WHERE {VISIBLE}"),
+            Some(version),
+            table,
+        )?;
         let mut blobs = BTreeMap::new();
-        for row in rows {
-            let (id, body, checksum) = row.map_err(classify)?;
-            if crc(&body) != checksum {
-                return Err(corrupt(format!("{id}: checksum mismatch")));
-            }
+        for (id, body) in rows {
             let value = postcard::from_bytes(&body).map_err(|e| corrupt(format!("{id}: {e}")))?;
             blobs.insert(id, value);
         }
@@ -395,39 +375,20 @@ impl Store {
     /// The rows half of [`Store::check`]: every retained version has counters, every stored
     /// blob decodes, and the newest version loads into a consistent atlas.
     pub(crate) fn check_rows(&self, versions: &[VersionInfo]) -> Result<(), StoreError> {
-        let classify = |e: rusqlite::Error| classify(&self.path, e);
         let corrupt = |reason: String| StoreError::Corrupt {
             path: self.path.clone(),
             reason,
         };
-        let with_atlas: BTreeSet<i64> = {
-            let mut statement = self
-                .connection
-                .prepare("SELECT version, counters, checksum FROM atlas_state")
-                .map_err(classify)?;
-            let rows = statement
-                .query_map([], |row| {
-                    Ok((
-                        row.get::<_, i64>(0)?,
-                        row.get::<_, Vec<u8>>(1)?,
-                        row.get::<_, i64>(2)?,
-                    ))
-                })
-                .map_err(classify)?;
-            let mut with_atlas = BTreeSet::new();
-            for row in rows {
-                let (version, counters, checksum) = row.map_err(classify)?;
-                if crc(&counters) != checksum {
-                    return Err(corrupt(format!(
-                        "version {version}: counters: checksum mismatch"
-                    )));
-                }
-                postcard::from_bytes::<AtlasCounters>(&counters)
-                    .map_err(|e| corrupt(format!("version {version}: counters: {e}")))?;
-                with_atlas.insert(version);
-            }
-            with_atlas
-        };
+        let mut with_atlas = BTreeSet::new();
+        for (version, counters) in self.checked_blobs(
+            "SELECT version, counters, checksum FROM atlas_state",
+            None,
+            "atlas_state",
+        )? {
+            postcard::from_bytes::<AtlasCounters>(&counters)
+                .map_err(|e| corrupt(format!("version {version}: counters: {e}")))?;
+            with_atlas.insert(version);
+        }
         // Versions written by schema 1 hold no atlas; every later one does while retained.
         let first_with_atlas = with_atlas.first().copied().unwrap_or(i64::MAX);
         for v in versions {
@@ -442,24 +403,8 @@ impl Store {
             }
         }
         for (table, key) in [("graphs", "id"), ("backups", "merge"), ("local_maps", "id")] {
-            let mut statement = self
-                .connection
-                .prepare(&format!("SELECT {key}, body, checksum FROM {table}"))
-                .map_err(classify)?;
-            let rows = statement
-                .query_map([], |row| {
-                    Ok((
-                        row.get::<_, i64>(0)?,
-                        row.get::<_, Vec<u8>>(1)?,
-                        row.get::<_, i64>(2)?,
-                    ))
-                })
-                .map_err(classify)?;
-            for row in rows {
-                let (id, body, checksum) = row.map_err(classify)?;
-                if crc(&body) != checksum {
-                    return Err(corrupt(format!("{table} row {id}: checksum mismatch")));
-                }
+            let sql = format!("SELECT {key}, body, checksum FROM {table}");
+            for (id, body) in self.checked_blobs(&sql, None, table)? {
                 let decoded = if table == "local_maps" {
                     postcard::from_bytes::<LocalMapGrid>(&body).map(|_| ())
                 } else {
@@ -468,23 +413,12 @@ impl Store {
                 decoded.map_err(|e| corrupt(format!("{table} row {id}: {e}")))?;
             }
         }
-        let mut statement = self
-            .connection
-            .prepare("SELECT node, points, checksum FROM keyframes")
-            .map_err(classify)?;
-        let rows = statement
-            .query_map([], |row| {
-                Ok((
-                    row.get::<_, i64>(0)?,
-                    row.get::<_, Vec<u8>>(1)?,
-                    row.get::<_, i64>(2)?,
-                ))
-            })
-            .map_err(classify)?;
-        for row in rows {
-            let (node, points, checksum) = row.map_err(classify)?;
-            if points.len() % 16 != 0 || crc(&points) != checksum {
-                return Err(corrupt(format!("keyframe {node}: points damaged")));
+        let sql = "SELECT node, points, checksum FROM keyframes";
+        for (node, points) in self.checked_blobs(sql, None, "keyframes")? {
+            if points.len() % 16 != 0 {
+                return Err(corrupt(format!(
+                    "keyframe {node}: points are not 16-byte pairs"
+                )));
             }
         }
         if let Some(newest) = versions.last().filter(|v| with_atlas.contains(&v.version)) {

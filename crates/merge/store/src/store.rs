@@ -256,29 +256,7 @@ impl Store {
             .connection
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .map_err(classify)?;
-        let retained: Option<bool> = transaction
-            .query_row(
-                "SELECT retained FROM versions WHERE version = ?1",
-                [version],
-                |row| row.get(0),
-            )
-            .optional()
-            .map_err(classify)?;
-        match retained {
-            None => {
-                return Err(StoreError::NoSuchVersion {
-                    path: path.clone(),
-                    version,
-                })
-            }
-            Some(false) => {
-                return Err(StoreError::NotRetained {
-                    path: path.clone(),
-                    version,
-                })
-            }
-            Some(true) => {}
-        }
+        require_retained(&transaction, &path, version)?;
         for table in VERSIONED_TABLES {
             transaction
                 .execute(
@@ -358,6 +336,28 @@ impl Store {
             expected_parent = Some(v.version);
         }
         self.check_rows(&versions)
+    }
+}
+
+/// `Ok` when `version` is stored and keeps its atlas; else which of the two it is not.
+pub(crate) fn require_retained(
+    connection: &Connection,
+    path: &Path,
+    version: i64,
+) -> Result<(), StoreError> {
+    let retained: Option<bool> = connection
+        .query_row(
+            "SELECT retained FROM versions WHERE version = ?1",
+            [version],
+            |row| row.get(0),
+        )
+        .optional()
+        .map_err(|e| classify(path, e))?;
+    let path = path.to_path_buf();
+    match retained {
+        None => Err(StoreError::NoSuchVersion { path, version }),
+        Some(false) => Err(StoreError::NotRetained { path, version }),
+        Some(true) => Ok(()),
     }
 }
 
