@@ -123,9 +123,13 @@ impl CorrelationGrid {
                 *gx = (-du * du * inv_two_sigma_sq).exp();
                 *gy = (-dv * dv * inv_two_sigma_sq).exp();
             }
-            // `cover` made room for the whole kernel, so the block lies inside the grid.
+            // `cover` made room for the whole kernel; a point on a cell border may still land
+            // one cell further than `cover` reckoned (floating point), so the block is
+            // clipped to the grid rather than skipped.
             let i0 = cu - reach;
-            if i0 < 0 || i0 + side as i64 > width {
+            let first = (-i0).clamp(0, side as i64) as usize;
+            let last = (width - i0).clamp(0, side as i64) as usize;
+            if first >= last {
                 continue;
             }
             for (b, gy) in along_y.iter().enumerate() {
@@ -136,9 +140,10 @@ impl CorrelationGrid {
                 for (value, gx) in row_values.iter_mut().zip(&along_x) {
                     *value = (gx * gy * f64::from(LIKELIHOOD_MAX)).round() as u16;
                 }
-                let start = j as usize * self.width + i0 as usize;
-                if let Some(row) = self.cells.get_mut(start..start + side) {
-                    for (cell, value) in row.iter_mut().zip(&row_values) {
+                let start = j as usize * self.width + (i0 + first as i64) as usize;
+                let values = row_values.get(first..last).unwrap_or_default();
+                if let Some(row) = self.cells.get_mut(start..start + values.len()) {
+                    for (cell, value) in row.iter_mut().zip(values) {
                         *cell = (*cell).max(*value);
                     }
                 }

@@ -199,3 +199,18 @@ fn a_retargeted_target_matches_as_a_fresh_one() {
     );
     assert!(fine.retarget(&mut reused, &[]).is_err());
 }
+
+/// A point on a cell border next to the grid's edge (found by the property test above): its
+/// kernel is written, clipped to the grid, not skipped.
+#[test]
+fn a_point_on_a_cell_border_at_the_grids_edge_keeps_its_kernel() {
+    let params = CorrelativeParams::default();
+    let mut grid = CorrelationGrid::empty(&params).unwrap();
+    let point = Point2::new(-0.281_167_207_026_939_37, 0.0);
+    grid.insert(&[point], 0).unwrap();
+    assert!(
+        grid.likelihood(&point) > 0.85,
+        "{}",
+        grid.likelihood(&point)
+    );
+}
