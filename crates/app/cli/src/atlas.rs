@@ -242,10 +242,7 @@ impl SiteMap {
             edges: graph.num_edges(),
             keyframes: atlas.keyframes.keys().filter(|n| holds(n)).count(),
             local_maps: atlas.local_maps.keys().filter(|n| holds(n)).count(),
-            mapped_area_m2: mapmerge_atlas::RenderedMap::render(graph, &atlas.local_maps, 0.05)
-                .map_or(0.0, |r| {
-                    r.known_area_m2(&mapmerge_grid::ClassThresholds::default())
-                }),
+            mapped_area_m2: atlas.graph_area_m2(graph, 0.05),
         })
     }
 }

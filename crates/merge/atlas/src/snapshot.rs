@@ -102,35 +102,39 @@ impl AtlasSnapshot {
     /// the same place): the known cells of each graph's rendered local maps, or, for a graph
     /// without local maps, the cells its keyframes' beams crossed.
     pub fn mapped_area_m2(&self, resolution_m: f64) -> f64 {
-        let thresholds = mapmerge_grid::ClassThresholds::default();
         self.graphs()
-            .map(|graph| {
-                if let Some(rendered) = RenderedMap::render(graph, &self.local_maps, resolution_m) {
-                    return rendered.known_area_m2(&thresholds);
-                }
-                let rays: Vec<_> = graph
-                    .vertices()
-                    .filter_map(|(node, vertex)| Some((vertex.pose, self.keyframes.get(&node)?)))
-                    .flat_map(|(pose, keyframe)| {
-                        let origin = pose.translation();
-                        keyframe
-                            .points_in_robot
-                            .iter()
-                            .map(move |p| (origin, pose.transform_point(p)))
-                            .collect::<Vec<_>>()
-                    })
-                    .collect();
-                // Coarser cells for a site too large for the grid.
-                let mut resolution = resolution_m;
-                loop {
-                    match mapmerge_grid::FreeSpace::from_rays(resolution, rays.iter().copied()) {
-                        Ok(free) => break free.free_cells() as f64 * resolution * resolution,
-                        Err(_) if resolution < 100.0 => resolution *= 2.0,
-                        Err(_) => break 0.0,
-                    }
-                }
-            })
+            .map(|graph| self.graph_area_m2(graph, resolution_m))
             .sum()
+    }
+
+    /// The area one graph has mapped (m²): the known cells of its rendered local maps, or,
+    /// without local maps, the cells its keyframes' beams crossed.
+    pub fn graph_area_m2(&self, graph: &PoseGraph2, resolution_m: f64) -> f64 {
+        let thresholds = mapmerge_grid::ClassThresholds::default();
+        if let Some(rendered) = RenderedMap::render(graph, &self.local_maps, resolution_m) {
+            return rendered.known_area_m2(&thresholds);
+        }
+        let rays: Vec<_> = graph
+            .vertices()
+            .filter_map(|(node, vertex)| Some((vertex.pose, self.keyframes.get(&node)?)))
+            .flat_map(|(pose, keyframe)| {
+                let origin = pose.translation();
+                keyframe
+                    .points_in_robot
+                    .iter()
+                    .map(move |p| (origin, pose.transform_point(p)))
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        // Coarser cells for a site too large for the grid.
+        let mut resolution = resolution_m;
+        loop {
+            match mapmerge_grid::FreeSpace::from_rays(resolution, rays.iter().copied()) {
+                Ok(free) => break free.free_cells() as f64 * resolution * resolution,
+                Err(_) if resolution < 100.0 => resolution *= 2.0,
+                Err(_) => break 0.0,
+            }
+        }
     }
 
     /// Checks what [`Atlas::restore`] relies on: ids below the counters, no vertex in two
