@@ -24,6 +24,17 @@ impl FreeSpace {
         resolution_m: f64,
         rays: impl IntoIterator<Item = (Point2, Point2)>,
     ) -> Result<Self, GridError> {
+        Self::from_rays_and_cells(resolution_m, rays, [])
+    }
+
+    /// As [`FreeSpace::from_rays`], and also the cells holding the points `free_cells` (free
+    /// space known otherwise, for example an occupancy grid's free cells; non-finite points
+    /// are skipped).
+    pub fn from_rays_and_cells(
+        resolution_m: f64,
+        rays: impl IntoIterator<Item = (Point2, Point2)>,
+        free_cells: impl IntoIterator<Item = Point2>,
+    ) -> Result<Self, GridError> {
         if !(resolution_m.is_finite() && resolution_m > 0.0) {
             return Err(GridError::BadResolution(resolution_m));
         }
@@ -32,7 +43,8 @@ impl FreeSpace {
             .into_iter()
             .filter(|(origin, end)| finite(origin) && finite(end))
             .collect();
-        let Some(&(first, _)) = rays.first() else {
+        let given: Vec<Point2> = free_cells.into_iter().filter(finite).collect();
+        let Some(first) = rays.first().map(|r| r.0).or(given.first().copied()) else {
             return Ok(Self {
                 geometry: GridGeometry {
                     resolution_m,
@@ -47,6 +59,10 @@ impl FreeSpace {
         for (origin, end) in &rays {
             lo = lo.inf(origin).inf(end);
             hi = hi.sup(origin).sup(end);
+        }
+        for p in &given {
+            lo = lo.inf(p);
+            hi = hi.sup(p);
         }
         // Cell borders on multiples of the resolution, so a point's cell does not depend on
         // which rays were cast.
@@ -70,6 +86,13 @@ impl FreeSpace {
                     *word |= 1 << (i % 64);
                 }
             });
+        }
+        for p in &given {
+            if let Some(i) = geometry.index_of(geometry.cell_of(p)) {
+                if let Some(word) = bits.get_mut(i / 64) {
+                    *word |= 1 << (i % 64);
+                }
+            }
         }
         Ok(Self { geometry, bits })
     }
@@ -126,6 +149,21 @@ mod tests {
         assert_eq!(empty.free_cells(), 0);
         assert!(!empty.is_free(&Point2::new(0.0, 0.0)));
         assert!(FreeSpace::from_rays(0.0, []).is_err());
+        let cells = FreeSpace::from_rays_and_cells(
+            0.1,
+            [(Point2::new(0.0, 0.0), Point2::new(0.0, 1.0))],
+            [Point2::new(3.05, -2.05), Point2::new(f64::NAN, 0.0)],
+        )
+        .unwrap();
+        assert!(cells.is_free(&Point2::new(3.01, -2.09)), "a given cell");
+        assert!(cells.is_free(&Point2::new(0.05, 0.5)), "a ray's cell");
+        assert!(
+            !cells.is_free(&Point2::new(3.15, -2.05)),
+            "beside the given cell"
+        );
+        assert_eq!(cells.free_cells(), 11);
+        let only_cells = FreeSpace::from_rays_and_cells(0.1, [], [Point2::new(-1.0, 1.0)]).unwrap();
+        assert_eq!(only_cells.free_cells(), 1);
         let huge = [(Point2::new(0.0, 0.0), Point2::new(1e9, 1e9))];
         assert!(matches!(
             FreeSpace::from_rays(0.1, huge),

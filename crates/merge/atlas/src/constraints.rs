@@ -441,7 +441,7 @@ impl<B: BackupStore> Atlas<B> {
     fn describe(&self, graph: &PoseGraph2, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
         let extractor = &self.constraints.extractor;
         if self.params.index_local_maps {
-            local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, nodes)
+            local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, nodes, None)
                 .into_iter()
                 .map(|(node, k)| (node, extractor.describe(&k.points_in_keyframe)))
                 .collect()
@@ -942,6 +942,7 @@ impl<B: BackupStore> Atlas<B> {
             &self.keyframes,
             &self.params.keyframes,
             &[node],
+            None,
         );
         let keyframe = local_maps.into_values().next()?;
         let pose = self.active.vertex(node)?.pose;
@@ -986,8 +987,13 @@ impl<B: BackupStore> Atlas<B> {
             return None;
         }
         let wanted: Vec<NodeId> = nodes.iter().map(|(n, _, _)| *n).collect();
-        let local_maps =
-            local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, &wanted);
+        let local_maps = local_map_keyframes(
+            graph,
+            &self.keyframes,
+            &self.params.keyframes,
+            &wanted,
+            Some(&self.local_maps),
+        );
         let candidates: Vec<PlaceCandidate> = nodes
             .iter()
             .filter_map(|(node, yaw_rad, ordinal)| {

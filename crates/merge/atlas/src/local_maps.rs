@@ -124,6 +124,58 @@ impl LocalMapGrid {
             .map_or(0.0, |c| f32::from(*c) * LOG_ODDS_STEP)
     }
 
+    /// The centres (anchor frame) of its occupied and of its free cells within `radius_m` of
+    /// `centre` (anchor frame), by `thresholds`.
+    pub fn cells_within(
+        &self,
+        centre: &Point2,
+        radius_m: f64,
+        thresholds: &ClassThresholds,
+    ) -> (Vec<Point2>, Vec<Point2>) {
+        let (mut occupied, mut free) = (Vec::new(), Vec::new());
+        let r = self.resolution_m;
+        if !(r > 0.0 && radius_m >= 0.0) || self.cells.is_empty() {
+            return (occupied, free);
+        }
+        // The rows and columns that can hold a cell within the radius.
+        let span = |c: f64, origin: f64, cells: u32| {
+            let lo = ((c - radius_m - origin) / r).floor().max(0.0);
+            let hi = ((c + radius_m - origin) / r).ceil().min(f64::from(cells));
+            (lo as usize, (hi.max(lo)) as usize)
+        };
+        let (x0, x1) = span(centre.x, self.origin_m[0], self.width);
+        let (y0, y1) = span(centre.y, self.origin_m[1], self.height);
+        let width = self.width as usize;
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let Some(&value) = self.cells.get(y * width + x) else {
+                    continue;
+                };
+                if value == 0 {
+                    continue;
+                }
+                let p = Point2::new(
+                    self.origin_m[0] + (x as f64 + 0.5) * r,
+                    self.origin_m[1] + (y as f64 + 0.5) * r,
+                );
+                if (p - centre).norm() > radius_m {
+                    continue;
+                }
+                match thresholds.classify(f32::from(value) * LOG_ODDS_STEP) {
+                    CellClass::Occupied => occupied.push(p),
+                    CellClass::Free => free.push(p),
+                    CellClass::Unknown => {}
+                }
+            }
+        }
+        (occupied, free)
+    }
+
+    /// How far its farthest cell lies from the anchor (m).
+    pub fn reach_m(&self) -> f64 {
+        self.corners().iter().map(|c| c.norm()).fold(0.0, f64::max)
+    }
+
     /// The corners of its box in the anchor's frame.
     fn corners(&self) -> [Point2; 4] {
         let (x0, y0) = (self.origin_m[0], self.origin_m[1]);

@@ -376,9 +376,19 @@ impl<B: BackupStore> Atlas<B> {
         if pairs.is_empty() {
             return Vec::new();
         }
-        let wanted: Vec<NodeId> = pairs.iter().flat_map(|(a, b)| [*a, *b]).collect();
-        let keyframes =
-            local_map_keyframes(merged, &self.keyframes, &self.params.keyframes, &wanted);
+        // The active side from its scans alone; the moved map's side also from its stored
+        // local maps.
+        let (active_side, moved_side): (Vec<NodeId>, Vec<NodeId>) = pairs.iter().copied().unzip();
+        let keyframe_params = &self.params.keyframes;
+        let mut keyframes =
+            local_map_keyframes(merged, &self.keyframes, keyframe_params, &active_side, None);
+        keyframes.extend(local_map_keyframes(
+            merged,
+            &self.keyframes,
+            keyframe_params,
+            &moved_side,
+            Some(&self.local_maps),
+        ));
         let mut loops = Vec::new();
         for (a, b) in pairs {
             if loops.len() >= p.max_loops {

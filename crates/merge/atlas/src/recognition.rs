@@ -6,6 +6,7 @@
 use std::collections::BTreeMap;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_grid::{ClassThresholds, FreeSpace};
 use mapmerge_place::{
     GeometricVerifier, Keyframe, PlaceParams, PlaceVerifierParams, ScanMatchVerifier,
 };
@@ -20,6 +21,7 @@ use crate::error::AtlasError;
 use crate::events::{MergeEvent, MergeReason};
 use crate::ids::{EpochId, MapId};
 use crate::keyframes::KeyframeStore;
+use crate::local_maps::LocalMapGrid;
 use crate::merge::{LoopEdge, MergeRequest};
 
 /// The keyframes place recognition and the overlap search match: a vertex's scan plus the
@@ -139,11 +141,17 @@ impl MergeProposal {
 /// Keyframes of `nodes` of `graph` as local maps (see [`KeyframeParams`]), keyed by node
 /// (the keyframe id is the node id; node ids are unique in the atlas). Nodes without a
 /// vertex are skipped; vertices without a scan count as empty.
+///
+/// With `stored`, the stored local maps anchored in `graph` add their occupied cells (as
+/// points) and free cells within `local_map_m` of the vertex: a lifelong map whose views were
+/// pruned (iRobot Sec. 4.1) is matched against what it keeps of the place, not against the
+/// few scans left. Only for candidates in an older map: a query's keyframe is its own data.
 pub(crate) fn local_map_keyframes(
     graph: &PoseGraph2,
     scans: &KeyframeStore,
     params: &KeyframeParams,
     nodes: &[NodeId],
+    stored: Option<&BTreeMap<NodeId, LocalMapGrid>>,
 ) -> BTreeMap<NodeId, Keyframe> {
     let order: Vec<(NodeId, Se2, EpochId)> = graph
         .vertices()
@@ -182,15 +190,67 @@ pub(crate) fn local_map_keyframes(
             }
             points.extend(other);
         }
+        let mut free_cells = Vec::new();
+        if let Some(grids) = stored.filter(|_| params.local_map_m > 0.0) {
+            let anchored = grids.iter().filter_map(|(anchor, grid)| {
+                let k = order.binary_search_by(|(id, _, _)| id.cmp(anchor)).ok()?;
+                Some((map_from_node.between(&order[k].1), grid))
+            });
+            for (node_from_anchor, grid) in anchored {
+                let node_in_anchor = node_from_anchor.inverse().translation();
+                if node_in_anchor.norm() > params.local_map_m + grid.reach_m() {
+                    continue;
+                }
+                let (occupied, free) = grid.cells_within(
+                    &node_in_anchor,
+                    params.local_map_m,
+                    &ClassThresholds::default(),
+                );
+                points.extend(transform_points(&node_from_anchor, &occupied));
+                free_cells.extend(transform_points(&node_from_anchor, &free));
+            }
+        }
         if params.local_map_m > 0.0 {
             points = voxel_downsample(&points, params.voxel_m);
         }
-        keyframes.insert(
-            *node,
-            Keyframe::new(node.0, points).with_rays(params.free_space_m, rays),
-        );
+        let keyframe = Keyframe::new(node.0, points);
+        let keyframe = if free_cells.is_empty() {
+            keyframe.with_rays(params.free_space_m, rays)
+        } else {
+            with_free_cells(keyframe, params.free_space_m, rays, free_cells)
+        };
+        keyframes.insert(*node, keyframe);
     }
     keyframes
+}
+
+/// `keyframe` with the free space of `rays` and of the stored maps' `free_cells` (keyframe
+/// frame) at `resolution_m`, leaving out every cell that holds one of its points (a wall's
+/// cell is not free because a finer map saw its other half empty).
+fn with_free_cells(
+    keyframe: Keyframe,
+    resolution_m: f64,
+    rays: Vec<(Point2, Point2)>,
+    free_cells: Vec<Point2>,
+) -> Keyframe {
+    if !(resolution_m > 0.0) {
+        return keyframe;
+    }
+    let cell = |p: &Point2| {
+        (
+            (p.x / resolution_m).floor() as i64,
+            (p.y / resolution_m).floor() as i64,
+        )
+    };
+    let occupied: std::collections::HashSet<(i64, i64)> =
+        keyframe.points_in_keyframe.iter().map(cell).collect();
+    let free = free_cells
+        .into_iter()
+        .filter(|p| !occupied.contains(&cell(p)));
+    match FreeSpace::from_rays_and_cells(resolution_m, rays, free) {
+        Ok(free_space) => keyframe.with_free_space(free_space),
+        Err(_) => keyframe,
+    }
 }
 
 impl<B: BackupStore> Atlas<B> {
@@ -205,5 +265,102 @@ impl<B: BackupStore> Atlas<B> {
             return Ok(None);
         };
         self.merge(best.into_request(), Some(verifier)).map(Some)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use mapmerge_posegraph::Vertex;
+
+    use super::*;
+    use crate::keyframes::KeyframeRecord;
+
+    /// A wall along y = 2 m from x = −2 to 2 m, a return every 0.1 m, in the frame of a robot
+    /// at the origin.
+    fn wall() -> Vec<Point2> {
+        (-20..=20)
+            .map(|i| Point2::new(f64::from(i) * 0.1, 2.0))
+            .collect()
+    }
+
+    /// Two vertices of one graph 3 m apart; the second keeps its (empty) view, the first
+    /// anchors a local map of the wall (its view pruned).
+    fn pruned_place() -> (PoseGraph2, KeyframeStore, BTreeMap<NodeId, LocalMapGrid>) {
+        let mut graph = PoseGraph2::new();
+        graph
+            .add_vertex(NodeId(1), Vertex::new(Se2::new(0.0, 0.0, 0.0)))
+            .unwrap();
+        graph
+            .add_vertex(
+                NodeId(2),
+                Vertex::new(Se2::new(3.0, 0.0, std::f64::consts::FRAC_PI_2)),
+            )
+            .unwrap();
+        let mut scans = KeyframeStore::default();
+        scans.insert(
+            NodeId(2),
+            KeyframeRecord {
+                points_in_robot: Vec::new().into(),
+                travel_m: 3.0,
+                local_from_robot: Se2::identity(),
+                submap: None,
+            },
+        );
+        let wall = wall();
+        // Seen twice: two misses make a cell free.
+        let seen = [(Se2::identity(), &wall[..]), (Se2::identity(), &wall[..])];
+        let grid = LocalMapGrid::from_keyframes(0.05, seen).unwrap();
+        let grids = BTreeMap::from([(NodeId(1), grid)]);
+        (graph, scans, grids)
+    }
+
+    #[test]
+    fn a_pruned_place_is_matched_against_its_stored_local_map() {
+        let (graph, scans, grids) = pruned_place();
+        let params = KeyframeParams::default();
+        let bare = local_map_keyframes(&graph, &scans, &params, &[NodeId(2)], None);
+        assert!(
+            bare[&NodeId(2)].points_in_keyframe.is_empty(),
+            "no scan, no map"
+        );
+        let stored = local_map_keyframes(&graph, &scans, &params, &[NodeId(2)], Some(&grids));
+        let keyframe = &stored[&NodeId(2)];
+        // The wall y = 2 (map frame) lies at x = 2 in vertex 2's frame (at (3, 0), facing +y).
+        let node_from_map = Se2::new(3.0, 0.0, std::f64::consts::FRAC_PI_2).inverse();
+        let points = &keyframe.points_in_keyframe;
+        assert!(points.len() > 10, "{} points", points.len());
+        for p in points.iter() {
+            assert!((p.x - 2.0).abs() < 0.1, "{p:?} off the wall");
+            assert!(
+                p.norm() <= params.local_map_m + 0.1,
+                "{p:?} beyond the radius"
+            );
+        }
+        let free = keyframe.free_space.as_ref().expect("free cells");
+        let between = node_from_map.transform_point(&Point2::new(1.0, 1.0));
+        assert!(free.is_free(&between), "the beams' cells are free");
+        for p in points.iter() {
+            assert!(!free.is_free(p), "{p:?} is a return and free");
+        }
+    }
+
+    #[test]
+    fn stored_maps_of_other_graphs_and_beyond_reach_are_left_out() {
+        let (graph, scans, grids) = pruned_place();
+        let params = KeyframeParams::default();
+        let elsewhere = BTreeMap::from([(NodeId(7), grids[&NodeId(1)].clone())]);
+        let other = local_map_keyframes(&graph, &scans, &params, &[NodeId(2)], Some(&elsewhere));
+        assert!(other[&NodeId(2)].points_in_keyframe.is_empty());
+        let near = KeyframeParams {
+            local_map_m: 0.5,
+            ..KeyframeParams::default()
+        };
+        let far = local_map_keyframes(&graph, &scans, &near, &[NodeId(2)], Some(&grids));
+        assert!(
+            far[&NodeId(2)].points_in_keyframe.is_empty(),
+            "the wall is 2 m away"
+        );
     }
 }
