@@ -78,6 +78,9 @@ enum EvalCommand {
     /// The erroneous-protrusion detector (iRobot Sec. 5.4) on simulated slips and new space:
     /// trained on tuning seeds, scored on held-out seeds.
     Protrusions(crate::protrusion_eval::ProtrusionEvalArgs),
+    /// Door-passing detection (Ehlers et al. Sec. II-B) against the simulator's doors:
+    /// precision and recall within 1 m of the true door, time per scan.
+    Doors(crate::door_eval::DoorEvalArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -178,6 +181,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::Calibrate(a) => crate::calibrate_eval::calibrate(a),
         EvalCommand::Assemble(a) => crate::assemble_eval::run(a),
         EvalCommand::Protrusions(a) => crate::protrusion_eval::run(a),
+        EvalCommand::Doors(a) => crate::door_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

@@ -13,6 +13,7 @@ mod atlas;
 mod calibrate_eval;
 mod compare;
 mod corrupt;
+mod door_eval;
 mod eval;
 mod grid;
 mod grid_merge;

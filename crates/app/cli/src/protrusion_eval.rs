@@ -122,7 +122,7 @@ struct Report {
 }
 
 /// `A-B` or `a,b,c`.
-fn seeds(text: &str) -> anyhow::Result<Vec<u64>> {
+pub(crate) fn seeds(text: &str) -> anyhow::Result<Vec<u64>> {
     let parse = |s: &str| {
         s.trim()
             .parse::<u64>()

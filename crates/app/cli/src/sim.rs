@@ -103,6 +103,17 @@ struct SessionSummary<'a> {
     slips: &'a [mapmerge_sim::SlipEvent],
     world_changes: &'a [mapmerge_sim::WorldChange],
     motion: &'a mapmerge_sim::MotionInfo,
+    /// Every passing of a door, for scoring door detection (issue 18).
+    door_passings: Vec<mapmerge_sim::DoorPassing>,
+}
+
+/// A door of the world, for scoring door detection (world frame).
+#[derive(Serialize)]
+struct DoorSummary {
+    id: u32,
+    x: f64,
+    y: f64,
+    width_m: f64,
 }
 
 #[derive(Serialize)]
@@ -111,6 +122,8 @@ struct DatasetSummary<'a> {
     seed: u64,
     params: &'a SimParams,
     world_map: &'static str,
+    /// Every door of session 0's world (later sessions close some; none moves).
+    doors: Vec<DoorSummary>,
     /// `--corrected-log`'s file.
     #[serde(skip_serializing_if = "Option::is_none")]
     corrected_log: Option<String>,
@@ -225,6 +238,7 @@ fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
             slips: &session.slips,
             world_changes: &session.world_changes,
             motion: &session.motion,
+            door_passings: session.door_passings(),
         });
     }
     let corrected_log = if args.corrected_log {
@@ -239,6 +253,17 @@ fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
         seed: dataset.seed,
         params: &dataset.params,
         world_map: "world.yaml",
+        doors: dataset
+            .world
+            .doors
+            .iter()
+            .map(|door| DoorSummary {
+                id: door.id.0,
+                x: door.center_m.x,
+                y: door.center_m.y,
+                width_m: door.width_m,
+            })
+            .collect(),
         corrected_log,
         sessions: summaries,
     };

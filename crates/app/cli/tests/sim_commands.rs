@@ -215,3 +215,67 @@ fn the_corrected_log_holds_every_scan_at_its_true_pose() {
         serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
     assert_eq!(dataset["corrected_log"], "corrected.log");
 }
+
+#[test]
+fn dataset_json_lists_the_doors_and_every_passing_of_one() {
+    let dir = testdata("sim/office-aliased");
+    let dataset: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
+    let doors = dataset["doors"].as_array().unwrap();
+    assert!(!doors.is_empty());
+    let ids: Vec<u64> = doors.iter().map(|d| d["id"].as_u64().unwrap()).collect();
+    for door in doors {
+        assert!(door["width_m"].as_f64().unwrap() > 0.5, "{door}");
+    }
+    // Each passing names a door, and the true pose at its scan lies within a door's width of
+    // that door's centre (the robot moves about 8 cm a scan).
+    let mut passings = 0;
+    for session in dataset["sessions"].as_array().unwrap() {
+        let truth =
+            mapmerge_io::read_tum_planar(&dir.join(session["truth"].as_str().unwrap())).unwrap();
+        for passing in session["door_passings"].as_array().unwrap() {
+            let door_id = passing["door"].as_u64().unwrap();
+            let door = &doors[ids.iter().position(|i| *i == door_id).unwrap()];
+            let scan = passing["scan"].as_u64().unwrap() as usize;
+            let pose = truth[scan].1;
+            let distance = ((pose.x_m - door["x"].as_f64().unwrap()).powi(2)
+                + (pose.y_m - door["y"].as_f64().unwrap()).powi(2))
+            .sqrt();
+            assert!(
+                distance < door["width_m"].as_f64().unwrap(),
+                "{passing}: {distance} m"
+            );
+            passings += 1;
+        }
+    }
+    assert!(passings >= 3, "{passings} passings");
+}
+
+#[test]
+fn eval_doors_scores_detection_against_the_simulators_doors() {
+    let report = ok_json(&[
+        "eval",
+        "doors",
+        "--worlds",
+        "office",
+        "--seeds",
+        "1",
+        "--sessions",
+        "1",
+        "--duration",
+        "60",
+        "--json",
+    ]);
+    let total = &report["total"];
+    let (passings, detections, true_detections) = (
+        total["passings"].as_u64().unwrap(),
+        total["detections"].as_u64().unwrap(),
+        total["true_detections"].as_u64().unwrap(),
+    );
+    assert!(passings > 0);
+    assert!(true_detections <= detections.min(passings));
+    assert!(report["precision"].as_f64().unwrap() >= 0.5, "{report}");
+    assert!(report["recall"].as_f64().unwrap() >= 0.5, "{report}");
+    let bad = run(&["eval", "doors", "--worlds", "no-such-world", "--seeds", "1"]);
+    assert_eq!(bad.status.code(), Some(2), "an unknown world is bad input");
+}

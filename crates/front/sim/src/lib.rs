@@ -33,6 +33,7 @@
 #![warn(missing_docs)]
 
 mod changes;
+mod doors;
 mod error;
 mod furniture;
 mod hall;
@@ -52,6 +53,7 @@ mod warehouse;
 mod world;
 
 pub use changes::{ChangeParams, WorldChange};
+pub use doors::{door_passings, DoorPassing};
 pub use error::SimError;
 pub use hall::SymmetricHallParams;
 pub use kidnap::{Kidnap, KidnapParams, KidnapTarget};

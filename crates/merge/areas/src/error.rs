@@ -1,0 +1,27 @@
+//! Errors of the map manager.
+
+use thiserror::Error;
+
+/// What can go wrong in the map manager.
+#[derive(Debug, Error)]
+pub enum AreasError {
+    /// A parameter is out of its range.
+    #[error("bad parameter {name}: {reason}")]
+    Param {
+        /// The parameter.
+        name: &'static str,
+        /// Why.
+        reason: &'static str,
+    },
+    /// A preset's file could not be read.
+    #[error("preset {name}: {reason}")]
+    Preset {
+        /// The preset.
+        name: String,
+        /// Why.
+        reason: String,
+    },
+    /// The simulator refused.
+    #[error(transparent)]
+    Sim(#[from] mapmerge_sim::SimError),
+}
