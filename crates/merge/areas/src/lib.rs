@@ -11,7 +11,9 @@ mod door;
 mod environment;
 mod error;
 pub mod eval;
+mod hybrid;
 
 pub use door::{passways, Criteria, DoorDetector, DoorParams, DoorPassingDetection, DoorSighting};
 pub use environment::{Environment, EnvironmentParams, Extents, Preset};
 pub use error::AreasError;
+pub use hybrid::{Area, HybridMap, LinkEdge, LinkPoint, Route};

@@ -1,0 +1,383 @@
+//! The hybrid map H = ⟨M, L, E⟩ (Ehlers et al., Sec. II-A): maps M (one per area, each in its
+//! own frame), link points L (a pose known in two adjacent maps, placed at a door) and edges E
+//! between the link points of one map (all of them: "all link-points on the same map are fully
+//! connected"). Dijkstra over E gives routes between poses in any two maps (Sec. II-C), and the
+//! chain of transforms along them.
+
+use std::collections::BTreeMap;
+
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_scan::Point2;
+use petgraph::graph::{NodeIndex, UnGraph};
+use serde::{Deserialize, Serialize};
+
+use crate::environment::Environment;
+
+/// One map of the hybrid map: a room, corridor or hall.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Area {
+    /// Its id (its index).
+    pub id: usize,
+    /// The SLAM configuration it was built with.
+    pub environment: Environment,
+    /// Where its frame lies in the first area's frame (through the link-point chain).
+    pub first_from_area: Se2,
+}
+
+/// A link point: one pose, known in two adjacent maps.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkPoint {
+    /// Its id (its index).
+    pub id: usize,
+    /// The two maps (ids).
+    pub areas: [usize; 2],
+    /// The pose in each map's frame (`areas[i]`'s frame for `poses[i]`).
+    pub poses: [Se2; 2],
+}
+
+impl LinkPoint {
+    /// Its pose in `area`'s frame, if it belongs to `area`.
+    pub fn pose_in(&self, area: usize) -> Option<Se2> {
+        self.areas
+            .iter()
+            .position(|a| *a == area)
+            .and_then(|i| self.poses.get(i).copied())
+    }
+
+    /// The transform from the frame of `areas[1]` to the frame of `areas[0]` it implies (both
+    /// poses are the same pose in the world).
+    pub fn first_from_second(&self) -> Se2 {
+        self.poses[0].compose(&self.poses[1].inverse())
+    }
+}
+
+/// An edge between two link points of one map.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkEdge {
+    /// Link point ids.
+    pub from: usize,
+    /// …
+    pub to: usize,
+    /// The map they share.
+    pub area: usize,
+    /// Their distance in that map (m).
+    pub length_m: f64,
+}
+
+/// The hybrid map.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct HybridMap {
+    /// M.
+    pub areas: Vec<Area>,
+    /// L.
+    pub link_points: Vec<LinkPoint>,
+    /// E, derived from L ([`HybridMap::connect`]).
+    pub edges: Vec<LinkEdge>,
+}
+
+/// A route between two poses.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Route {
+    /// The maps passed through, in order (the start's first, the goal's last).
+    pub areas: Vec<usize>,
+    /// The link points passed through, in order.
+    pub link_points: Vec<usize>,
+    /// Length (m): straight lines from the start to the first link point, between link
+    /// points within their map, and from the last to the goal.
+    pub length_m: f64,
+    /// The transform from the goal map's frame to the start map's frame along the route.
+    pub start_from_goal: Se2,
+}
+
+impl HybridMap {
+    /// Rebuilds E from L: every two link points that share a map are joined by their
+    /// distance in it.
+    pub fn connect(&mut self) {
+        let mut edges = Vec::new();
+        for (i, a) in self.link_points.iter().enumerate() {
+            for b in &self.link_points[i + 1..] {
+                for area in a.areas {
+                    if let (Some(pa), Some(pb)) = (a.pose_in(area), b.pose_in(area)) {
+                        edges.push(LinkEdge {
+                            from: a.id,
+                            to: b.id,
+                            area,
+                            length_m: (pa.translation() - pb.translation()).norm(),
+                        });
+                    }
+                }
+            }
+        }
+        self.edges = edges;
+    }
+
+    /// The shortest route (Dijkstra over E) from `start` in map `start_area` to `goal` in map
+    /// `goal_area` (positions in those maps' frames); `None` when a map is unknown or no
+    /// chain of link points joins them.
+    pub fn route(
+        &self,
+        start_area: usize,
+        start: Point2,
+        goal_area: usize,
+        goal: Point2,
+    ) -> Option<Route> {
+        if start_area >= self.areas.len() || goal_area >= self.areas.len() {
+            return None;
+        }
+        if start_area == goal_area {
+            return Some(Route {
+                areas: vec![start_area],
+                link_points: Vec::new(),
+                length_m: (goal - start).norm(),
+                start_from_goal: Se2::identity(),
+            });
+        }
+        // Nodes: the link points, then the start and the goal.
+        let n = self.link_points.len();
+        let mut graph: UnGraph<(), (f64, usize)> = UnGraph::with_capacity(n + 2, 0);
+        let nodes: Vec<NodeIndex> = (0..n + 2).map(|_| graph.add_node(())).collect();
+        let (start_node, goal_node) = (nodes[n], nodes[n + 1]);
+        for edge in &self.edges {
+            if let (Some(a), Some(b)) = (nodes.get(edge.from), nodes.get(edge.to)) {
+                graph.add_edge(*a, *b, (edge.length_m, edge.area));
+            }
+        }
+        for link in &self.link_points {
+            if let Some(p) = link.pose_in(start_area) {
+                graph.add_edge(
+                    start_node,
+                    nodes[link.id],
+                    ((p.translation() - start).norm(), start_area),
+                );
+            }
+            if let Some(p) = link.pose_in(goal_area) {
+                graph.add_edge(
+                    goal_node,
+                    nodes[link.id],
+                    ((p.translation() - goal).norm(), goal_area),
+                );
+            }
+        }
+        let (length_m, path) = petgraph::algo::astar(
+            &graph,
+            start_node,
+            |node| node == goal_node,
+            |e| e.weight().0,
+            |_| 0.0,
+        )?;
+        // The map of each leg: the shortest edge joining its two nodes.
+        let mut legs = Vec::with_capacity(path.len());
+        for pair in path.windows(2) {
+            let area = graph
+                .edges_connecting(pair[0], pair[1])
+                .min_by(|a, b| a.weight().0.total_cmp(&b.weight().0))
+                .map(|e| e.weight().1)?;
+            legs.push(area);
+        }
+        let link_points: Vec<usize> = path
+            .iter()
+            .filter(|node| node.index() < n)
+            .map(|node| node.index())
+            .collect();
+        // Link point k lies between legs k and k + 1; where they differ, the route changes map.
+        let mut areas = vec![start_area];
+        let mut start_from_current = Se2::identity();
+        for (k, id) in link_points.iter().enumerate() {
+            let (Some(&from), Some(&to)) = (legs.get(k), legs.get(k + 1)) else {
+                return None;
+            };
+            if from == to {
+                continue;
+            }
+            let link = self.link_points.get(*id)?;
+            let current_from_next = link.pose_in(from)?.compose(&link.pose_in(to)?.inverse());
+            start_from_current = start_from_current.compose(&current_from_next);
+            areas.push(to);
+        }
+        Some(Route {
+            areas,
+            link_points,
+            length_m,
+            start_from_goal: start_from_current,
+        })
+    }
+
+    /// Where every area's frame lies in the first area's frame, through a breadth-first walk
+    /// of the link points (areas no chain reaches keep theirs).
+    pub fn chain_frames(&mut self) {
+        if self.areas.is_empty() {
+            return;
+        }
+        let mut placed: BTreeMap<usize, Se2> = BTreeMap::from([(0, Se2::identity())]);
+        let mut frontier = vec![0usize];
+        while let Some(area) = frontier.pop() {
+            let Some(first_from_area) = placed.get(&area).copied() else {
+                continue;
+            };
+            for link in &self.link_points {
+                let Some(here) = link.pose_in(area) else {
+                    continue;
+                };
+                let other = if link.areas[0] == area {
+                    link.areas[1]
+                } else {
+                    link.areas[0]
+                };
+                if placed.contains_key(&other) {
+                    continue;
+                }
+                let Some(there) = link.pose_in(other) else {
+                    continue;
+                };
+                placed.insert(
+                    other,
+                    first_from_area.compose(&here.compose(&there.inverse())),
+                );
+                frontier.push(other);
+            }
+        }
+        for area in &mut self.areas {
+            if let Some(pose) = placed.get(&area.id) {
+                area.first_from_area = *pose;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used, clippy::expect_used)]
+
+    use proptest::prelude::*;
+
+    use super::*;
+
+    /// A hybrid map of `areas` maps, each in a frame rotated and shifted from the world's,
+    /// with link points at world positions `links` (area pairs) — the world positions are
+    /// the ground truth routes are checked against.
+    fn build(areas: usize, links: &[(usize, usize, f64, f64)]) -> (HybridMap, Vec<Se2>) {
+        let world_from_area: Vec<Se2> = (0..areas)
+            .map(|i| Se2::new(3.0 * i as f64, -(i as f64), 0.3 * i as f64))
+            .collect();
+        let mut map = HybridMap {
+            areas: (0..areas)
+                .map(|id| Area {
+                    id,
+                    environment: Environment::Indoor,
+                    first_from_area: Se2::identity(),
+                })
+                .collect(),
+            ..HybridMap::default()
+        };
+        for (id, (a, b, x, y)) in links.iter().enumerate() {
+            let world = Se2::new(*x, *y, 0.1 * id as f64);
+            map.link_points.push(LinkPoint {
+                id,
+                areas: [*a, *b],
+                poses: [
+                    world_from_area[*a].inverse().compose(&world),
+                    world_from_area[*b].inverse().compose(&world),
+                ],
+            });
+        }
+        map.connect();
+        (map, world_from_area)
+    }
+
+    #[test]
+    fn a_route_through_three_maps_and_its_transform_chain() {
+        // 0 —L0— 1 —L1— 2, and a longer way 0 —L2— 2.
+        let (map, world) = build(3, &[(0, 1, 1.0, 0.0), (1, 2, 2.0, 0.0), (0, 2, 0.0, 10.0)]);
+        let start = world[0].inverse().transform_point(&Point2::new(0.0, 0.0));
+        let goal = world[2].inverse().transform_point(&Point2::new(3.0, 0.0));
+        let route = map.route(0, start, 2, goal).unwrap();
+        assert_eq!(route.areas, vec![0, 1, 2]);
+        assert_eq!(route.link_points, vec![0, 1]);
+        assert!((route.length_m - 3.0).abs() < 1e-9, "{}", route.length_m);
+        let expected = world[0].inverse().compose(&world[2]);
+        let error = expected.between(&route.start_from_goal);
+        assert!(error.translation().norm() < 1e-9 && error.theta_rad.abs() < 1e-9);
+        let mut chained = map.clone();
+        chained.chain_frames();
+        let placed = chained.areas[2].first_from_area;
+        assert!(placed.between(&expected).translation().norm() < 1e-9);
+        assert!(map.route(0, start, 7, goal).is_none(), "an unknown map");
+    }
+
+    #[test]
+    fn unconnected_maps_have_no_route() {
+        let (map, _) = build(4, &[(0, 1, 1.0, 0.0), (2, 3, 5.0, 0.0)]);
+        assert!(map.route(0, Point2::zeros(), 3, Point2::zeros()).is_none());
+        let same = map
+            .route(2, Point2::zeros(), 2, Point2::new(3.0, 4.0))
+            .unwrap();
+        assert_eq!((same.areas.clone(), same.length_m), (vec![2], 5.0));
+    }
+
+    /// Brute force: Floyd–Warshall over the link points plus start and goal.
+    fn brute_force(map: &HybridMap, sa: usize, s: Point2, ga: usize, g: Point2) -> Option<f64> {
+        if sa == ga {
+            return Some((g - s).norm());
+        }
+        let n = map.link_points.len() + 2;
+        let mut d = vec![vec![f64::INFINITY; n]; n];
+        for (i, row) in d.iter_mut().enumerate() {
+            row[i] = 0.0;
+        }
+        for e in &map.edges {
+            d[e.from][e.to] = d[e.from][e.to].min(e.length_m);
+            d[e.to][e.from] = d[e.from][e.to];
+        }
+        for l in &map.link_points {
+            if let Some(p) = l.pose_in(sa) {
+                d[n - 2][l.id] = (p.translation() - s).norm();
+                d[l.id][n - 2] = d[n - 2][l.id];
+            }
+            if let Some(p) = l.pose_in(ga) {
+                d[n - 1][l.id] = (p.translation() - g).norm();
+                d[l.id][n - 1] = d[n - 1][l.id];
+            }
+        }
+        for k in 0..n {
+            for i in 0..n {
+                for j in 0..n {
+                    if d[i][k] + d[k][j] < d[i][j] {
+                        d[i][j] = d[i][k] + d[k][j];
+                    }
+                }
+            }
+        }
+        d[n - 2][n - 1].is_finite().then_some(d[n - 2][n - 1])
+    }
+
+    proptest! {
+        #[test]
+        fn routes_agree_with_brute_force(
+            areas in 2usize..8,
+            links in proptest::collection::vec((0usize..8, 0usize..8, -20.0..20.0f64, -20.0..20.0f64), 0..14),
+            sa in 0usize..8, ga in 0usize..8,
+            (sx, sy, gx, gy) in (-20.0..20.0f64, -20.0..20.0f64, -20.0..20.0f64, -20.0..20.0f64),
+        ) {
+            let links: Vec<_> = links
+                .into_iter()
+                .map(|(a, b, x, y)| (a % areas, b % areas, x, y))
+                .filter(|(a, b, _, _)| a != b)
+                .collect();
+            let (sa, ga) = (sa % areas, ga % areas);
+            let (map, world) = build(areas, &links);
+            let (s, g) = (Point2::new(sx, sy), Point2::new(gx, gy));
+            let route = map.route(sa, s, ga, g);
+            let expected = brute_force(&map, sa, s, ga, g);
+            prop_assert_eq!(route.is_some(), expected.is_some());
+            if let (Some(route), Some(expected)) = (route, expected) {
+                prop_assert!((route.length_m - expected).abs() < 1e-6, "{} vs {}", route.length_m, expected);
+                prop_assert_eq!(route.areas.first().copied(), Some(sa));
+                prop_assert_eq!(route.areas.last().copied(), Some(ga));
+                // The transform chain is the true one between the two frames.
+                let truth = world[sa].inverse().compose(&world[ga]);
+                let error = truth.between(&route.start_from_goal);
+                prop_assert!(error.translation().norm() < 1e-6 && error.theta_rad.abs() < 1e-6);
+            }
+        }
+    }
+}
