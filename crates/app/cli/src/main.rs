@@ -7,6 +7,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
+mod areas;
 mod assemble;
 mod assemble_eval;
 mod atlas;
@@ -41,6 +42,12 @@ enum Command {
     /// Lifelong mapping over sessions (logs or a simulation): epochs, merges by place
     /// recognition, invalid-merge detection and undo; events, graphs and pictures.
     Atlas(atlas::AtlasArgs),
+    /// The map manager (Ehlers et al.): one map per area, split at door passings, each built
+    /// with its environment's preset, joined by link points into a topological graph.
+    Areas(areas::AreasArgs),
+    /// The shortest route between two poses in the maps of `mapmerge areas` (exit code 3: no
+    /// route).
+    Route(areas::RouteArgs),
     /// Assemble trajectory segments (CARMEN logs) without initial guesses, in any order
     /// (AutoMerge): groups, inter-segment loop edges, poses per group, pictures.
     Assemble(assemble::AssembleArgs),
@@ -197,6 +204,8 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Areas(args) => areas::run(args),
+        Command::Route(args) => areas::route(args),
         Command::Grid(args) => grid::run(args),
         Command::GridMerge(args) => grid_merge::run(args),
         Command::Render(args) => render::run(args),

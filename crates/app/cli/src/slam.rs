@@ -14,9 +14,10 @@ use mapmerge_eval::{
     RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
 };
 use mapmerge_geometry::{LieGroup, Se2};
-use mapmerge_grid::{ClassThresholds, InsertParams};
+use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
 use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
+use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
 use crate::grid::{build_grid, PosedLog};
@@ -49,6 +50,46 @@ pub struct SlamArgs {
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
+}
+
+/// Writes a SLAM run's outputs into `dir` (created if missing): `trajectory.tum` (one pose per
+/// scan, with the scan's stamp), `graph.g2o`, the map from every scan at its final pose
+/// (`map.yaml` + `map.pgm`) and `map.png` with the trajectory and graph over it. Returns the
+/// map.
+pub(crate) fn write_map_outputs(
+    dir: &Path,
+    log: LaserLog,
+    run: &SlamRun,
+    resolution_m: f64,
+    progress: bool,
+) -> anyhow::Result<OccupancyGrid> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let stamped: Vec<(f64, Se2)> = log
+        .scans
+        .iter()
+        .zip(&run.trajectory)
+        .map(|(record, pose)| (record.stamp_secs, *pose))
+        .collect();
+    mapmerge_io::write_tum_planar(&dir.join("trajectory.tum"), &stamped)?;
+    let graph = AnyGraph::Planar(run.graph.clone());
+    mapmerge_io::write_graph(&dir.join("graph.g2o"), &graph, GraphFormat::G2o)?;
+    let posed = PosedLog {
+        log,
+        poses: run.trajectory.clone(),
+    };
+    let (grid, _) = build_grid(&posed, resolution_m, &InsertParams::default(), progress)?;
+    let thresholds = ClassThresholds::default();
+    let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
+    mapmerge_io::write_ros_map(&dir.join("map.yaml"), &map).context("writing the map")?;
+    let style = PictureStyle {
+        pixels_per_cell: 1,
+        classes: Some(thresholds),
+    };
+    let mut picture = Picture::of_grid(&grid, &style);
+    picture.draw_trajectory(&run.trajectory, Rgb::RED, 1.0);
+    picture.draw_graph(&run.graph, &GraphStyle::default());
+    picture.save_png(&dir.join("map.png"))?;
+    Ok(grid)
 }
 
 /// What `slam` did.
@@ -196,40 +237,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
     bar.finish_and_clear();
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("creating {}", args.output.display()))?;
-    // Trajectory: one pose per scan, with the scan's stamp.
-    let stamped: Vec<(f64, Se2)> = log
-        .scans
-        .iter()
-        .zip(&run.trajectory)
-        .map(|(record, pose)| (record.stamp_secs, *pose))
-        .collect();
-    mapmerge_io::write_tum_planar(&args.output.join("trajectory.tum"), &stamped)?;
-    let graph = AnyGraph::Planar(run.graph.clone());
-    mapmerge_io::write_graph(&args.output.join("graph.g2o"), &graph, GraphFormat::G2o)?;
-    // The map from every scan at its final pose.
-    let posed = PosedLog {
-        log,
-        poses: run.trajectory.clone(),
-    };
-    let (grid, _) = build_grid(
-        &posed,
-        args.resolution,
-        &InsertParams::default(),
-        !args.json,
-    )?;
-    let thresholds = ClassThresholds::default();
-    let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
-    mapmerge_io::write_ros_map(&args.output.join("map.yaml"), &map).context("writing the map")?;
-    let style = PictureStyle {
-        pixels_per_cell: 1,
-        classes: Some(thresholds),
-    };
-    let mut picture = Picture::of_grid(&grid, &style);
-    picture.draw_trajectory(&run.trajectory, Rgb::RED, 1.0);
-    picture.draw_graph(&run.graph, &GraphStyle::default());
-    picture.save_png(&args.output.join("map.png"))?;
+    write_map_outputs(&args.output, log, &run, args.resolution, !args.json)?;
     let (score, odometry_score, loops) = match &reference {
         Some((corrected, odometry)) => {
             let relations = make_relations(corrected, &RelationsParams::default())?;

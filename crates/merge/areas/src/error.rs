@@ -21,6 +21,9 @@ pub enum AreasError {
         /// Why.
         reason: String,
     },
+    /// An area could not be mapped, or its map does not fit its scans.
+    #[error("mapping: {0}")]
+    Mapping(String),
     /// The simulator refused.
     #[error(transparent)]
     Sim(#[from] mapmerge_sim::SimError),

@@ -1,0 +1,416 @@
+//! `mapmerge areas` and `mapmerge route`: the map manager of Ehlers et al. on one log or one
+//! simulated session (`mapmerge_areas`): door passings split it into areas, each area is
+//! mapped by the SLAM pipeline with its environment's preset, and the link points at the
+//! doors join the maps into a hybrid map; `route` finds the shortest route between two
+//! poses in any two maps of it.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Args;
+use mapmerge_areas::{hybrid_map, segment, HybridMap, ManagerParams, Route};
+use mapmerge_engine::{run_slam, EngineParams};
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_grid::InsertParams;
+use mapmerge_render::{session_color, Picture, PictureStyle, Rgb};
+use mapmerge_scan::{LaserLog, Point2};
+use mapmerge_sim::{simulate, SimParams};
+use serde::Serialize;
+
+use crate::grid::{build_grid, PosedLog};
+use crate::slam::write_map_outputs;
+use crate::{bad_file, bad_input, check_resolution, print_json};
+
+/// Arguments of `mapmerge areas`.
+#[derive(Args, Debug)]
+pub struct AreasArgs {
+    /// CARMEN laser log (`.xz` accepted): its scans' odometry poses drive door detection and
+    /// each area's SLAM. One log: joining the areas of several sessions needs topological loop
+    /// closure, which is not built yet.
+    pub log: Option<PathBuf>,
+    /// Instead of a log, session 0 of a simulated world (a preset of `mapmerge sim`).
+    #[arg(long, conflicts_with = "log")]
+    pub sim: Option<String>,
+    /// Seed of `--sim`.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Robot time of `--sim` (s).
+    #[arg(long, default_value_t = 120.0)]
+    pub duration: f64,
+    /// Cell side of the maps (m).
+    #[arg(long, default_value_t = 0.05)]
+    pub resolution: f64,
+    /// Map-manager parameters as JSON (any subset of `mapmerge_areas::ManagerParams`).
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Output folder: areas.json, hybrid.json, overview.png and area_K/ (graph.g2o, map.yaml
+    /// + map.pgm, map.png, trajectory.tum) for each area.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Print one JSON summary instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `areas.json` (docs/formats.md): positions in the first area's frame.
+#[derive(Serialize)]
+struct AreasFile {
+    areas: Vec<AreaEntry>,
+    link_points: Vec<LinkPointEntry>,
+    edges: Vec<EdgeEntry>,
+    door_passings: Vec<PassingEntry>,
+}
+
+#[derive(Serialize)]
+struct AreaEntry {
+    id: usize,
+    config: &'static str,
+    /// `[session, first scan, last scan + 1]` of each stretch of scans mapped into it.
+    sessions_scans: Vec<[usize; 3]>,
+    dir: String,
+}
+
+#[derive(Serialize)]
+struct LinkPointEntry {
+    id: usize,
+    area: usize,
+    areas: [usize; 2],
+    x: f64,
+    y: f64,
+}
+
+#[derive(Serialize)]
+struct EdgeEntry {
+    from: usize,
+    to: usize,
+    area: usize,
+    length_m: f64,
+}
+
+#[derive(Serialize)]
+struct PassingEntry {
+    session: usize,
+    scan: usize,
+    crossing_scan: usize,
+    x: f64,
+    y: f64,
+    /// Whether it starts a new area (a passing too soon after the last one does not).
+    boundary: bool,
+}
+
+#[derive(Serialize)]
+struct AreasReport<'a> {
+    scans: usize,
+    areas: usize,
+    link_points: usize,
+    door_passings: usize,
+    /// Areas by configuration.
+    indoor: usize,
+    large: usize,
+    seconds: f64,
+    output: &'a Path,
+}
+
+/// The log `areas` runs on.
+fn input_log(args: &AreasArgs) -> anyhow::Result<LaserLog> {
+    match (&args.log, &args.sim) {
+        (Some(path), None) => mapmerge_io::read_carmen(path).map_err(bad_file),
+        (None, Some(world)) => {
+            let params = SimParams::default()
+                .with_preset_name(world)
+                .map_err(bad_input)?
+                .with_sessions(1)
+                .with_duration_secs(args.duration);
+            let dataset = simulate(&params, args.seed).map_err(bad_input)?;
+            dataset
+                .sessions
+                .into_iter()
+                .next()
+                .map(|s| s.log)
+                .ok_or_else(|| bad_input("the simulation made no session"))
+        }
+        _ => Err(bad_input("give one LOG or --sim WORLD")),
+    }
+}
+
+/// Runs `mapmerge areas`.
+pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
+    check_resolution(args.resolution)?;
+    let started = std::time::Instant::now();
+    let params: ManagerParams = match &args.config {
+        None => ManagerParams::default(),
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+            serde_json::from_str(&text)
+                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
+        }
+    };
+    let log = input_log(args)?;
+    let mut poses = Vec::with_capacity(log.scans.len());
+    for (k, record) in log.scans.iter().enumerate() {
+        let pose = record
+            .odom_from_robot
+            .ok_or_else(|| bad_input(format!("scan {k} has no odometry pose")))?;
+        poses.push(pose);
+    }
+    let split = segment(
+        poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
+        &params,
+    )
+    .map_err(bad_input)?;
+    std::fs::create_dir_all(&args.output)
+        .with_context(|| format!("creating {}", args.output.display()))?;
+    let bar = crate::progress_bar(split.spans.len(), "areas", "areas", !args.json);
+    let mut trajectories = Vec::with_capacity(split.spans.len());
+    for (k, span) in split.spans.iter().enumerate() {
+        let part = LaserLog {
+            scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
+            params: log.params.clone(),
+            ..LaserLog::default()
+        };
+        let preset = span.environment.preset().map_err(bad_input)?;
+        let engine = EngineParams {
+            tracker: preset.tracker,
+            ..EngineParams::default()
+        };
+        let run =
+            run_slam(&part, engine, |_| {}).map_err(|e| bad_input(format!("area {k}: {e}")))?;
+        write_map_outputs(
+            &args.output.join(format!("area_{k}")),
+            part,
+            &run,
+            args.resolution,
+            false,
+        )?;
+        trajectories.push(run.trajectory);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let hybrid = hybrid_map(&split, &trajectories).map_err(bad_input)?;
+    // Every scan's pose in the first area's frame (an overlap scan by its earlier area).
+    let mut first_from_robot: Vec<Option<Se2>> = vec![None; log.scans.len()];
+    for ((span, trajectory), area) in split.spans.iter().zip(&trajectories).zip(&hybrid.areas) {
+        for (scan, pose) in span.scans.clone().zip(trajectory) {
+            if let Some(slot) = first_from_robot.get_mut(scan) {
+                slot.get_or_insert(area.first_from_area.compose(pose));
+            }
+        }
+    }
+    let door_passings: Vec<PassingEntry> = split
+        .passings
+        .iter()
+        .enumerate()
+        .filter_map(|(i, passing)| {
+            let robot = first_from_robot.get(passing.scan).copied().flatten()?;
+            let center = robot.transform_point(&passing.center_in_robot_m);
+            Some(PassingEntry {
+                session: 0,
+                scan: passing.scan,
+                crossing_scan: passing.crossing_scan,
+                x: center.x,
+                y: center.y,
+                boundary: split.boundaries.contains(&i),
+            })
+        })
+        .collect();
+    let link_points: Vec<LinkPointEntry> = hybrid
+        .link_points
+        .iter()
+        .filter_map(|link| {
+            let p = link_in_first_frame(&hybrid, link.id)?;
+            Some(LinkPointEntry {
+                id: link.id,
+                area: link.areas[0],
+                areas: link.areas,
+                x: p.x,
+                y: p.y,
+            })
+        })
+        .collect();
+    let file = AreasFile {
+        areas: hybrid
+            .areas
+            .iter()
+            .zip(&split.spans)
+            .map(|(area, span)| AreaEntry {
+                id: area.id,
+                config: area.environment.name(),
+                sessions_scans: vec![[0, span.scans.start, span.scans.end]],
+                dir: format!("area_{}", area.id),
+            })
+            .collect(),
+        link_points,
+        edges: hybrid
+            .edges
+            .iter()
+            .map(|e| EdgeEntry {
+                from: e.from,
+                to: e.to,
+                area: e.area,
+                length_m: e.length_m,
+            })
+            .collect(),
+        door_passings,
+    };
+    write_json(&args.output.join("areas.json"), &file)?;
+    write_json(&args.output.join("hybrid.json"), &hybrid)?;
+    let posed = PosedLog {
+        poses: first_from_robot
+            .iter()
+            .map(|p| p.unwrap_or_else(Se2::identity))
+            .collect(),
+        log,
+    };
+    overview(
+        &posed,
+        &split.spans,
+        &hybrid,
+        args.resolution,
+        &args.output.join("overview.png"),
+    )?;
+    let report = AreasReport {
+        scans: posed.poses.len(),
+        areas: hybrid.areas.len(),
+        link_points: hybrid.link_points.len(),
+        door_passings: split.passings.len(),
+        indoor: file.areas.iter().filter(|a| a.config == "indoor").count(),
+        large: file.areas.iter().filter(|a| a.config == "large").count(),
+        seconds: started.elapsed().as_secs_f64(),
+        output: &args.output,
+    };
+    if args.json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{} scans: {} door passings, {} areas ({} indoor, {} large), {} link points; wrote {} in {:.1} s",
+            report.scans,
+            report.door_passings,
+            report.areas,
+            report.indoor,
+            report.large,
+            report.link_points,
+            args.output.display(),
+            report.seconds
+        );
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}
+
+/// A link point's position in the first area's frame.
+fn link_in_first_frame(hybrid: &HybridMap, id: usize) -> Option<Point2> {
+    let link = hybrid.link_points.get(id)?;
+    let area = hybrid.areas.get(link.areas[0])?;
+    Some(area.first_from_area.compose(&link.poses[0]).translation())
+}
+
+fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
+    let text = serde_json::to_string_pretty(value)?;
+    std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))
+}
+
+/// The overview: the whole map in the first area's frame, each area's path in its colour, the
+/// link points and the topological graph over it.
+fn overview(
+    posed: &PosedLog,
+    spans: &[mapmerge_areas::AreaSpan],
+    hybrid: &HybridMap,
+    resolution_m: f64,
+    path: &Path,
+) -> anyhow::Result<()> {
+    let (grid, _) = build_grid(posed, resolution_m, &InsertParams::default(), false)?;
+    let style = PictureStyle {
+        pixels_per_cell: 1,
+        classes: Some(mapmerge_grid::ClassThresholds::default()),
+    };
+    let mut picture = Picture::of_grid(&grid, &style);
+    for (k, span) in spans.iter().enumerate() {
+        let poses: Vec<Se2> = posed.poses.get(span.scans.clone()).unwrap_or(&[]).to_vec();
+        picture.draw_trajectory(&poses, session_color(k as u64), 2.0);
+    }
+    for edge in &hybrid.edges {
+        if let (Some(a), Some(b)) = (
+            link_in_first_frame(hybrid, edge.from),
+            link_in_first_frame(hybrid, edge.to),
+        ) {
+            picture.draw_line(&a, &b, Rgb::RED, 2.0);
+        }
+    }
+    for link in &hybrid.link_points {
+        if let Some(p) = link_in_first_frame(hybrid, link.id) {
+            picture.draw_disc(&p, 5.0, Rgb::RED);
+        }
+    }
+    picture.save_png(path)?;
+    Ok(())
+}
+
+/// Arguments of `mapmerge route`.
+#[derive(Args, Debug)]
+pub struct RouteArgs {
+    /// A folder written by `mapmerge areas` (its hybrid.json).
+    pub dir: PathBuf,
+    /// Start: `AREA:x,y` (a position in that area's frame, m).
+    #[arg(long)]
+    pub from: String,
+    /// Goal: `AREA:x,y`.
+    #[arg(long)]
+    pub to: String,
+    /// Print JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `AREA:x,y`.
+fn place(text: &str) -> anyhow::Result<(usize, Point2)> {
+    let bad = || bad_input(format!("{text:?}: expected AREA:x,y"));
+    let (area, xy) = text.split_once(':').ok_or_else(bad)?;
+    let (x, y) = xy.split_once(',').ok_or_else(bad)?;
+    let number = |s: &str| s.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    Ok((
+        area.trim().parse().map_err(|_| bad())?,
+        Point2::new(number(x).ok_or_else(bad)?, number(y).ok_or_else(bad)?),
+    ))
+}
+
+/// Runs `mapmerge route`.
+pub fn route(args: &RouteArgs) -> anyhow::Result<std::process::ExitCode> {
+    let file = args.dir.join("hybrid.json");
+    let text = std::fs::read_to_string(&file)
+        .map_err(|e| bad_input(format!("{}: {e}", file.display())))?;
+    let hybrid: HybridMap =
+        serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", file.display())))?;
+    let (start_area, start) = place(&args.from)?;
+    let (goal_area, goal) = place(&args.to)?;
+    for area in [start_area, goal_area] {
+        if area >= hybrid.areas.len() {
+            return Err(bad_input(format!(
+                "no area {area} (the map has {})",
+                hybrid.areas.len()
+            )));
+        }
+    }
+    let Some(found): Option<Route> = hybrid.route(start_area, start, goal_area, goal) else {
+        if args.json {
+            print_json(&serde_json::json!({"route": null}))?;
+        } else {
+            println!(
+                "no route: no chain of link points joins area {start_area} to area {goal_area}"
+            );
+        }
+        return Ok(std::process::ExitCode::from(3));
+    };
+    if args.json {
+        print_json(&serde_json::json!({"route": found}))?;
+    } else {
+        let areas: Vec<String> = found.areas.iter().map(|a| a.to_string()).collect();
+        let links: Vec<String> = found.link_points.iter().map(|l| l.to_string()).collect();
+        println!(
+            "{:.2} m through areas {} via link points [{}]",
+            found.length_m,
+            areas.join(" → "),
+            links.join(", ")
+        );
+    }
+    Ok(std::process::ExitCode::SUCCESS)
+}

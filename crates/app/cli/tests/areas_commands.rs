@@ -1,0 +1,84 @@
+//! Integration tests of `mapmerge areas` and `mapmerge route` on a simulated session.
+
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod common;
+
+use common::{ok_json, p, run, scratch};
+
+#[test]
+fn areas_splits_a_session_at_its_doors_and_routes_between_them() {
+    let dir = scratch("areas-sim");
+    let report = ok_json(&[
+        "areas",
+        "--sim",
+        "office",
+        "--seed",
+        "1",
+        "--duration",
+        "90",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    let areas = report["areas"].as_u64().unwrap();
+    assert!(areas >= 2, "{report}");
+    assert_eq!(report["link_points"].as_u64().unwrap(), areas - 1);
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("areas.json")).unwrap()).unwrap();
+    assert_eq!(file["areas"].as_array().unwrap().len() as u64, areas);
+    for area in file["areas"].as_array().unwrap() {
+        let sub = dir.join(area["dir"].as_str().unwrap());
+        for name in [
+            "graph.g2o",
+            "map.yaml",
+            "map.pgm",
+            "map.png",
+            "trajectory.tum",
+        ] {
+            assert!(sub.join(name).is_file(), "{}", sub.join(name).display());
+        }
+        assert!(["indoor", "large"].contains(&area["config"].as_str().unwrap()));
+    }
+    assert!(dir.join("overview.png").is_file());
+    for passing in file["door_passings"].as_array().unwrap() {
+        assert_eq!(passing["session"].as_u64(), Some(0));
+    }
+    // From the first area to the last: through every link point in between, in order.
+    let last = areas - 1;
+    let route = ok_json(&[
+        "route",
+        p(&dir),
+        "--from",
+        "0:0,0",
+        "--to",
+        &format!("{last}:0.5,0.5"),
+        "--json",
+    ]);
+    let route = &route["route"];
+    assert_eq!(route["areas"].as_array().unwrap().first().unwrap(), 0);
+    assert_eq!(
+        route["areas"].as_array().unwrap().last().unwrap().as_u64(),
+        Some(last)
+    );
+    assert!(route["length_m"].as_f64().unwrap() > 0.0);
+    // Bad input: an unknown area, a malformed place.
+    assert_eq!(
+        run(&["route", p(&dir), "--from", "0:0,0", "--to", "99:0,0"])
+            .status
+            .code(),
+        Some(2)
+    );
+    assert_eq!(
+        run(&["route", p(&dir), "--from", "0:zero", "--to", "0:0,0"])
+            .status
+            .code(),
+        Some(2)
+    );
+    assert_eq!(
+        run(&["areas", "--sim", "no-such-world", "-o", p(&dir)])
+            .status
+            .code(),
+        Some(2)
+    );
+}
