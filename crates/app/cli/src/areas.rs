@@ -8,10 +8,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_areas::{hybrid_map, segment, HybridMap, ManagerParams, Route};
+use mapmerge_areas::{manage, segment, HybridMap, ManagedMap, ManagerParams, Route};
 use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::InsertParams;
+use mapmerge_place::PlaceVerifierParams;
+use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_render::{session_color, Picture, PictureStyle, Rgb};
 use mapmerge_scan::{LaserLog, Point2};
 use mapmerge_sim::{simulate, SimParams};
@@ -104,6 +106,8 @@ struct AreasReport<'a> {
     areas: usize,
     link_points: usize,
     door_passings: usize,
+    /// Topological loop closures (a door passed again, recognised).
+    closures: usize,
     /// Areas by configuration.
     indoor: usize,
     large: usize,
@@ -163,6 +167,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         .with_context(|| format!("creating {}", args.output.display()))?;
     let bar = crate::progress_bar(split.spans.len(), "areas", "areas", !args.json);
     let mut trajectories = Vec::with_capacity(split.spans.len());
+    let mut graphs = Vec::with_capacity(split.spans.len());
     for (k, span) in split.spans.iter().enumerate() {
         let part = LaserLog {
             scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
@@ -176,24 +181,71 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         };
         let run =
             run_slam(&part, engine, |_| {}).map_err(|e| bad_input(format!("area {k}: {e}")))?;
-        write_map_outputs(
-            &args.output.join(format!("area_{k}")),
-            part,
-            &run,
-            args.resolution,
-            false,
-        )?;
         trajectories.push(run.trajectory);
+        graphs.push(run.graph);
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let hybrid = hybrid_map(&split, &trajectories).map_err(bad_input)?;
-    // Every scan's pose in the first area's frame (an overlap scan by its earlier area).
+    let scans: Vec<&mapmerge_scan::LaserScan> = log.scans.iter().map(|r| &r.scan).collect();
+    let verifier = PlaceVerifierParams::default()
+        .verifier()
+        .map_err(bad_input)?;
+    let managed: ManagedMap =
+        manage(&split, &trajectories, &scans, &params, &verifier).map_err(bad_input)?;
+    let hybrid = &managed.hybrid;
+    // One map per area from its spans, placed in the area's frame; its graph holds each
+    // span's graph (vertex ids offset by 1,000,000 a span; no edges between spans).
+    for area in &hybrid.areas {
+        let mut part = LaserLog {
+            params: log.params.clone(),
+            ..LaserLog::default()
+        };
+        let mut trajectory = Vec::new();
+        let mut graph = PoseGraph2::new();
+        for (k, span) in split.spans.iter().enumerate() {
+            if managed.span_area.get(k) != Some(&area.id) {
+                continue;
+            }
+            let area_from_span = managed.area_from_span[k];
+            part.scans
+                .extend_from_slice(log.scans.get(span.scans.clone()).unwrap_or(&[]));
+            trajectory.extend(trajectories[k].iter().map(|p| area_from_span.compose(p)));
+            let offset = 1_000_000 * k as u64;
+            for (id, vertex) in graphs[k].vertices() {
+                let mut moved = vertex.clone();
+                moved.pose = area_from_span.compose(&vertex.pose);
+                graph.add_vertex(NodeId(id.0 + offset), moved)?;
+            }
+            for (_, edge) in graphs[k].edges() {
+                let mut moved = edge.clone();
+                moved.from = NodeId(edge.from.0 + offset);
+                moved.to = NodeId(edge.to.0 + offset);
+                if moved.is_prior() {
+                    moved.measurement = area_from_span.compose(&edge.measurement);
+                }
+                graph.add_edge(moved)?;
+            }
+        }
+        write_map_outputs(
+            &args.output.join(format!("area_{}", area.id)),
+            part,
+            &trajectory,
+            &graph,
+            args.resolution,
+            false,
+        )?;
+    }
+    // Every scan's pose in the first area's frame (an overlap scan by its earlier span).
     let mut first_from_robot: Vec<Option<Se2>> = vec![None; log.scans.len()];
-    for ((span, trajectory), area) in split.spans.iter().zip(&trajectories).zip(&hybrid.areas) {
+    for ((span, trajectory), first_from_span) in split
+        .spans
+        .iter()
+        .zip(&trajectories)
+        .zip(&managed.first_from_span)
+    {
         for (scan, pose) in span.scans.clone().zip(trajectory) {
             if let Some(slot) = first_from_robot.get_mut(scan) {
-                slot.get_or_insert(area.first_from_area.compose(pose));
+                slot.get_or_insert(first_from_span.compose(pose));
             }
         }
     }
@@ -218,7 +270,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         .link_points
         .iter()
         .filter_map(|link| {
-            let p = link_in_first_frame(&hybrid, link.id)?;
+            let p = link_in_first_frame(hybrid, link.id)?;
             Some(LinkPointEntry {
                 id: link.id,
                 area: link.areas[0],
@@ -232,11 +284,16 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         areas: hybrid
             .areas
             .iter()
-            .zip(&split.spans)
-            .map(|(area, span)| AreaEntry {
+            .map(|area| AreaEntry {
                 id: area.id,
                 config: area.environment.name(),
-                sessions_scans: vec![[0, span.scans.start, span.scans.end]],
+                sessions_scans: split
+                    .spans
+                    .iter()
+                    .zip(&managed.span_area)
+                    .filter(|(_, a)| **a == area.id)
+                    .map(|(span, _)| [0, span.scans.start, span.scans.end])
+                    .collect(),
                 dir: format!("area_{}", area.id),
             })
             .collect(),
@@ -254,7 +311,14 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         door_passings,
     };
     write_json(&args.output.join("areas.json"), &file)?;
-    write_json(&args.output.join("hybrid.json"), &hybrid)?;
+    write_json(&args.output.join("hybrid.json"), hybrid)?;
+    write_json(
+        &args.output.join("tracking.json"),
+        &serde_json::json!({
+            "closures": managed.closures,
+            "tracking": managed.tracking,
+        }),
+    )?;
     let posed = PosedLog {
         poses: first_from_robot
             .iter()
@@ -274,6 +338,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         areas: hybrid.areas.len(),
         link_points: hybrid.link_points.len(),
         door_passings: split.passings.len(),
+        closures: managed.closures.len(),
         indoor: file.areas.iter().filter(|a| a.config == "indoor").count(),
         large: file.areas.iter().filter(|a| a.config == "large").count(),
         seconds: started.elapsed().as_secs_f64(),
@@ -283,9 +348,10 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         print_json(&report)?;
     } else {
         println!(
-            "{} scans: {} door passings, {} areas ({} indoor, {} large), {} link points; wrote {} in {:.1} s",
+            "{} scans: {} door passings, {} topological loop closures, {} areas ({} indoor, {} large), {} link points; wrote {} in {:.1} s",
             report.scans,
             report.door_passings,
+            report.closures,
             report.areas,
             report.indoor,
             report.large,

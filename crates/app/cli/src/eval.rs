@@ -81,6 +81,9 @@ enum EvalCommand {
     /// Door-passing detection (Ehlers et al. Sec. II-B) against the simulator's doors:
     /// precision and recall within 1 m of the true door, time per scan.
     Doors(crate::door_eval::DoorEvalArgs),
+    /// The map manager's global tracking and topological loop closure on long simulated
+    /// tours: door revisits found, closures true, link-point ATE.
+    Areas(crate::areas_eval::AreasEvalArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -182,6 +185,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::Assemble(a) => crate::assemble_eval::run(a),
         EvalCommand::Protrusions(a) => crate::protrusion_eval::run(a),
         EvalCommand::Doors(a) => crate::door_eval::run(a),
+        EvalCommand::Areas(a) => crate::areas_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 mod areas;
+mod areas_eval;
 mod assemble;
 mod assemble_eval;
 mod atlas;

@@ -16,6 +16,7 @@ use mapmerge_eval::{
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
+use mapmerge_posegraph::PoseGraph2;
 use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
 use mapmerge_scan::LaserLog;
 use serde::Serialize;
@@ -59,7 +60,8 @@ pub struct SlamArgs {
 pub(crate) fn write_map_outputs(
     dir: &Path,
     log: LaserLog,
-    run: &SlamRun,
+    trajectory: &[Se2],
+    graph: &PoseGraph2,
     resolution_m: f64,
     progress: bool,
 ) -> anyhow::Result<OccupancyGrid> {
@@ -67,15 +69,15 @@ pub(crate) fn write_map_outputs(
     let stamped: Vec<(f64, Se2)> = log
         .scans
         .iter()
-        .zip(&run.trajectory)
+        .zip(trajectory)
         .map(|(record, pose)| (record.stamp_secs, *pose))
         .collect();
     mapmerge_io::write_tum_planar(&dir.join("trajectory.tum"), &stamped)?;
-    let graph = AnyGraph::Planar(run.graph.clone());
-    mapmerge_io::write_graph(&dir.join("graph.g2o"), &graph, GraphFormat::G2o)?;
+    let any = AnyGraph::Planar(graph.clone());
+    mapmerge_io::write_graph(&dir.join("graph.g2o"), &any, GraphFormat::G2o)?;
     let posed = PosedLog {
         log,
-        poses: run.trajectory.clone(),
+        poses: trajectory.to_vec(),
     };
     let (grid, _) = build_grid(&posed, resolution_m, &InsertParams::default(), progress)?;
     let thresholds = ClassThresholds::default();
@@ -86,8 +88,8 @@ pub(crate) fn write_map_outputs(
         classes: Some(thresholds),
     };
     let mut picture = Picture::of_grid(&grid, &style);
-    picture.draw_trajectory(&run.trajectory, Rgb::RED, 1.0);
-    picture.draw_graph(&run.graph, &GraphStyle::default());
+    picture.draw_trajectory(trajectory, Rgb::RED, 1.0);
+    picture.draw_graph(graph, &GraphStyle::default());
     picture.save_png(&dir.join("map.png"))?;
     Ok(grid)
 }
@@ -237,7 +239,14 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
     bar.finish_and_clear();
-    write_map_outputs(&args.output, log, &run, args.resolution, !args.json)?;
+    write_map_outputs(
+        &args.output,
+        log,
+        &run.trajectory,
+        &run.graph,
+        args.resolution,
+        !args.json,
+    )?;
     let (score, odometry_score, loops) = match &reference {
         Some((corrected, odometry)) => {
             let relations = make_relations(corrected, &RelationsParams::default())?;

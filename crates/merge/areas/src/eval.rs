@@ -308,3 +308,208 @@ mod tests {
         assert_eq!(matched, vec![Some(0), None, None, None]);
     }
 }
+
+/// Global tracking and topological loop closure on one long simulated tour (issue 18's
+/// tracking target), scored by the simulator's truth.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TourScore {
+    /// The world.
+    pub world: String,
+    /// The seed.
+    pub seed: u64,
+    /// Map boundaries (passings that started a new span).
+    pub boundaries: usize,
+    /// Boundaries within 1 m of a true door.
+    pub at_doors: usize,
+    /// Boundaries at a door an earlier boundary crossed (revisits).
+    pub revisits: usize,
+    /// Revisits closed with an earlier crossing of the same door.
+    pub revisits_found: usize,
+    /// Revisits where no earlier crossing of that door was within the search radius: the
+    /// tracker had lost the robot.
+    pub lost: usize,
+    /// Topological loop closures.
+    pub closures: usize,
+    /// Closures joining crossings of two different doors (or not at a door).
+    pub false_closures: usize,
+    /// RMS distance of the link-point graph's crossings from the truth after a rigid
+    /// alignment (m), after optimisation …
+    pub link_ate_m: f64,
+    /// … and of the chain before any closure (m).
+    pub chain_ate_m: f64,
+    /// Areas and spans.
+    pub areas: usize,
+    /// …
+    pub spans: usize,
+}
+
+/// Runs the map manager over session 0 of `world` (`duration_secs`, no kidnaps), mapping
+/// each span with `map_span` (scans in, `map_from_robot` per scan out), and scores tracking.
+pub fn score_tour(
+    world: &str,
+    seed: u64,
+    duration_secs: f64,
+    params: &crate::ManagerParams,
+    verifier: &dyn mapmerge_place::GeometricVerifier,
+    map_span: &mut dyn FnMut(
+        &mapmerge_scan::LaserLog,
+        &crate::Preset,
+    ) -> Result<Vec<mapmerge_geometry::Se2>, String>,
+) -> Result<TourScore, AreasError> {
+    use mapmerge_geometry::{LieGroup, Se2};
+    let mut sim = SimParams::default()
+        .with_preset_name(world)?
+        .with_sessions(1)
+        .with_duration_secs(duration_secs);
+    sim.kidnap.max_per_session = 0;
+    let dataset = simulate(&sim, seed)?;
+    let Some(session) = dataset.sessions.first() else {
+        return Ok(TourScore::default());
+    };
+    let mut poses = Vec::with_capacity(session.log.scans.len());
+    for record in &session.log.scans {
+        poses.push(record.odom_from_robot.unwrap_or_else(Se2::identity));
+    }
+    let split = crate::segment(
+        poses
+            .iter()
+            .copied()
+            .zip(session.log.scans.iter().map(|r| &r.scan)),
+        params,
+    )?;
+    let mut trajectories = Vec::with_capacity(split.spans.len());
+    for span in &split.spans {
+        let part = mapmerge_scan::LaserLog {
+            scans: session
+                .log
+                .scans
+                .get(span.scans.clone())
+                .unwrap_or(&[])
+                .to_vec(),
+            ..mapmerge_scan::LaserLog::default()
+        };
+        let preset = span.environment.preset()?;
+        trajectories.push(map_span(&part, &preset).map_err(AreasError::Mapping)?);
+    }
+    let scans: Vec<&mapmerge_scan::LaserScan> = session.log.scans.iter().map(|r| &r.scan).collect();
+    let managed = crate::manage(&split, &trajectories, &scans, params, verifier)?;
+    // Truth: the door (within 1 m) at each boundary's crossing.
+    let crossing = |b: usize| split.passings[split.boundaries[b]].crossing_scan;
+    let door_at = |b: usize| {
+        let p = session.truth.get(crossing(b))?.1.translation();
+        session
+            .world
+            .doors
+            .iter()
+            .map(|d| ((d.center_m - p).norm(), d.id))
+            .filter(|(d, _)| *d <= 1.0)
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, id)| id)
+    };
+    let doors: Vec<_> = (0..split.boundaries.len()).map(door_at).collect();
+    let mut score = TourScore {
+        world: world.to_owned(),
+        seed,
+        boundaries: split.boundaries.len(),
+        at_doors: doors.iter().filter(|d| d.is_some()).count(),
+        closures: managed.closures.len(),
+        areas: managed.hybrid.areas.len(),
+        spans: split.spans.len(),
+        ..TourScore::default()
+    };
+    for closure in &managed.closures {
+        if doors[closure.boundary].is_none() || doors[closure.boundary] != doors[closure.earlier] {
+            score.false_closures += 1;
+        }
+    }
+    for b in 0..doors.len() {
+        let Some(door) = doors[b] else { continue };
+        let earlier: Vec<usize> = (0..b).filter(|j| doors[*j] == Some(door)).collect();
+        if earlier.is_empty() {
+            continue;
+        }
+        score.revisits += 1;
+        if managed
+            .closures
+            .iter()
+            .any(|c| c.boundary == b && doors[c.earlier] == Some(door))
+        {
+            score.revisits_found += 1;
+        }
+        // Lost: no earlier crossing of the door was within the radius of the tracked one.
+        let within = managed
+            .tracking
+            .get(b)
+            .map_or(&[][..], |t| &t.within_radius[..]);
+        if !earlier.iter().any(|j| within.contains(j)) {
+            score.lost += 1;
+        }
+    }
+    let truth: Vec<mapmerge_scan::Point2> = (0..split.boundaries.len())
+        .filter_map(|b| Some(session.truth.get(crossing(b))?.1.translation()))
+        .collect();
+    let optimised: Vec<mapmerge_scan::Point2> =
+        managed.crossings.iter().map(|p| p.translation()).collect();
+    score.link_ate_m = aligned_rms(&optimised, &truth);
+    let chain: Vec<mapmerge_scan::Point2> = (0..split.boundaries.len())
+        .filter_map(|b| chain_crossing(&split, &trajectories, b).map(|p| p.translation()))
+        .collect();
+    score.chain_ate_m = aligned_rms(&chain, &truth);
+    Ok(score)
+}
+
+/// Boundary `b`'s crossing by the chain of spans alone (no closure), in span 0's frame.
+fn chain_crossing(
+    split: &crate::Segmentation,
+    trajectories: &[Vec<mapmerge_geometry::Se2>],
+    b: usize,
+) -> Option<mapmerge_geometry::Se2> {
+    use mapmerge_geometry::{LieGroup, Se2};
+    let pose = |span: usize, scan: usize| {
+        trajectories
+            .get(span)?
+            .get(scan.checked_sub(split.spans.get(span)?.scans.start)?)
+            .copied()
+    };
+    let mut first_from_span = Se2::identity();
+    for k in 0..=b {
+        let c = split.passings.get(*split.boundaries.get(k)?)?.crossing_scan;
+        let exit = pose(k, c)?;
+        if k == b {
+            return Some(first_from_span.compose(&exit));
+        }
+        let entry = pose(k + 1, c)?;
+        first_from_span = first_from_span.compose(&exit).compose(&entry.inverse());
+    }
+    None
+}
+
+/// RMS distance between `estimate` and `truth` (paired) after the rigid motion that fits
+/// them best (least squares, Umeyama without scale); 0 without points.
+pub fn aligned_rms(estimate: &[Point2], truth: &[Point2]) -> f64 {
+    let n = estimate.len().min(truth.len());
+    if n == 0 {
+        return 0.0;
+    }
+    let mean = |v: &[Point2]| v[..n].iter().sum::<Point2>() / n as f64;
+    let (me, mt) = (mean(estimate), mean(truth));
+    // Rotation angle maximising Σ (t − mt)·R(e − me).
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (e, t) in estimate[..n].iter().zip(&truth[..n]) {
+        let (e, t) = (e - me, t - mt);
+        sxx += e.x * t.x + e.y * t.y;
+        sxy += e.x * t.y - e.y * t.x;
+    }
+    let angle = sxy.atan2(sxx);
+    let (s, c) = angle.sin_cos();
+    let squared: f64 = estimate[..n]
+        .iter()
+        .zip(&truth[..n])
+        .map(|(e, t)| {
+            let d = e - me;
+            let rotated = Point2::new(c * d.x - s * d.y, s * d.x + c * d.y);
+            (rotated + mt - t).norm_squared()
+        })
+        .sum();
+    (squared / n as f64).sqrt()
+}

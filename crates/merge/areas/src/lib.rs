@@ -25,4 +25,7 @@ pub use door::{passways, Criteria, DoorDetector, DoorParams, DoorPassingDetectio
 pub use environment::{Environment, EnvironmentParams, Extents, Preset};
 pub use error::AreasError;
 pub use hybrid::{Area, HybridMap, LinkEdge, LinkPoint, Route};
-pub use manager::{hybrid_map, segment, AreaSpan, ManagerParams, Segmentation};
+pub use manager::{
+    manage, segment, AreaSpan, Closure, ManagedMap, ManagerParams, Segmentation, TrackingParams,
+    TrackingStep,
+};
