@@ -141,15 +141,7 @@ fn input_log(args: &AreasArgs) -> anyhow::Result<LaserLog> {
 pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     check_resolution(args.resolution)?;
     let started = std::time::Instant::now();
-    let params: ManagerParams = match &args.config {
-        None => ManagerParams::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-    };
+    let params: ManagerParams = crate::read_config(args.config.as_deref())?;
     let log = input_log(args)?;
     let mut poses = Vec::with_capacity(log.scans.len());
     for (k, record) in log.scans.iter().enumerate() {

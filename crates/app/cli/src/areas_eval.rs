@@ -48,15 +48,7 @@ struct Report {
 
 /// Runs `mapmerge eval areas`.
 pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
-    let params: ManagerParams = match &args.config {
-        None => ManagerParams::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-    };
+    let params: ManagerParams = crate::read_config(args.config.as_deref())?;
     let verifier = PlaceVerifierParams::default()
         .verifier()
         .map_err(bad_input)?;

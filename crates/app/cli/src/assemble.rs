@@ -162,12 +162,7 @@ pub fn load_params(config: Option<&Path>, spatial: bool) -> anyhow::Result<Assem
             params.submaps = submaps;
             Ok(params)
         }
-        None => Ok(AssembleParams::default()),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))
-        }
+        config => crate::read_config(config),
     }
 }
 

@@ -323,15 +323,7 @@ fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
 /// Runs `mapmerge atlas`.
 pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
-    let mut params: EngineParams = match &args.config {
-        None => EngineParams::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-    };
+    let mut params: EngineParams = crate::read_config(args.config.as_deref())?;
     if args.no_prune {
         params.atlas.maintenance.prune = false;
     }

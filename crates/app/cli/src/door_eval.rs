@@ -39,15 +39,7 @@ pub struct DoorEvalArgs {
 
 /// Runs `mapmerge eval doors`.
 pub fn run(args: &DoorEvalArgs) -> anyhow::Result<()> {
-    let params: DoorParams = match &args.config {
-        None => DoorParams::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-    };
+    let params: DoorParams = crate::read_config(args.config.as_deref())?;
     let seeds = seeds(&args.seeds)?;
     let report: DoorReport = evaluate(
         &args.worlds,

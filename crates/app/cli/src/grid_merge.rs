@@ -117,15 +117,7 @@ fn metadata(map: &RosMap) -> MapMetadata {
 /// Runs `mapmerge grid-merge`.
 pub fn run(args: &GridMergeArgs) -> anyhow::Result<ExitCode> {
     let started = Instant::now();
-    let params: GridMatchParams = match &args.config {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-        None => GridMatchParams::default(),
-    };
+    let params: GridMatchParams = crate::read_config(args.config.as_deref())?;
     params
         .validate()
         .map_err(|e| bad_input(format!("matching parameters: {e}")))?;

@@ -93,6 +93,20 @@ impl std::fmt::Display for BadInput {
 
 impl std::error::Error for BadInput {}
 
+/// Parameters from a JSON file (any subset of the fields; the rest keep their defaults, as
+/// the types' `#[serde(default)]` says), or the defaults without one. A file that cannot be
+/// read or parsed is bad input (exit code 2).
+pub fn read_config<T: serde::de::DeserializeOwned + Default>(
+    path: Option<&std::path::Path>,
+) -> anyhow::Result<T> {
+    let Some(path) = path else {
+        return Ok(T::default());
+    };
+    let text =
+        std::fs::read_to_string(path).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
+    serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))
+}
+
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
 /// (`…/intel_03.log.xz` → `intel_03`).
 pub fn log_file_stem(path: &std::path::Path) -> String {

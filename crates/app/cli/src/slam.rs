@@ -225,15 +225,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
         log = noisy.log;
     }
     let bar = crate::progress_bar(log.scans.len(), "scans", "slam", !args.json);
-    let params: EngineParams = match &args.config {
-        None => EngineParams::default(),
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-            serde_json::from_str(&text)
-                .map_err(|e| bad_input(format!("{}: {e}", path.display())))?
-        }
-    };
+    let params: EngineParams = crate::read_config(args.config.as_deref())?;
     let run = run_slam(&log, params.clone(), |done| {
         bar.set_position(done as u64);
     })

@@ -330,8 +330,11 @@ pub struct TourScore {
     pub lost: usize,
     /// Topological loop closures.
     pub closures: usize,
-    /// Closures joining crossings of two different doors (or not at a door).
+    /// Closures joining crossings of two different doors, or, where a crossing is not at a
+    /// door, of places more than 1 m apart.
     pub false_closures: usize,
+    /// Closures where a crossing is not at a door (a doorway-like gap passed twice).
+    pub closures_off_doors: usize,
     /// RMS distance of the link-point graph's crossings from the truth after a rigid
     /// alignment (m), after optimisation …
     pub link_ate_m: f64,
@@ -417,8 +420,24 @@ pub fn score_tour(
         spans: split.spans.len(),
         ..TourScore::default()
     };
+    let true_position = |b: usize| session.truth.get(crossing(b)).map(|(_, p)| p.translation());
     for closure in &managed.closures {
-        if doors[closure.boundary].is_none() || doors[closure.boundary] != doors[closure.earlier] {
+        let (here, there) = (doors[closure.boundary], doors[closure.earlier]);
+        // True: two crossings of one door, or, off doors, of one place (within 1 m).
+        let same_place = match (here, there) {
+            (Some(a), Some(b)) => a == b,
+            _ => match (
+                true_position(closure.boundary),
+                true_position(closure.earlier),
+            ) {
+                (Some(a), Some(b)) => (a - b).norm() <= 1.0,
+                _ => false,
+            },
+        };
+        if here.is_none() || there.is_none() {
+            score.closures_off_doors += 1;
+        }
+        if !same_place {
             score.false_closures += 1;
         }
     }

@@ -58,8 +58,9 @@ pub struct TrackingParams {
     /// A re-observed link point is accepted at this verification score (default: 0.95)…
     pub min_score: f64,
     /// … when the verified crossing lies within this of the earlier crossing (two passings of
-    /// one door cross it within its width) (m) (default: 1.5), and within the search radius
-    /// of where tracking put it.
+    /// one door cross it within its width) (m) (default: 1; 1.5 let one neighbouring door
+    /// through on the simulator's tuning tours), and within the search radius of where
+    /// tracking put it.
     pub same_door_m: f64,
     /// Stop after this many link points were checked at one passing (default: 5).
     pub max_candidates: usize,
@@ -73,7 +74,7 @@ impl Default for TrackingParams {
             heading_variance_per_m: 1e-4,
             local_map_m: 2.0,
             min_score: 0.95,
-            same_door_m: 1.5,
+            same_door_m: 1.0,
             max_candidates: 5,
         }
     }
