@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_areas::{manage, segment, HybridMap, ManagedMap, ManagerParams, Route};
+use mapmerge_areas::{manage_sessions, segment, HybridMap, ManagerParams, Route, SessionInput};
 use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::InsertParams;
@@ -26,17 +26,21 @@ use crate::{bad_file, bad_input, check_resolution, print_json};
 /// Arguments of `mapmerge areas`.
 #[derive(Args, Debug)]
 pub struct AreasArgs {
-    /// CARMEN laser log (`.xz` accepted): its scans' odometry poses drive door detection and
-    /// each area's SLAM. One log: joining the areas of several sessions needs topological loop
-    /// closure, which is not built yet.
-    pub log: Option<PathBuf>,
-    /// Instead of a log, session 0 of a simulated world (a preset of `mapmerge sim`).
-    #[arg(long, conflicts_with = "log")]
+    /// CARMEN laser logs (`.xz` accepted), one session each, in order: their scans' odometry
+    /// poses drive door detection and each area's SLAM. A later session is placed in the
+    /// first one's frame once it passes a door seen before.
+    pub logs: Vec<PathBuf>,
+    /// Instead of logs, the sessions of a simulated world (a preset of `mapmerge sim`),
+    /// without kidnaps.
+    #[arg(long, conflicts_with = "logs")]
     pub sim: Option<String>,
     /// Seed of `--sim`.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Robot time of `--sim` (s).
+    /// Sessions of `--sim`.
+    #[arg(long, default_value_t = 1)]
+    pub sessions: usize,
+    /// Robot time of each `--sim` session (s).
     #[arg(long, default_value_t = 120.0)]
     pub duration: f64,
     /// Cell side of the maps (m).
@@ -45,8 +49,8 @@ pub struct AreasArgs {
     /// Map-manager parameters as JSON (any subset of `mapmerge_areas::ManagerParams`).
     #[arg(long)]
     pub config: Option<PathBuf>,
-    /// Output folder: areas.json, hybrid.json, overview.png and area_K/ (graph.g2o, map.yaml
-    /// + map.pgm, map.png, trajectory.tum) for each area.
+    /// Output folder: areas.json, hybrid.json, tracking.json, overview.png and area_K/
+    /// (graph.g2o, map.yaml + map.pgm, map.png, trajectory.tum) for each area.
     #[arg(short, long)]
     pub output: PathBuf,
     /// Print one JSON summary instead of text.
@@ -70,6 +74,8 @@ struct AreaEntry {
     /// `[session, first scan, last scan + 1]` of each stretch of scans mapped into it.
     sessions_scans: Vec<[usize; 3]>,
     dir: String,
+    /// Whether its frame is placed in the first area's (false: a session never relocalised).
+    placed: bool,
 }
 
 #[derive(Serialize)]
@@ -102,6 +108,8 @@ struct PassingEntry {
 
 #[derive(Serialize)]
 struct AreasReport<'a> {
+    sessions: usize,
+    sessions_placed: usize,
     scans: usize,
     areas: usize,
     link_points: usize,
@@ -115,26 +123,34 @@ struct AreasReport<'a> {
     output: &'a Path,
 }
 
-/// The log `areas` runs on.
-fn input_log(args: &AreasArgs) -> anyhow::Result<LaserLog> {
-    match (&args.log, &args.sim) {
-        (Some(path), None) => mapmerge_io::read_carmen(path).map_err(bad_file),
-        (None, Some(world)) => {
-            let params = SimParams::default()
+/// The sessions `areas` runs on.
+fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<LaserLog>> {
+    match (&args.logs[..], &args.sim) {
+        (logs, None) if !logs.is_empty() => logs
+            .iter()
+            .map(|path| mapmerge_io::read_carmen(path).map_err(bad_file))
+            .collect(),
+        ([], Some(world)) => {
+            let mut params = SimParams::default()
                 .with_preset_name(world)
                 .map_err(bad_input)?
-                .with_sessions(1)
+                .with_sessions(args.sessions)
                 .with_duration_secs(args.duration);
+            // The map manager tracks the robot; a kidnap is another problem (the atlas's).
+            params.kidnap.max_per_session = 0;
             let dataset = simulate(&params, args.seed).map_err(bad_input)?;
-            dataset
-                .sessions
-                .into_iter()
-                .next()
-                .map(|s| s.log)
-                .ok_or_else(|| bad_input("the simulation made no session"))
+            Ok(dataset.sessions.into_iter().map(|s| s.log).collect())
         }
-        _ => Err(bad_input("give one LOG or --sim WORLD")),
+        _ => Err(bad_input("give LOG... or --sim WORLD")),
     }
+}
+
+/// One session: its log, split and mapped.
+struct Mapped {
+    log: LaserLog,
+    split: mapmerge_areas::Segmentation,
+    trajectories: Vec<Vec<Se2>>,
+    graphs: Vec<PoseGraph2>,
 }
 
 /// Runs `mapmerge areas`.
@@ -142,73 +158,95 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     check_resolution(args.resolution)?;
     let started = std::time::Instant::now();
     let params: ManagerParams = crate::read_config(args.config.as_deref())?;
-    let log = input_log(args)?;
-    let mut poses = Vec::with_capacity(log.scans.len());
-    for (k, record) in log.scans.iter().enumerate() {
-        let pose = record
-            .odom_from_robot
-            .ok_or_else(|| bad_input(format!("scan {k} has no odometry pose")))?;
-        poses.push(pose);
+    let logs = input_logs(args)?;
+    let mut sessions: Vec<Mapped> = Vec::with_capacity(logs.len());
+    for (s, log) in logs.into_iter().enumerate() {
+        let mut poses = Vec::with_capacity(log.scans.len());
+        for (k, record) in log.scans.iter().enumerate() {
+            let pose = record
+                .odom_from_robot
+                .ok_or_else(|| bad_input(format!("session {s}: scan {k} has no odometry pose")))?;
+            poses.push(pose);
+        }
+        let split = segment(
+            poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
+            &params,
+        )
+        .map_err(bad_input)?;
+        let bar = crate::progress_bar(split.spans.len(), "areas", "areas", !args.json);
+        let (mut trajectories, mut graphs) = (Vec::new(), Vec::new());
+        for (k, span) in split.spans.iter().enumerate() {
+            let part = LaserLog {
+                scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
+                params: log.params.clone(),
+                ..LaserLog::default()
+            };
+            let preset = span.environment.preset().map_err(bad_input)?;
+            let engine = EngineParams {
+                tracker: preset.tracker,
+                ..EngineParams::default()
+            };
+            let run = run_slam(&part, engine, |_| {})
+                .map_err(|e| bad_input(format!("session {s} span {k}: {e}")))?;
+            trajectories.push(run.trajectory);
+            graphs.push(run.graph);
+            bar.inc(1);
+        }
+        bar.finish_and_clear();
+        sessions.push(Mapped {
+            log,
+            split,
+            trajectories,
+            graphs,
+        });
     }
-    let split = segment(
-        poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
-        &params,
-    )
-    .map_err(bad_input)?;
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("creating {}", args.output.display()))?;
-    let bar = crate::progress_bar(split.spans.len(), "areas", "areas", !args.json);
-    let mut trajectories = Vec::with_capacity(split.spans.len());
-    let mut graphs = Vec::with_capacity(split.spans.len());
-    for (k, span) in split.spans.iter().enumerate() {
-        let part = LaserLog {
-            scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
-            params: log.params.clone(),
-            ..LaserLog::default()
-        };
-        let preset = span.environment.preset().map_err(bad_input)?;
-        let engine = EngineParams {
-            tracker: preset.tracker,
-            ..EngineParams::default()
-        };
-        let run =
-            run_slam(&part, engine, |_| {}).map_err(|e| bad_input(format!("area {k}: {e}")))?;
-        trajectories.push(run.trajectory);
-        graphs.push(run.graph);
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    let scans: Vec<&mapmerge_scan::LaserScan> = log.scans.iter().map(|r| &r.scan).collect();
+    let scans: Vec<Vec<&mapmerge_scan::LaserScan>> = sessions
+        .iter()
+        .map(|m| m.log.scans.iter().map(|r| &r.scan).collect())
+        .collect();
+    let inputs: Vec<SessionInput> = sessions
+        .iter()
+        .zip(&scans)
+        .map(|(m, scans)| SessionInput {
+            segmentation: &m.split,
+            trajectories: &m.trajectories,
+            scans,
+        })
+        .collect();
     let verifier = PlaceVerifierParams::default()
         .verifier()
         .map_err(bad_input)?;
-    let managed: ManagedMap =
-        manage(&split, &trajectories, &scans, &params, &verifier).map_err(bad_input)?;
+    let managed = manage_sessions(&inputs, &params, &verifier).map_err(bad_input)?;
     let hybrid = &managed.hybrid;
+    // Global span index of each session's spans.
+    let spans: Vec<(usize, usize)> = sessions
+        .iter()
+        .enumerate()
+        .flat_map(|(s, m)| (0..m.split.spans.len()).map(move |k| (s, k)))
+        .collect();
     // One map per area from its spans, placed in the area's frame; its graph holds each
     // span's graph (vertex ids offset by 1,000,000 a span; no edges between spans).
     for area in &hybrid.areas {
-        let mut part = LaserLog {
-            params: log.params.clone(),
-            ..LaserLog::default()
-        };
+        let mut part = LaserLog::default();
         let mut trajectory = Vec::new();
         let mut graph = PoseGraph2::new();
-        for (k, span) in split.spans.iter().enumerate() {
-            if managed.span_area.get(k) != Some(&area.id) {
+        for (g, (s, k)) in spans.iter().enumerate() {
+            if managed.span_area.get(g) != Some(&area.id) {
                 continue;
             }
-            let area_from_span = managed.area_from_span[k];
+            let m = &sessions[*s];
+            let span = &m.split.spans[*k];
+            let area_from_span = managed.area_from_span[g];
             part.scans
-                .extend_from_slice(log.scans.get(span.scans.clone()).unwrap_or(&[]));
-            trajectory.extend(trajectories[k].iter().map(|p| area_from_span.compose(p)));
-            let offset = 1_000_000 * k as u64;
-            for (id, vertex) in graphs[k].vertices() {
+                .extend_from_slice(m.log.scans.get(span.scans.clone()).unwrap_or(&[]));
+            trajectory.extend(m.trajectories[*k].iter().map(|p| area_from_span.compose(p)));
+            let offset = 1_000_000 * g as u64;
+            for (id, vertex) in m.graphs[*k].vertices() {
                 let mut moved = vertex.clone();
                 moved.pose = area_from_span.compose(&vertex.pose);
                 graph.add_vertex(NodeId(id.0 + offset), moved)?;
             }
-            for (_, edge) in graphs[k].edges() {
+            for (_, edge) in m.graphs[*k].edges() {
                 let mut moved = edge.clone();
                 moved.from = NodeId(edge.from.0 + offset);
                 moved.to = NodeId(edge.to.0 + offset);
@@ -227,37 +265,41 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             false,
         )?;
     }
-    // Every scan's pose in the first area's frame (an overlap scan by its earlier span).
-    let mut first_from_robot: Vec<Option<Se2>> = vec![None; log.scans.len()];
-    for ((span, trajectory), first_from_span) in split
-        .spans
+    // Every scan's pose in the first area's frame (an overlap scan by its earlier span), for
+    // placed sessions.
+    let mut first_from_robot: Vec<Vec<Option<Se2>>> = sessions
         .iter()
-        .zip(&trajectories)
-        .zip(&managed.first_from_span)
-    {
-        for (scan, pose) in span.scans.clone().zip(trajectory) {
-            if let Some(slot) = first_from_robot.get_mut(scan) {
-                slot.get_or_insert(first_from_span.compose(pose));
+        .map(|m| vec![None; m.log.scans.len()])
+        .collect();
+    for (g, (s, k)) in spans.iter().enumerate() {
+        if !managed.session_placed.get(*s).copied().unwrap_or(false) {
+            continue;
+        }
+        let m = &sessions[*s];
+        for (scan, pose) in m.split.spans[*k].scans.clone().zip(&m.trajectories[*k]) {
+            if let Some(slot) = first_from_robot[*s].get_mut(scan) {
+                slot.get_or_insert(managed.first_from_span[g].compose(pose));
             }
         }
     }
-    let door_passings: Vec<PassingEntry> = split
-        .passings
-        .iter()
-        .enumerate()
-        .filter_map(|(i, passing)| {
-            let robot = first_from_robot.get(passing.scan).copied().flatten()?;
-            let center = robot.transform_point(&passing.center_in_robot_m);
-            Some(PassingEntry {
-                session: 0,
-                scan: passing.scan,
-                crossing_scan: passing.crossing_scan,
-                x: center.x,
-                y: center.y,
-                boundary: split.boundaries.contains(&i),
-            })
-        })
-        .collect();
+    let mut door_passings = Vec::new();
+    for (s, m) in sessions.iter().enumerate() {
+        for (i, passing) in m.split.passings.iter().enumerate() {
+            let is_boundary = m.split.boundaries.contains(&i);
+            let placed = first_from_robot[s].get(passing.scan).copied().flatten();
+            if let Some(robot) = placed {
+                let center = robot.transform_point(&passing.center_in_robot_m);
+                door_passings.push(PassingEntry {
+                    session: s,
+                    scan: passing.scan,
+                    crossing_scan: passing.crossing_scan,
+                    x: center.x,
+                    y: center.y,
+                    boundary: is_boundary,
+                });
+            }
+        }
+    }
     let link_points: Vec<LinkPointEntry> = hybrid
         .link_points
         .iter()
@@ -272,21 +314,34 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             })
         })
         .collect();
+    let area_sessions = |area: usize| -> Vec<[usize; 3]> {
+        spans
+            .iter()
+            .enumerate()
+            .filter(|(g, _)| managed.span_area.get(*g) == Some(&area))
+            .map(|(_, (s, k))| {
+                let span = &sessions[*s].split.spans[*k];
+                [*s, span.scans.start, span.scans.end]
+            })
+            .collect()
+    };
     let file = AreasFile {
         areas: hybrid
             .areas
             .iter()
-            .map(|area| AreaEntry {
-                id: area.id,
-                config: area.environment.name(),
-                sessions_scans: split
-                    .spans
-                    .iter()
-                    .zip(&managed.span_area)
-                    .filter(|(_, a)| **a == area.id)
-                    .map(|(span, _)| [0, span.scans.start, span.scans.end])
-                    .collect(),
-                dir: format!("area_{}", area.id),
+            .map(|area| {
+                let sessions_scans = area_sessions(area.id);
+                let placed = sessions_scans
+                    .first()
+                    .and_then(|[s, _, _]| managed.session_placed.get(*s).copied())
+                    .unwrap_or(false);
+                AreaEntry {
+                    id: area.id,
+                    config: area.environment.name(),
+                    sessions_scans,
+                    dir: format!("area_{}", area.id),
+                    placed,
+                }
             })
             .collect(),
         link_points,
@@ -309,27 +364,48 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         &serde_json::json!({
             "closures": managed.closures,
             "tracking": managed.tracking,
+            "sessions_placed": managed.session_placed,
         }),
     )?;
-    let posed = PosedLog {
-        poses: first_from_robot
-            .iter()
-            .map(|p| p.unwrap_or_else(Se2::identity))
-            .collect(),
-        log,
-    };
+    // The overview: every placed session's scans in the first area's frame.
+    let mut all = LaserLog::default();
+    let mut poses = Vec::new();
+    let mut paths: Vec<Vec<Se2>> = vec![Vec::new(); hybrid.areas.len()];
+    for (g, (s, k)) in spans.iter().enumerate() {
+        let m = &sessions[*s];
+        let range = m.split.spans[*k].scans.clone();
+        let placed: Vec<(usize, Se2)> = range
+            .filter_map(|scan| Some((scan, first_from_robot[*s].get(scan).copied().flatten()?)))
+            .collect();
+        if let Some(path) = managed.span_area.get(g).and_then(|a| paths.get_mut(*a)) {
+            path.extend(placed.iter().map(|(_, p)| *p));
+        }
+    }
+    for (s, m) in sessions.iter().enumerate() {
+        for (record, pose) in m.log.scans.iter().zip(&first_from_robot[s]) {
+            if let Some(pose) = pose {
+                all.scans.push(record.clone());
+                poses.push(*pose);
+            }
+        }
+    }
+    let scan_count: usize = sessions.iter().map(|m| m.log.scans.len()).sum();
+    let posed = PosedLog { log: all, poses };
     overview(
         &posed,
-        &split.spans,
-        &hybrid,
+        &paths,
+        hybrid,
         args.resolution,
         &args.output.join("overview.png"),
     )?;
+    let passings: usize = sessions.iter().map(|m| m.split.passings.len()).sum();
     let report = AreasReport {
-        scans: posed.poses.len(),
+        sessions: sessions.len(),
+        sessions_placed: managed.session_placed.iter().filter(|p| **p).count(),
+        scans: scan_count,
         areas: hybrid.areas.len(),
         link_points: hybrid.link_points.len(),
-        door_passings: split.passings.len(),
+        door_passings: passings,
         closures: managed.closures.len(),
         indoor: file.areas.iter().filter(|a| a.config == "indoor").count(),
         large: file.areas.iter().filter(|a| a.config == "large").count(),
@@ -340,7 +416,9 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         print_json(&report)?;
     } else {
         println!(
-            "{} scans: {} door passings, {} topological loop closures, {} areas ({} indoor, {} large), {} link points; wrote {} in {:.1} s",
+            "{} sessions ({} placed), {} scans: {} door passings, {} topological loop closures, {} areas ({} indoor, {} large), {} link points; wrote {} in {:.1} s",
+            report.sessions,
+            report.sessions_placed,
             report.scans,
             report.door_passings,
             report.closures,
@@ -371,7 +449,7 @@ fn write_json(path: &Path, value: &impl Serialize) -> anyhow::Result<()> {
 /// link points and the topological graph over it.
 fn overview(
     posed: &PosedLog,
-    spans: &[mapmerge_areas::AreaSpan],
+    paths: &[Vec<Se2>],
     hybrid: &HybridMap,
     resolution_m: f64,
     path: &Path,
@@ -382,9 +460,8 @@ fn overview(
         classes: Some(mapmerge_grid::ClassThresholds::default()),
     };
     let mut picture = Picture::of_grid(&grid, &style);
-    for (k, span) in spans.iter().enumerate() {
-        let poses: Vec<Se2> = posed.poses.get(span.scans.clone()).unwrap_or(&[]).to_vec();
-        picture.draw_trajectory(&poses, session_color(k as u64), 2.0);
+    for (k, poses) in paths.iter().enumerate() {
+        picture.draw_trajectory(poses, session_color(k as u64), 2.0);
     }
     for edge in &hybrid.edges {
         if let (Some(a), Some(b)) = (

@@ -26,6 +26,9 @@ pub struct AreasEvalArgs {
     /// Length of each tour (s of robot time; no kidnaps).
     #[arg(long, default_value_t = 600.0)]
     pub duration: f64,
+    /// Sessions per world and seed (later ones must relocalise at a known door).
+    #[arg(long, default_value_t = 1)]
+    pub sessions: usize,
     /// Map-manager parameters as JSON (any subset of `mapmerge_areas::ManagerParams`).
     #[arg(long)]
     pub config: Option<PathBuf>,
@@ -42,6 +45,8 @@ struct Report {
     lost: usize,
     closures: usize,
     false_closures: usize,
+    sessions: usize,
+    sessions_placed: usize,
     /// Largest link-point ATE after optimisation over the tours (m).
     worst_link_ate_m: f64,
 }
@@ -67,6 +72,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             let score = score_tour(
                 world,
                 seed,
+                args.sessions,
                 args.duration,
                 &params,
                 &verifier,
@@ -83,6 +89,8 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
         lost: sum(|t| t.lost),
         closures: sum(|t| t.closures),
         false_closures: sum(|t| t.false_closures),
+        sessions: sum(|t| t.sessions),
+        sessions_placed: sum(|t| t.sessions_placed),
         worst_link_ate_m: tours.iter().map(|t| t.link_ate_m).fold(0.0, f64::max),
         tours,
     };
@@ -110,7 +118,9 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             );
         }
         println!(
-            "\nrevisits found {} of {}, lost {}, closures {} ({} false), worst link-point ATE {:.3} m",
+            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), worst link-point ATE {:.3} m",
+            report.sessions_placed,
+            report.sessions,
             report.revisits_found,
             report.revisits,
             report.lost,

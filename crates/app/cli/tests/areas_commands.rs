@@ -82,3 +82,42 @@ fn areas_splits_a_session_at_its_doors_and_routes_between_them() {
         Some(2)
     );
 }
+
+#[test]
+fn areas_places_a_later_session_by_a_door_it_passes_again() {
+    let dir = scratch("areas-sessions");
+    let report = ok_json(&[
+        "areas",
+        "--sim",
+        "office",
+        "--seed",
+        "1",
+        "--sessions",
+        "2",
+        "--duration",
+        "300",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    assert_eq!(report["sessions"].as_u64(), Some(2));
+    assert_eq!(report["sessions_placed"].as_u64(), Some(2), "{report}");
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("areas.json")).unwrap()).unwrap();
+    // Some area holds scans of both sessions.
+    let both = file["areas"].as_array().unwrap().iter().any(|area| {
+        let sessions: Vec<u64> = area["sessions_scans"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s[0].as_u64().unwrap())
+            .collect();
+        sessions.contains(&0) && sessions.contains(&1)
+    });
+    assert!(both, "{file}");
+    assert!(file["areas"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|a| a["placed"] == true));
+}

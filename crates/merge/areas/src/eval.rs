@@ -317,6 +317,10 @@ pub struct TourScore {
     pub world: String,
     /// The seed.
     pub seed: u64,
+    /// Sessions, and those placed in session 0's frame.
+    pub sessions: usize,
+    /// …
+    pub sessions_placed: usize,
     /// Map boundaries (passings that started a new span).
     pub boundaries: usize,
     /// Boundaries within 1 m of a true door.
@@ -346,11 +350,14 @@ pub struct TourScore {
     pub spans: usize,
 }
 
-/// Runs the map manager over session 0 of `world` (`duration_secs`, no kidnaps), mapping
-/// each span with `map_span` (scans in, `map_from_robot` per scan out), and scores tracking.
+/// Runs the map manager over `sessions` sessions of `world` (`duration_secs` each, no
+/// kidnaps), mapping each span with `map_span` (scans in, `map_from_robot` per scan out), and
+/// scores tracking; later sessions must relocalise at a known door.
+#[allow(clippy::too_many_arguments)]
 pub fn score_tour(
     world: &str,
     seed: u64,
+    sessions: usize,
     duration_secs: f64,
     params: &crate::ManagerParams,
     verifier: &dyn mapmerge_place::GeometricVerifier,
@@ -362,45 +369,75 @@ pub fn score_tour(
     use mapmerge_geometry::{LieGroup, Se2};
     let mut sim = SimParams::default()
         .with_preset_name(world)?
-        .with_sessions(1)
+        .with_sessions(sessions.max(1))
         .with_duration_secs(duration_secs);
     sim.kidnap.max_per_session = 0;
     let dataset = simulate(&sim, seed)?;
-    let Some(session) = dataset.sessions.first() else {
-        return Ok(TourScore::default());
-    };
-    let mut poses = Vec::with_capacity(session.log.scans.len());
-    for record in &session.log.scans {
-        poses.push(record.odom_from_robot.unwrap_or_else(Se2::identity));
-    }
-    let split = crate::segment(
-        poses
+    let mut splits = Vec::new();
+    let mut trajectories = Vec::new();
+    for session in &dataset.sessions {
+        let poses: Vec<Se2> = session
+            .log
+            .scans
             .iter()
-            .copied()
-            .zip(session.log.scans.iter().map(|r| &r.scan)),
-        params,
-    )?;
-    let mut trajectories = Vec::with_capacity(split.spans.len());
-    for span in &split.spans {
-        let part = mapmerge_scan::LaserLog {
-            scans: session
-                .log
-                .scans
-                .get(span.scans.clone())
-                .unwrap_or(&[])
-                .to_vec(),
-            ..mapmerge_scan::LaserLog::default()
-        };
-        let preset = span.environment.preset()?;
-        trajectories.push(map_span(&part, &preset).map_err(AreasError::Mapping)?);
+            .map(|r| r.odom_from_robot.unwrap_or_else(Se2::identity))
+            .collect();
+        let split = crate::segment(
+            poses
+                .iter()
+                .copied()
+                .zip(session.log.scans.iter().map(|r| &r.scan)),
+            params,
+        )?;
+        let mut mapped = Vec::with_capacity(split.spans.len());
+        for span in &split.spans {
+            let part = mapmerge_scan::LaserLog {
+                scans: session
+                    .log
+                    .scans
+                    .get(span.scans.clone())
+                    .unwrap_or(&[])
+                    .to_vec(),
+                ..mapmerge_scan::LaserLog::default()
+            };
+            let preset = span.environment.preset()?;
+            mapped.push(map_span(&part, &preset).map_err(AreasError::Mapping)?);
+        }
+        splits.push(split);
+        trajectories.push(mapped);
     }
-    let scans: Vec<&mapmerge_scan::LaserScan> = session.log.scans.iter().map(|r| &r.scan).collect();
-    let managed = crate::manage(&split, &trajectories, &scans, params, verifier)?;
+    let scans: Vec<Vec<&mapmerge_scan::LaserScan>> = dataset
+        .sessions
+        .iter()
+        .map(|s| s.log.scans.iter().map(|r| &r.scan).collect())
+        .collect();
+    let inputs: Vec<crate::SessionInput> = (0..dataset.sessions.len())
+        .map(|s| crate::SessionInput {
+            segmentation: &splits[s],
+            trajectories: &trajectories[s],
+            scans: &scans[s],
+        })
+        .collect();
+    let managed = crate::manage_sessions(&inputs, params, verifier)?;
+    // Boundaries over all sessions, as `manage_sessions` numbers them: (session, scan).
+    let boundary_scans: Vec<(usize, usize)> = splits
+        .iter()
+        .enumerate()
+        .flat_map(|(s, split)| {
+            split
+                .boundaries
+                .iter()
+                .map(move |p| (s, split.passings[*p].crossing_scan))
+        })
+        .collect();
+    let true_position = |b: usize| {
+        let (s, scan) = *boundary_scans.get(b)?;
+        Some(dataset.sessions.get(s)?.truth.get(scan)?.1.translation())
+    };
     // Truth: the door (within 1 m) at each boundary's crossing.
-    let crossing = |b: usize| split.passings[split.boundaries[b]].crossing_scan;
     let door_at = |b: usize| {
-        let p = session.truth.get(crossing(b))?.1.translation();
-        session
+        let p = true_position(b)?;
+        dataset
             .world
             .doors
             .iter()
@@ -409,18 +446,19 @@ pub fn score_tour(
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, id)| id)
     };
-    let doors: Vec<_> = (0..split.boundaries.len()).map(door_at).collect();
+    let doors: Vec<_> = (0..boundary_scans.len()).map(door_at).collect();
     let mut score = TourScore {
         world: world.to_owned(),
         seed,
-        boundaries: split.boundaries.len(),
+        sessions: dataset.sessions.len(),
+        sessions_placed: managed.session_placed.iter().filter(|p| **p).count(),
+        boundaries: boundary_scans.len(),
         at_doors: doors.iter().filter(|d| d.is_some()).count(),
         closures: managed.closures.len(),
         areas: managed.hybrid.areas.len(),
-        spans: split.spans.len(),
+        spans: splits.iter().map(|s| s.spans.len()).sum(),
         ..TourScore::default()
     };
-    let true_position = |b: usize| session.truth.get(crossing(b)).map(|(_, p)| p.translation());
     for closure in &managed.closures {
         let (here, there) = (doors[closure.boundary], doors[closure.earlier]);
         // True: two crossings of one door, or, off doors, of one place (within 1 m).
@@ -464,16 +502,32 @@ pub fn score_tour(
             score.lost += 1;
         }
     }
-    let truth: Vec<mapmerge_scan::Point2> = (0..split.boundaries.len())
-        .filter_map(|b| Some(session.truth.get(crossing(b))?.1.translation()))
+    // ATE over the crossings of placed sessions, in the world frame all sessions share.
+    let placed_boundaries: Vec<usize> = (0..boundary_scans.len())
+        .filter(|b| {
+            managed
+                .session_placed
+                .get(boundary_scans[*b].0)
+                .copied()
+                .unwrap_or(false)
+        })
         .collect();
-    let optimised: Vec<mapmerge_scan::Point2> =
-        managed.crossings.iter().map(|p| p.translation()).collect();
+    let truth: Vec<mapmerge_scan::Point2> = placed_boundaries
+        .iter()
+        .filter_map(|b| true_position(*b))
+        .collect();
+    let optimised: Vec<mapmerge_scan::Point2> = placed_boundaries
+        .iter()
+        .filter_map(|b| Some(managed.crossings.get(*b)?.translation()))
+        .collect();
     score.link_ate_m = aligned_rms(&optimised, &truth);
-    let chain: Vec<mapmerge_scan::Point2> = (0..split.boundaries.len())
-        .filter_map(|b| chain_crossing(&split, &trajectories, b).map(|p| p.translation()))
+    // The chain before any closure, session 0 alone (later sessions need a closure to be
+    // placed at all).
+    let first = splits.first();
+    let chain: Vec<mapmerge_scan::Point2> = (0..first.map_or(0, |s| s.boundaries.len()))
+        .filter_map(|b| Some(chain_crossing(first?, trajectories.first()?, b)?.translation()))
         .collect();
-    score.chain_ate_m = aligned_rms(&chain, &truth);
+    score.chain_ate_m = aligned_rms(&chain, &truth[..chain.len().min(truth.len())]);
     Ok(score)
 }
 

@@ -26,6 +26,6 @@ pub use environment::{Environment, EnvironmentParams, Extents, Preset};
 pub use error::AreasError;
 pub use hybrid::{Area, HybridMap, LinkEdge, LinkPoint, Route};
 pub use manager::{
-    manage, segment, AreaSpan, Closure, ManagedMap, ManagerParams, Segmentation, TrackingParams,
-    TrackingStep,
+    manage, manage_sessions, segment, AreaSpan, Closure, ManagedMap, ManagerParams, Segmentation,
+    SessionInput, TrackingParams, TrackingStep,
 };

@@ -64,6 +64,11 @@ pub struct TrackingParams {
     pub same_door_m: f64,
     /// Stop after this many link points were checked at one passing (default: 5).
     pub max_candidates: usize,
+    /// A later session, unplaced, is relocalised at a crossing that re-observes a placed one
+    /// with at least this score (default: 0.97)…
+    pub relocalisation_min_score: f64,
+    /// … trying this many headings (default: 12, every 30°: the verifier searches ±15°).
+    pub relocalisation_headings: usize,
 }
 
 impl Default for TrackingParams {
@@ -76,6 +81,8 @@ impl Default for TrackingParams {
             min_score: 0.95,
             same_door_m: 1.0,
             max_candidates: 5,
+            relocalisation_min_score: 0.97,
+            relocalisation_headings: 12,
         }
     }
 }
@@ -229,8 +236,10 @@ pub struct ManagedMap {
     /// The hybrid map: one area per group of spans found to be the same place, one link
     /// point per door.
     pub hybrid: HybridMap,
-    /// The area of each span.
+    /// The area of each span (spans of all sessions, in order).
     pub span_area: Vec<usize>,
+    /// The session of each span.
+    pub span_session: Vec<usize>,
     /// Where each span's frame lies in its area's frame.
     pub area_from_span: Vec<Se2>,
     /// Where each span's frame lies in the first span's frame, after optimisation.
@@ -242,24 +251,15 @@ pub struct ManagedMap {
     pub boundary_link: Vec<Option<usize>>,
     /// Topological loop closures.
     pub closures: Vec<Closure>,
-    /// Global tracking at each boundary.
+    /// Global tracking at each boundary (boundaries of all sessions, in order).
     pub tracking: Vec<TrackingStep>,
+    /// Whether each session was placed in session 0's frame (session 0 is; a later one once a
+    /// crossing of it re-observed a placed one). Unplaced sessions' areas stay in their own
+    /// frames.
+    pub session_placed: Vec<bool>,
 }
 
-/// Builds the hybrid map of a segmented log from each span's trajectory (`map_from_robot`
-/// of each of its scans, in its own map's frame) and the log's scans:
-///
-/// 1. the link-point graph: a node at the start and at each boundary's crossing, an edge
-///    between consecutive nodes measured in the span between them (its variance growing with
-///    the travel between them);
-/// 2. global tracking (Sec. II-D): each new crossing's pose through the chain, and Eq. 3's
-///    radius from the travel since the last re-observed link point;
-/// 3. topological loop closure (Sec. II-C): the earlier crossings within the radius are
-///    verified by scan matching their local maps (`verifier`, our place recognition's, in
-///    place of the paper's images); the best accepted one becomes a loop edge, the graph is
-///    optimised (the re-observed link point is the landmark), and the spans on each side of
-///    the door are joined into one area;
-/// 4. areas, link points (one per door) and edges.
+/// Builds the hybrid map of a segmented log ([`manage_sessions`] with one session).
 pub fn manage(
     segmentation: &Segmentation,
     trajectories: &[Vec<Se2>],
@@ -267,159 +267,288 @@ pub fn manage(
     params: &ManagerParams,
     verifier: &dyn GeometricVerifier,
 ) -> Result<ManagedMap, AreasError> {
-    let spans = &segmentation.spans;
-    if trajectories.len() != spans.len() {
-        return Err(AreasError::Mapping(format!(
-            "{} trajectories for {} areas",
-            trajectories.len(),
-            spans.len()
-        )));
-    }
-    for (k, (span, trajectory)) in spans.iter().zip(trajectories).enumerate() {
-        if trajectory.len() != span.scans.len() || span.scans.end > scans.len() {
-            return Err(AreasError::Mapping(format!(
-                "area {k}: {} poses for scans {:?} of {}",
-                trajectory.len(),
-                span.scans,
-                scans.len()
+    let session = SessionInput {
+        segmentation,
+        trajectories,
+        scans,
+    };
+    manage_sessions(&[session], params, verifier)
+}
+
+/// One session's input to [`manage_sessions`].
+#[derive(Clone, Copy, Debug)]
+pub struct SessionInput<'a> {
+    /// Its log split at door passings.
+    pub segmentation: &'a Segmentation,
+    /// Each span's trajectory (`map_from_robot` of each of its scans, in its own frame).
+    pub trajectories: &'a [Vec<Se2>],
+    /// The log's scans.
+    pub scans: &'a [&'a LaserScan],
+}
+
+/// A boundary of one session, indexed over all sessions.
+#[derive(Clone, Copy, Debug)]
+struct Boundary {
+    session: usize,
+    /// The crossing's scan (in its session's log).
+    crossing: usize,
+    /// Global span indices before and after it.
+    before: usize,
+    after: usize,
+    /// The crossing's pose in each of the two spans' frames.
+    exit: Se2,
+    entry: Se2,
+    /// Travel along `before` from its entry to this crossing (m).
+    leg_m: f64,
+}
+
+/// Builds the hybrid map of one or more sessions (logs) from each span's trajectory and the
+/// logs' scans:
+///
+/// 1. the link-point graph: a node at each session's start and at each boundary's crossing,
+///    an edge between consecutive nodes of a session measured in the span between them (its
+///    variance growing with the travel between them); session 0's start is the origin;
+/// 2. global tracking (Sec. II-D): each new crossing's pose through the chain, and Eq. 3's
+///    radius from the travel since the last re-observed link point;
+/// 3. topological loop closure (Sec. II-C): the earlier crossings within the radius are
+///    verified by scan matching their local maps (`verifier`, our place recognition's, in
+///    place of the paper's images); the best accepted one becomes a loop edge, the graph is
+///    optimised (the re-observed link point is the landmark), and the spans on each side of
+///    the door are joined into one area. A later session starts unplaced: its crossings are
+///    checked against every placed crossing over all headings until one is re-observed
+///    (global relocalisation); its nodes then join the graph;
+/// 4. areas, link points (one per door) and edges.
+pub fn manage_sessions(
+    sessions: &[SessionInput<'_>],
+    params: &ManagerParams,
+    verifier: &dyn GeometricVerifier,
+) -> Result<ManagedMap, AreasError> {
+    let mapping = |text: String| AreasError::Mapping(text);
+    // Spans over all sessions, in order: (session, local index).
+    let mut span_refs: Vec<(usize, usize)> = Vec::new();
+    for (s, session) in sessions.iter().enumerate() {
+        let spans = &session.segmentation.spans;
+        if session.trajectories.len() != spans.len() {
+            return Err(mapping(format!(
+                "session {s}: {} trajectories for {} areas",
+                session.trajectories.len(),
+                spans.len()
             )));
         }
+        for (k, (span, trajectory)) in spans.iter().zip(session.trajectories).enumerate() {
+            if trajectory.len() != span.scans.len() || span.scans.end > session.scans.len() {
+                return Err(mapping(format!(
+                    "session {s} area {k}: {} poses for scans {:?} of {}",
+                    trajectory.len(),
+                    span.scans,
+                    session.scans.len()
+                )));
+            }
+            span_refs.push((s, k));
+        }
     }
-    let crossing = |b: usize| -> Result<usize, AreasError> {
-        segmentation
-            .boundaries
-            .get(b)
-            .and_then(|p| segmentation.passings.get(*p))
-            .map(|p| p.crossing_scan)
-            .ok_or_else(|| AreasError::Mapping(format!("no passing for boundary {b}")))
+    let span_of = |g: usize| -> (&AreaSpan, &Vec<Se2>, usize) {
+        let (s, k) = span_refs[g];
+        (
+            &sessions[s].segmentation.spans[k],
+            &sessions[s].trajectories[k],
+            s,
+        )
     };
-    let pose_at = |span: usize, scan: usize| -> Result<Se2, AreasError> {
-        scan.checked_sub(spans[span].scans.start)
-            .and_then(|k| trajectories[span].get(k).copied())
-            .ok_or_else(|| AreasError::Mapping(format!("area {span} has no pose for scan {scan}")))
+    let pose_at = |g: usize, scan: usize| -> Result<Se2, AreasError> {
+        let (span, trajectory, s) = span_of(g);
+        scan.checked_sub(span.scans.start)
+            .and_then(|k| trajectory.get(k).copied())
+            .ok_or_else(|| mapping(format!("session {s}: no pose for scan {scan}")))
     };
-    let travel_between = |span: usize, a: usize, b: usize| -> f64 {
-        let start = spans[span].scans.start;
-        let t = &trajectories[span];
+    let travel_between = |g: usize, a: usize, b: usize| -> f64 {
+        let (span, t, _) = span_of(g);
+        let start = span.scans.start;
         (a.max(start)..b)
             .filter_map(|k| {
                 Some((t.get(k + 1 - start)?.translation() - t.get(k - start)?.translation()).norm())
             })
             .sum()
     };
-    let boundaries = segmentation.boundaries.len();
-    // 1. Nodes: 0 the start, b + 1 the crossing of boundary b. Node k's pose in span k
-    // (entry) and node k + 1's (exit).
-    let mut entry = vec![Se2::identity(); spans.len()];
-    let mut exit = Vec::with_capacity(boundaries);
-    let mut entry_scan = vec![spans.first().map_or(0, |s| s.scans.start); spans.len()];
-    for b in 0..boundaries {
-        let c = crossing(b)?;
-        exit.push(pose_at(b, c)?);
-        entry[b + 1] = pose_at(b + 1, c)?;
-        entry_scan[b + 1] = c;
+    // Boundaries over all sessions; each span's entry node and pose.
+    let mut boundaries: Vec<Boundary> = Vec::new();
+    let mut entry_pose = vec![Se2::identity(); span_refs.len()];
+    let mut entry_scan = vec![0usize; span_refs.len()];
+    let mut entry_node = vec![0usize; span_refs.len()];
+    let mut session_start = Vec::with_capacity(sessions.len());
+    let mut nodes = 0usize;
+    let mut first_span = 0usize;
+    for (s, session) in sessions.iter().enumerate() {
+        let seg = session.segmentation;
+        session_start.push(nodes);
+        if !seg.spans.is_empty() {
+            entry_node[first_span] = nodes;
+            entry_scan[first_span] = seg.spans[0].scans.start;
+        }
+        nodes += 1;
+        for (b, passing) in seg.boundaries.iter().enumerate() {
+            let c = seg
+                .passings
+                .get(*passing)
+                .map(|p| p.crossing_scan)
+                .ok_or_else(|| mapping(format!("session {s}: no passing {passing}")))?;
+            let (before, after) = (first_span + b, first_span + b + 1);
+            boundaries.push(Boundary {
+                session: s,
+                crossing: c,
+                before,
+                after,
+                exit: pose_at(before, c)?,
+                entry: pose_at(after, c)?,
+                leg_m: travel_between(before, entry_scan[before], c),
+            });
+            entry_pose[after] = pose_at(after, c)?;
+            entry_scan[after] = c;
+            entry_node[after] = nodes;
+            nodes += 1;
+        }
+        first_span += seg.spans.len();
     }
+    // The node of boundary i.
+    let node_of: Vec<usize> = boundaries.iter().map(|b| entry_node[b.after]).collect();
     let tracking = &params.tracking;
-    let mut graph = PoseGraph2::new();
     let node = |k: usize| NodeId(k as u64);
-    graph
-        .add_vertex(
-            node(0),
-            Vertex {
-                pose: Se2::identity(),
-                fixed: true,
-                meta: Default::default(),
-            },
-        )
-        .map_err(|e| AreasError::Mapping(e.to_string()))?;
-    let mut legs_m = Vec::with_capacity(boundaries);
-    for b in 0..boundaries {
-        let measurement = entry[b].inverse().compose(&exit[b]);
-        let c = crossing(b)?;
-        let leg_m = travel_between(b, entry_scan[b], c);
-        legs_m.push(leg_m);
+    let graph_error = |e: mapmerge_posegraph::GraphError| mapping(e.to_string());
+    let mut graph = PoseGraph2::new();
+    for start in &session_start {
+        // Every session's start holds its component until it is placed.
+        graph
+            .add_vertex(
+                node(*start),
+                Vertex {
+                    pose: Se2::identity(),
+                    fixed: true,
+                    meta: Default::default(),
+                },
+            )
+            .map_err(graph_error)?;
+    }
+    for (i, b) in boundaries.iter().enumerate() {
+        let measurement = entry_pose[b.before].inverse().compose(&b.exit);
+        let from = entry_node[b.before];
         let previous = graph
-            .vertex(node(b))
+            .vertex(node(from))
             .map(|v| v.pose)
             .unwrap_or_else(Se2::identity);
         graph
-            .add_vertex(node(b + 1), Vertex::new(previous.compose(&measurement)))
-            .map_err(|e| AreasError::Mapping(e.to_string()))?;
+            .add_vertex(
+                node(node_of[i]),
+                Vertex::new(previous.compose(&measurement)),
+            )
+            .map_err(graph_error)?;
         graph
             .add_edge(Edge {
-                from: node(b),
-                to: node(b + 1),
+                from: node(from),
+                to: node(node_of[i]),
                 measurement,
-                information: leg_information(tracking, leg_m),
+                information: leg_information(tracking, b.leg_m),
                 kind: EdgeKind::Odometry,
             })
-            .map_err(|e| AreasError::Mapping(e.to_string()))?;
+            .map_err(graph_error)?;
     }
+    let local_map_at = |i: usize| {
+        let b = &boundaries[i];
+        let (span, trajectory, s) = span_of(b.before);
+        local_map(
+            b.crossing,
+            &b.exit,
+            span,
+            trajectory,
+            sessions[s].scans,
+            tracking,
+        )
+    };
     // 2–3. Tracking and closures, boundary by boundary.
-    let mut groups = UnionFind::new(spans.len());
+    let mut placed: Vec<bool> = (0..sessions.len()).map(|s| s == 0).collect();
+    let mut groups = UnionFind::new(span_refs.len());
     let mut closures = Vec::new();
-    let mut steps = Vec::with_capacity(boundaries);
+    let mut steps = Vec::with_capacity(boundaries.len());
     let mut since_closure_m = 0.0;
-    let mut merged_into: Vec<Option<usize>> = vec![None; boundaries];
-    for b in 0..boundaries {
-        since_closure_m += legs_m[b];
+    let mut merged_into: Vec<Option<usize>> = vec![None; boundaries.len()];
+    for i in 0..boundaries.len() {
+        let b = boundaries[i];
+        if i > 0 && boundaries[i - 1].session != b.session {
+            since_closure_m = 0.0;
+        }
+        since_closure_m += b.leg_m;
         let radius_m = tracking.search_radius_m(since_closure_m);
-        let here = graph
-            .vertex(node(b + 1))
-            .map(|v| v.pose)
-            .unwrap_or_else(Se2::identity);
-        let mut candidates: Vec<(f64, usize)> = (0..b)
+        let pose = |graph: &PoseGraph2, i: usize| {
+            graph
+                .vertex(node(node_of[i]))
+                .map(|v| v.pose)
+                .unwrap_or_else(Se2::identity)
+        };
+        let here = pose(&graph, i);
+        let relocalising = !placed[b.session];
+        // Tracked: earlier crossings within the radius. Unplaced: every placed crossing.
+        let mut candidates: Vec<(f64, usize)> = (0..i)
             .filter(|j| merged_into[*j].is_none())
             .filter_map(|j| {
-                let there = graph.vertex(node(j + 1))?.pose;
-                let d = (there.translation() - here.translation()).norm();
+                if relocalising {
+                    return placed[boundaries[j].session].then_some((0.0, j));
+                }
+                if boundaries[j].session != b.session && !placed[boundaries[j].session] {
+                    return None;
+                }
+                let d = (pose(&graph, j).translation() - here.translation()).norm();
                 (d <= radius_m).then_some((d, j))
             })
             .collect();
         candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
         steps.push(TrackingStep {
-            boundary: b,
+            boundary: i,
             travel_since_closure_m: since_closure_m,
-            radius_m,
+            radius_m: if relocalising {
+                f64::INFINITY
+            } else {
+                radius_m
+            },
             within_radius: candidates.iter().map(|(_, j)| *j).collect(),
         });
-        candidates.truncate(tracking.max_candidates);
+        if !relocalising {
+            candidates.truncate(tracking.max_candidates);
+        }
         if candidates.is_empty() {
             continue;
         }
-        let query = local_map(
-            b,
-            crossing(b)?,
-            &exit[b],
-            spans,
-            trajectories,
-            scans,
-            tracking,
-        );
+        let query = local_map_at(i);
         let mut best: Option<(usize, Verification)> = None;
         for (_, j) in &candidates {
-            let there = graph
-                .vertex(node(j + 1))
-                .map(|v| v.pose)
-                .unwrap_or_else(Se2::identity);
-            let candidate = local_map(
-                *j,
-                crossing(*j)?,
-                &exit[*j],
-                spans,
-                trajectories,
-                scans,
-                tracking,
-            );
-            let guess = there.inverse().compose(&here);
-            if let Some(found) = verifier.verify(&query, &candidate, &guess) {
+            let there = pose(&graph, *j);
+            let candidate = local_map_at(*j);
+            // Tracked: one guess from the chain. Relocalising: the same door at every heading.
+            let guesses: Vec<Se2> = if relocalising {
+                (0..tracking.relocalisation_headings.max(1))
+                    .map(|h| {
+                        let step =
+                            std::f64::consts::TAU / tracking.relocalisation_headings.max(1) as f64;
+                        Se2::new(0.0, 0.0, h as f64 * step)
+                    })
+                    .collect()
+            } else {
+                vec![there.inverse().compose(&here)]
+            };
+            for guess in guesses {
+                let Some(found) = verifier.verify(&query, &candidate, &guess) else {
+                    continue;
+                };
                 let correction_m = guess
                     .between(&found.candidate_from_query)
                     .translation()
                     .norm();
-                if found.score >= tracking.min_score
+                let min_score = if relocalising {
+                    tracking.relocalisation_min_score
+                } else {
+                    tracking.min_score
+                };
+                if found.score >= min_score
                     && found.candidate_from_query.translation().norm() <= tracking.same_door_m
-                    && correction_m <= radius_m
+                    && (relocalising || correction_m <= radius_m)
                     && best.as_ref().is_none_or(|(_, v)| found.score > v.score)
                 {
                     best = Some((*j, found));
@@ -429,59 +558,77 @@ pub fn manage(
         let Some((j, found)) = best else {
             continue;
         };
+        if relocalising {
+            // Move the session's component so that this crossing sits where the match puts
+            // it, then let its start go.
+            let target = pose(&graph, j).compose(&found.candidate_from_query);
+            let delta = target.compose(&here.inverse());
+            let members: Vec<usize> = std::iter::once(session_start[b.session])
+                .chain(
+                    boundaries
+                        .iter()
+                        .zip(&node_of)
+                        .filter(|(x, _)| x.session == b.session)
+                        .map(|(_, n)| *n),
+                )
+                .collect();
+            for n in members {
+                if let Some(v) = graph.vertex_mut(node(n)) {
+                    v.pose = delta.compose(&v.pose);
+                }
+            }
+            if let Some(v) = graph.vertex_mut(node(session_start[b.session])) {
+                v.fixed = false;
+            }
+            placed[b.session] = true;
+        }
         graph
             .add_edge(Edge {
-                from: node(j + 1),
-                to: node(b + 1),
+                from: node(node_of[j]),
+                to: node(node_of[i]),
                 measurement: found.candidate_from_query,
                 information: closure_information(&found),
                 kind: EdgeKind::Loop,
             })
-            .map_err(|e| AreasError::Mapping(e.to_string()))?;
+            .map_err(graph_error)?;
         // A numerical failure keeps the last good state, which is the chain: still a map.
         let _ = optimize(&mut graph, &OptimizerParams::default());
-        let there = graph
-            .vertex(node(j + 1))
-            .map(|v| v.pose)
-            .unwrap_or_else(Se2::identity);
-        let here = graph
-            .vertex(node(b + 1))
-            .map(|v| v.pose)
-            .unwrap_or_else(Se2::identity);
+        let (there, here) = (pose(&graph, j), pose(&graph, i));
+        let earlier = boundaries[j];
         // Same direction through the door: the same sides; else swapped.
         if wrap_angle_rad(here.theta_rad - there.theta_rad).abs() < FRAC_PI_2 {
-            groups.union(b, j);
-            groups.union(b + 1, j + 1);
+            groups.union(b.before, earlier.before);
+            groups.union(b.after, earlier.after);
         } else {
-            groups.union(b, j + 1);
-            groups.union(b + 1, j);
+            groups.union(b.before, earlier.after);
+            groups.union(b.after, earlier.before);
         }
-        merged_into[b] = Some(j);
+        merged_into[i] = Some(j);
         closures.push(Closure {
-            boundary: b,
+            boundary: i,
             earlier: j,
             score: found.score,
         });
         since_closure_m = 0.0;
     }
     // 4. Frames, areas, link points.
-    let pose_of = |k: usize| {
+    let pose_of = |n: usize| {
         graph
-            .vertex(node(k))
+            .vertex(node(n))
             .map(|v| v.pose)
             .unwrap_or_else(Se2::identity)
     };
-    let first_from_span: Vec<Se2> = (0..spans.len())
-        .map(|k| pose_of(k).compose(&entry[k].inverse()))
+    let first_from_span: Vec<Se2> = (0..span_refs.len())
+        .map(|g| pose_of(entry_node[g]).compose(&entry_pose[g].inverse()))
         .collect();
-    let crossings: Vec<Se2> = (0..boundaries).map(|b| pose_of(b + 1)).collect();
+    let crossings: Vec<Se2> = node_of.iter().map(|n| pose_of(*n)).collect();
     let mut area_of_root = BTreeMap::new();
-    let mut span_area = Vec::with_capacity(spans.len());
+    let mut span_area = Vec::with_capacity(span_refs.len());
     let mut first_span_of_area = Vec::new();
-    for k in 0..spans.len() {
-        let root = groups.find(k);
+    for g in 0..span_refs.len() {
+        let root = groups.find(g);
         let area = *area_of_root.entry(root).or_insert_with(|| {
-            first_span_of_area.push(k);
+            first_span_of_area.push(g);
             first_span_of_area.len() - 1
         });
         span_area.push(area);
@@ -489,38 +636,38 @@ pub fn manage(
     let areas: Vec<Area> = first_span_of_area
         .iter()
         .enumerate()
-        .map(|(id, k)| Area {
+        .map(|(id, g)| Area {
             id,
-            environment: spans[*k].environment,
-            first_from_area: first_from_span[*k],
+            environment: span_of(*g).0.environment,
+            first_from_area: first_from_span[*g],
         })
         .collect();
-    let area_from_span: Vec<Se2> = (0..spans.len())
-        .map(|k| {
-            areas[span_area[k]]
+    let area_from_span: Vec<Se2> = (0..span_refs.len())
+        .map(|g| {
+            areas[span_area[g]]
                 .first_from_area
                 .inverse()
-                .compose(&first_from_span[k])
+                .compose(&first_from_span[g])
         })
         .collect();
     let mut link_points: Vec<LinkPoint> = Vec::new();
-    let mut boundary_link = vec![None; boundaries];
-    for b in 0..boundaries {
-        if let Some(j) = merged_into[b] {
-            boundary_link[b] = boundary_link[j];
+    let mut boundary_link = vec![None; boundaries.len()];
+    for (i, b) in boundaries.iter().enumerate() {
+        if let Some(j) = merged_into[i] {
+            boundary_link[i] = boundary_link[j];
             continue;
         }
-        let (a0, a1) = (span_area[b], span_area[b + 1]);
+        let (a0, a1) = (span_area[b.before], span_area[b.after]);
         if a0 == a1 {
             continue;
         }
-        boundary_link[b] = Some(link_points.len());
+        boundary_link[i] = Some(link_points.len());
         link_points.push(LinkPoint {
             id: link_points.len(),
             areas: [a0, a1],
             poses: [
-                area_from_span[b].compose(&exit[b]),
-                area_from_span[b + 1].compose(&entry[b + 1]),
+                area_from_span[b.before].compose(&b.exit),
+                area_from_span[b.after].compose(&b.entry),
             ],
         });
     }
@@ -530,15 +677,18 @@ pub fn manage(
         edges: Vec::new(),
     };
     hybrid.connect();
+    let span_session: Vec<usize> = span_refs.iter().map(|(s, _)| *s).collect();
     Ok(ManagedMap {
         hybrid,
         span_area,
+        span_session,
         area_from_span,
         first_from_span,
         crossings,
         boundary_link,
         closures,
         tracking: steps,
+        session_placed: placed,
     })
 }
 
@@ -562,36 +712,32 @@ fn closure_information(found: &Verification) -> Matrix3<f64> {
         .unwrap_or_else(|| floor.try_inverse().unwrap_or_else(Matrix3::identity))
 }
 
-/// The local map at a crossing: the scans of `span` within `local_map_m` of travel of scan
-/// `c`, in the robot frame at `c` (`map_from_crossing` in the span's frame), with their rays.
+/// The local map at a crossing: the scans of a span (`span`, its `trajectory`, the log's
+/// `scans`) within `local_map_m` of scan `c`, in the robot frame at `c` (`map_from_crossing`
+/// in the span's frame), with their rays.
 fn local_map(
-    span: usize,
     c: usize,
     map_from_crossing: &Se2,
-    spans: &[AreaSpan],
-    trajectories: &[Vec<Se2>],
+    span: &AreaSpan,
+    trajectory: &[Se2],
     scans: &[&LaserScan],
     tracking: &TrackingParams,
 ) -> Keyframe {
-    let range = &spans[span].scans;
-    let trajectory = &trajectories[span];
+    let range = &span.scans;
     let crossing_from_map = map_from_crossing.inverse();
     let mut points = Vec::new();
     let mut rays = Vec::new();
     let filter = BeamFilter::default();
-    let within = |k: usize| {
-        let (Some(a), Some(b)) = (
-            trajectory.get(k - range.start),
-            trajectory.get(c - range.start),
-        ) else {
-            return false;
-        };
-        (a.translation() - b.translation()).norm() <= tracking.local_map_m
+    let Some(at_crossing) = c.checked_sub(range.start).and_then(|k| trajectory.get(k)) else {
+        return Keyframe::new(c as u64, points);
     };
-    for k in range.clone().filter(|k| within(*k)) {
+    for k in range.clone() {
         let (Some(pose), Some(scan)) = (trajectory.get(k - range.start), scans.get(k)) else {
             continue;
         };
+        if (pose.translation() - at_crossing.translation()).norm() > tracking.local_map_m {
+            continue;
+        }
         let crossing_from_robot = crossing_from_map.compose(pose);
         let origin = crossing_from_robot.translation();
         for p in scan.points_in_robot(&filter) {
@@ -729,5 +875,95 @@ mod tests {
         assert!(managed.hybrid.areas.len() <= split.spans.len());
         assert_eq!(managed.span_area.len(), split.spans.len());
         assert!(manage(&split, &trajectories[1..], &scans, &params, &verifier).is_err());
+    }
+
+    #[test]
+    fn a_second_session_is_relocalised_at_a_known_door_and_placed_by_it() {
+        let mut sim = SimParams::default()
+            .with_preset_name("office")
+            .unwrap()
+            .with_sessions(2)
+            .with_duration_secs(300.0);
+        sim.kidnap.max_per_session = 0;
+        let data = simulate(&sim, 2).unwrap();
+        let params = ManagerParams::default();
+        let mut splits = Vec::new();
+        let mut trajectories = Vec::new();
+        let mut scans = Vec::new();
+        for session in &data.sessions {
+            let split = segment(
+                session
+                    .log
+                    .scans
+                    .iter()
+                    .map(|r| (r.odom_from_robot.unwrap(), &r.scan)),
+                &params,
+            )
+            .unwrap();
+            // Each span mapped by the true poses, in a frame of its own (its first pose).
+            trajectories.push(
+                split
+                    .spans
+                    .iter()
+                    .map(|span| {
+                        let origin = session.truth[span.scans.start].1;
+                        span.scans
+                            .clone()
+                            .map(|k| origin.inverse().compose(&session.truth[k].1))
+                            .collect::<Vec<Se2>>()
+                    })
+                    .collect::<Vec<_>>(),
+            );
+            scans.push(
+                session
+                    .log
+                    .scans
+                    .iter()
+                    .map(|r| &r.scan)
+                    .collect::<Vec<_>>(),
+            );
+            splits.push(split);
+        }
+        let inputs: Vec<SessionInput> = (0..2)
+            .map(|s| SessionInput {
+                segmentation: &splits[s],
+                trajectories: &trajectories[s],
+                scans: &scans[s],
+            })
+            .collect();
+        let verifier = PlaceVerifierParams::default().verifier().unwrap();
+        let managed = manage_sessions(&inputs, &params, &verifier).unwrap();
+        assert_eq!(
+            managed.session_placed,
+            vec![true, true],
+            "session 1 relocalised"
+        );
+        let world_from_first = data.sessions[0].truth[0].1;
+        let mut g = 0;
+        for (s, split) in splits.iter().enumerate() {
+            for span in &split.spans {
+                let world_from_span = data.sessions[s].truth[span.scans.start].1;
+                let error = world_from_first
+                    .compose(&managed.first_from_span[g])
+                    .between(&world_from_span);
+                assert!(
+                    error.translation().norm() < 0.1,
+                    "session {s} span {g}: {error:?}"
+                );
+                g += 1;
+            }
+        }
+        // Some area holds spans of both sessions.
+        let shared = (0..managed.hybrid.areas.len()).any(|a| {
+            let sessions: Vec<usize> = managed
+                .span_area
+                .iter()
+                .zip(&managed.span_session)
+                .filter(|(x, _)| **x == a)
+                .map(|(_, s)| *s)
+                .collect();
+            sessions.contains(&0) && sessions.contains(&1)
+        });
+        assert!(shared);
     }
 }
