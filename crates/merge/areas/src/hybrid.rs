@@ -121,7 +121,11 @@ impl HybridMap {
         goal_area: usize,
         goal: Point2,
     ) -> Option<Route> {
-        if start_area >= self.areas.len() || goal_area >= self.areas.len() {
+        // A link point's id is its index (a map read from a file may break that: no route).
+        if start_area >= self.areas.len()
+            || goal_area >= self.areas.len()
+            || self.link_points.iter().enumerate().any(|(i, l)| l.id != i)
+        {
             return None;
         }
         if start_area == goal_area {
@@ -146,7 +150,7 @@ impl HybridMap {
             if let Some(p) = link.pose_in(start_area) {
                 graph.add_edge(
                     start_node,
-                    nodes[link.id],
+                    nodes[link.id], // < n: checked above
                     ((p.translation() - start).norm(), start_area),
                 );
             }
@@ -302,6 +306,13 @@ mod tests {
         let placed = chained.areas[2].first_from_area;
         assert!(placed.between(&expected).translation().norm() < 1e-9);
         assert!(map.route(0, start, 7, goal).is_none(), "an unknown map");
+    }
+
+    #[test]
+    fn a_map_whose_link_ids_are_not_their_indices_has_no_route() {
+        let (mut map, _) = build(2, &[(0, 1, 1.0, 0.0)]);
+        map.link_points[0].id = 7;
+        assert!(map.route(0, Point2::zeros(), 1, Point2::zeros()).is_none());
     }
 
     #[test]

@@ -797,9 +797,24 @@ mod tests {
     #![allow(clippy::unwrap_used, clippy::expect_used)]
 
     use mapmerge_place::PlaceVerifierParams;
-    use mapmerge_sim::{simulate, SimParams};
+    use mapmerge_sim::{simulate, SessionData, SimParams};
 
     use super::*;
+
+    /// Each span mapped by the true poses, in a frame of its own (its first pose).
+    fn true_trajectories(split: &Segmentation, session: &SessionData) -> Vec<Vec<Se2>> {
+        split
+            .spans
+            .iter()
+            .map(|span| {
+                let origin = session.truth[span.scans.start].1;
+                span.scans
+                    .clone()
+                    .map(|k| origin.inverse().compose(&session.truth[k].1))
+                    .collect()
+            })
+            .collect()
+    }
 
     #[test]
     fn a_simulated_session_splits_at_its_doors_and_chains_back_together() {
@@ -832,17 +847,7 @@ mod tests {
         );
         // Each area mapped by the true poses in a frame of its own (its first pose): the chain
         // through the link points must put every area back where the truth has it.
-        let trajectories: Vec<Vec<Se2>> = split
-            .spans
-            .iter()
-            .map(|span| {
-                let origin = session.truth[span.scans.start].1;
-                span.scans
-                    .clone()
-                    .map(|k| origin.inverse().compose(&session.truth[k].1))
-                    .collect()
-            })
-            .collect();
+        let trajectories = true_trajectories(&split, session);
         let scans: Vec<&LaserScan> = session.log.scans.iter().map(|r| &r.scan).collect();
         let verifier = PlaceVerifierParams::default().verifier().unwrap();
         let managed = manage(&split, &trajectories, &scans, &params, &verifier).unwrap();
@@ -900,20 +905,7 @@ mod tests {
                 &params,
             )
             .unwrap();
-            // Each span mapped by the true poses, in a frame of its own (its first pose).
-            trajectories.push(
-                split
-                    .spans
-                    .iter()
-                    .map(|span| {
-                        let origin = session.truth[span.scans.start].1;
-                        span.scans
-                            .clone()
-                            .map(|k| origin.inverse().compose(&session.truth[k].1))
-                            .collect::<Vec<Se2>>()
-                    })
-                    .collect::<Vec<_>>(),
-            );
+            trajectories.push(true_trajectories(&split, session));
             scans.push(
                 session
                     .log
