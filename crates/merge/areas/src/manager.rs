@@ -67,6 +67,9 @@ pub struct TrackingParams {
     /// A later session, unplaced, is relocalised at a crossing that re-observes a placed one
     /// with at least this score (default: 0.97)…
     pub relocalisation_min_score: f64,
+    /// … when no other door (a candidate farther than `same_door_m` from the best) scores
+    /// within this of the best: a symmetric building has look-alike doors (default: 0.01)…
+    pub relocalisation_margin: f64,
     /// … trying this many headings (default: 12, every 30°: the verifier searches ±15°).
     pub relocalisation_headings: usize,
 }
@@ -82,6 +85,7 @@ impl Default for TrackingParams {
             same_door_m: 1.0,
             max_candidates: 5,
             relocalisation_min_score: 0.97,
+            relocalisation_margin: 0.01,
             relocalisation_headings: 12,
         }
     }
@@ -518,6 +522,8 @@ pub fn manage_sessions(
         }
         let query = local_map_at(i);
         let mut best: Option<(usize, Verification)> = None;
+        // Relocalising: the best score at each candidate, for the ambiguity test.
+        let mut scores: Vec<(usize, f64)> = Vec::new();
         for (_, j) in &candidates {
             let there = pose(&graph, *j);
             let candidate = local_map_at(*j);
@@ -546,8 +552,13 @@ pub fn manage_sessions(
                 } else {
                     tracking.min_score
                 };
+                let same_door =
+                    found.candidate_from_query.translation().norm() <= tracking.same_door_m;
+                if relocalising && same_door {
+                    scores.push((*j, found.score));
+                }
                 if found.score >= min_score
-                    && found.candidate_from_query.translation().norm() <= tracking.same_door_m
+                    && same_door
                     && (relocalising || correction_m <= radius_m)
                     && best.as_ref().is_none_or(|(_, v)| found.score > v.score)
                 {
@@ -558,6 +569,20 @@ pub fn manage_sessions(
         let Some((j, found)) = best else {
             continue;
         };
+        if relocalising {
+            // Ambiguous when another door scores about as well.
+            let at_j = pose(&graph, j).translation();
+            let rival = scores
+                .iter()
+                .filter(|(k, _)| {
+                    (pose(&graph, *k).translation() - at_j).norm() > tracking.same_door_m
+                })
+                .map(|(_, score)| *score)
+                .fold(f64::NEG_INFINITY, f64::max);
+            if rival >= found.score - tracking.relocalisation_margin {
+                continue;
+            }
+        }
         if relocalising {
             // Move the session's component so that this crossing sits where the match puts
             // it, then let its start go.
