@@ -236,7 +236,9 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             }
             let m = &sessions[*s];
             let span = &m.split.spans[*k];
-            let area_from_span = managed.area_from_span[g];
+            let Some(area_from_span) = managed.area_from_span(g) else {
+                continue;
+            };
             part.scans
                 .extend_from_slice(m.log.scans.get(span.scans.clone()).unwrap_or(&[]));
             trajectory.extend(m.trajectories[*k].iter().map(|p| area_from_span.compose(p)));

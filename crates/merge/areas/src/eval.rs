@@ -558,31 +558,15 @@ fn chain_crossing(
 }
 
 /// RMS distance between `estimate` and `truth` (paired) after the rigid motion that fits
-/// them best (least squares, Umeyama without scale); 0 without points.
+/// them best (`mapmerge_eval`'s ATE); 0 without points.
 pub fn aligned_rms(estimate: &[Point2], truth: &[Point2]) -> f64 {
     let n = estimate.len().min(truth.len());
-    if n == 0 {
-        return 0.0;
-    }
-    let mean = |v: &[Point2]| v[..n].iter().sum::<Point2>() / n as f64;
-    let (me, mt) = (mean(estimate), mean(truth));
-    // Rotation angle maximising Σ (t − mt)·R(e − me).
-    let (mut sxx, mut sxy) = (0.0, 0.0);
-    for (e, t) in estimate[..n].iter().zip(&truth[..n]) {
-        let (e, t) = (e - me, t - mt);
-        sxx += e.x * t.x + e.y * t.y;
-        sxy += e.x * t.y - e.y * t.x;
-    }
-    let angle = sxy.atan2(sxx);
-    let (s, c) = angle.sin_cos();
-    let squared: f64 = estimate[..n]
-        .iter()
-        .zip(&truth[..n])
-        .map(|(e, t)| {
-            let d = e - me;
-            let rotated = Point2::new(c * d.x - s * d.y, s * d.x + c * d.y);
-            (rotated + mt - t).norm_squared()
-        })
-        .sum();
-    (squared / n as f64).sqrt()
+    let poses = |points: &[Point2]| -> Vec<mapmerge_geometry::Se2> {
+        points[..n]
+            .iter()
+            .map(|p| mapmerge_geometry::Se2::new(p.x, p.y, 0.0))
+            .collect()
+    };
+    mapmerge_eval::absolute_trajectory_error(&poses(truth), &poses(estimate), true)
+        .map_or(0.0, |error| error.rms_m)
 }

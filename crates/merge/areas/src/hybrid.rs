@@ -4,8 +4,6 @@
 //! connected"). Dijkstra over E gives routes between poses in any two maps (Sec. II-C), and the
 //! chain of transforms along them.
 
-use std::collections::BTreeMap;
-
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::Point2;
 use petgraph::graph::{NodeIndex, UnGraph};
@@ -44,10 +42,10 @@ impl LinkPoint {
             .and_then(|i| self.poses.get(i).copied())
     }
 
-    /// The transform from the frame of `areas[1]` to the frame of `areas[0]` it implies (both
-    /// poses are the same pose in the world).
-    pub fn first_from_second(&self) -> Se2 {
-        self.poses[0].compose(&self.poses[1].inverse())
+    /// The transform `a_from_b` from map `b`'s frame to map `a`'s that it implies (both poses
+    /// are one pose in the world), if it belongs to both.
+    pub fn a_from_b(&self, a: usize, b: usize) -> Option<Se2> {
+        Some(self.pose_in(a)?.compose(&self.pose_in(b)?.inverse()))
     }
 }
 
@@ -194,7 +192,7 @@ impl HybridMap {
                 continue;
             }
             let link = self.link_points.get(*id)?;
-            let current_from_next = link.pose_in(from)?.compose(&link.pose_in(to)?.inverse());
+            let current_from_next = link.a_from_b(from, to)?;
             start_from_current = start_from_current.compose(&current_from_next);
             areas.push(to);
         }
@@ -204,47 +202,6 @@ impl HybridMap {
             length_m,
             start_from_goal: start_from_current,
         })
-    }
-
-    /// Where every area's frame lies in the first area's frame, through a breadth-first walk
-    /// of the link points (areas no chain reaches keep theirs).
-    pub fn chain_frames(&mut self) {
-        if self.areas.is_empty() {
-            return;
-        }
-        let mut placed: BTreeMap<usize, Se2> = BTreeMap::from([(0, Se2::identity())]);
-        let mut frontier = vec![0usize];
-        while let Some(area) = frontier.pop() {
-            let Some(first_from_area) = placed.get(&area).copied() else {
-                continue;
-            };
-            for link in &self.link_points {
-                let Some(here) = link.pose_in(area) else {
-                    continue;
-                };
-                let other = if link.areas[0] == area {
-                    link.areas[1]
-                } else {
-                    link.areas[0]
-                };
-                if placed.contains_key(&other) {
-                    continue;
-                }
-                let Some(there) = link.pose_in(other) else {
-                    continue;
-                };
-                placed.insert(
-                    other,
-                    first_from_area.compose(&here.compose(&there.inverse())),
-                );
-                frontier.push(other);
-            }
-        }
-        for area in &mut self.areas {
-            if let Some(pose) = placed.get(&area.id) {
-                area.first_from_area = *pose;
-            }
-        }
     }
 }
 
@@ -301,10 +258,6 @@ mod tests {
         let expected = world[0].inverse().compose(&world[2]);
         let error = expected.between(&route.start_from_goal);
         assert!(error.translation().norm() < 1e-9 && error.theta_rad.abs() < 1e-9);
-        let mut chained = map.clone();
-        chained.chain_frames();
-        let placed = chained.areas[2].first_from_area;
-        assert!(placed.between(&expected).translation().norm() < 1e-9);
         assert!(map.route(0, start, 7, goal).is_none(), "an unknown map");
     }
 

@@ -244,8 +244,6 @@ pub struct ManagedMap {
     pub span_area: Vec<usize>,
     /// The session of each span.
     pub span_session: Vec<usize>,
-    /// Where each span's frame lies in its area's frame.
-    pub area_from_span: Vec<Se2>,
     /// Where each span's frame lies in the first span's frame, after optimisation.
     pub first_from_span: Vec<Se2>,
     /// Each boundary's crossing in the first span's frame, after optimisation.
@@ -261,6 +259,18 @@ pub struct ManagedMap {
     /// crossing of it re-observed a placed one). Unplaced sessions' areas stay in their own
     /// frames.
     pub session_placed: Vec<bool>,
+}
+
+impl ManagedMap {
+    /// Where span `g`'s frame lies in its area's frame.
+    pub fn area_from_span(&self, g: usize) -> Option<Se2> {
+        let area = self.hybrid.areas.get(*self.span_area.get(g)?)?;
+        Some(
+            area.first_from_area
+                .inverse()
+                .compose(self.first_from_span.get(g)?),
+        )
+    }
 }
 
 /// Builds the hybrid map of a segmented log ([`manage_sessions`] with one session).
@@ -707,7 +717,6 @@ pub fn manage_sessions(
         hybrid,
         span_area,
         span_session,
-        area_from_span,
         first_from_span,
         crossings,
         boundary_link,
