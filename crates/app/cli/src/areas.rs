@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_areas::{manage_sessions, segment, HybridMap, ManagerParams, Route, SessionInput};
+use mapmerge_areas::{manage_mapped, segment, HybridMap, ManagerParams, MappedSession, Route};
 use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::InsertParams;
@@ -16,7 +16,7 @@ use mapmerge_place::PlaceVerifierParams;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_render::{session_color, Picture, PictureStyle, Rgb};
 use mapmerge_scan::{LaserLog, Point2};
-use mapmerge_sim::{simulate, SimParams};
+use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 use serde::Serialize;
 
 use crate::grid::{build_grid, PosedLog};
@@ -28,7 +28,8 @@ use crate::{bad_file, bad_input, check_resolution, print_json};
 pub struct AreasArgs {
     /// CARMEN laser logs (`.xz` accepted), one session each, in order: their scans' odometry
     /// poses drive door detection and each area's SLAM. A later session is placed in the
-    /// first one's frame once it passes a door seen before.
+    /// first one's frame once it passes a door seen before. With `--store` and no logs, the
+    /// stored areas are written out.
     pub logs: Vec<PathBuf>,
     /// Instead of logs, the sessions of a simulated world (a preset of `mapmerge sim`),
     /// without kidnaps.
@@ -40,6 +41,10 @@ pub struct AreasArgs {
     /// Sessions of `--sim`.
     #[arg(long, default_value_t = 1)]
     pub sessions: usize,
+    /// Simulate only this session of the world (its changes, route and noise as in the
+    /// whole simulation): one session per run, as a robot lives with `--store`.
+    #[arg(long, requires = "sim", conflicts_with = "sessions")]
+    pub session_index: Option<usize>,
     /// Robot time of each `--sim` session (s).
     #[arg(long, default_value_t = 120.0)]
     pub duration: f64,
@@ -53,6 +58,11 @@ pub struct AreasArgs {
     /// (graph.g2o, map.yaml + map.pgm, map.png, trajectory.tum) for each area.
     #[arg(short, long)]
     pub output: PathBuf,
+    /// The lifelong store (created when missing): its newest version's sessions come first,
+    /// this run's sessions are added after them, and the result is committed as a new
+    /// version.
+    #[arg(long)]
+    pub store: Option<PathBuf>,
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
@@ -121,14 +131,22 @@ struct AreasReport<'a> {
     large: usize,
     seconds: f64,
     output: &'a Path,
+    /// With `--store`: the sessions read from it and the version committed (none when the
+    /// run added no session).
+    stored_sessions: usize,
+    committed_version: Option<i64>,
 }
 
-/// The sessions `areas` runs on.
-fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<LaserLog>> {
+/// The sessions `areas` runs on, with their names.
+fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<(String, LaserLog)>> {
     match (&args.logs[..], &args.sim) {
+        ([], None) if args.store.is_some() => Ok(Vec::new()),
         (logs, None) if !logs.is_empty() => logs
             .iter()
-            .map(|path| mapmerge_io::read_carmen(path).map_err(bad_file))
+            .map(|path| {
+                let log = mapmerge_io::read_carmen(path).map_err(bad_file)?;
+                Ok((path.display().to_string(), log))
+            })
             .collect(),
         ([], Some(world)) => {
             let mut params = SimParams::default()
@@ -138,19 +156,71 @@ fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<LaserLog>> {
                 .with_duration_secs(args.duration);
             // The map manager tracks the robot; a kidnap is another problem (the atlas's).
             params.kidnap.max_per_session = 0;
+            if let Some(index) = args.session_index {
+                let session =
+                    simulate_session_alone(&params, args.seed, index).map_err(bad_input)?;
+                let name = format!("sim {world} seed {} session {index}", args.seed);
+                return Ok(vec![(name, session.log)]);
+            }
             let dataset = simulate(&params, args.seed).map_err(bad_input)?;
-            Ok(dataset.sessions.into_iter().map(|s| s.log).collect())
+            Ok(dataset
+                .sessions
+                .into_iter()
+                .enumerate()
+                .map(|(k, s)| (format!("sim {world} seed {} session {k}", args.seed), s.log))
+                .collect())
         }
-        _ => Err(bad_input("give LOG... or --sim WORLD")),
+        _ => Err(bad_input("give LOG..., --sim WORLD or --store FILE")),
     }
 }
 
-/// One session: its log, split and mapped.
-struct Mapped {
+/// One log split at its door passings, each span mapped with its environment's preset.
+fn map_session(
+    s: usize,
+    name: String,
     log: LaserLog,
-    split: mapmerge_areas::Segmentation,
-    trajectories: Vec<Vec<Se2>>,
-    graphs: Vec<PoseGraph2>,
+    params: &ManagerParams,
+    show_progress: bool,
+) -> anyhow::Result<MappedSession> {
+    let mut poses = Vec::with_capacity(log.scans.len());
+    for (k, record) in log.scans.iter().enumerate() {
+        let pose = record
+            .odom_from_robot
+            .ok_or_else(|| bad_input(format!("{name}: scan {k} has no odometry pose")))?;
+        poses.push(pose);
+    }
+    let segmentation = segment(
+        poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
+        params,
+    )
+    .map_err(bad_input)?;
+    let bar = crate::progress_bar(segmentation.spans.len(), "areas", "areas", show_progress);
+    let (mut trajectories, mut graphs) = (Vec::new(), Vec::new());
+    for (k, span) in segmentation.spans.iter().enumerate() {
+        let part = LaserLog {
+            scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
+            params: log.params.clone(),
+            ..LaserLog::default()
+        };
+        let preset = span.environment.preset().map_err(bad_input)?;
+        let engine = EngineParams {
+            tracker: preset.tracker,
+            ..EngineParams::default()
+        };
+        let run = run_slam(&part, engine, |_| {})
+            .map_err(|e| bad_input(format!("session {s} span {k}: {e}")))?;
+        trajectories.push(run.trajectory);
+        graphs.push(run.graph);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(MappedSession {
+        name,
+        log,
+        segmentation,
+        trajectories,
+        graphs,
+    })
 }
 
 /// Runs `mapmerge areas`.
@@ -158,71 +228,61 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     check_resolution(args.resolution)?;
     let started = std::time::Instant::now();
     let params: ManagerParams = crate::read_config(args.config.as_deref())?;
+    // The store first: a refused store stops the run before any work.
+    let mut store = match &args.store {
+        // Without sessions to add, the run only reads: a missing store is an error.
+        Some(path) if args.logs.is_empty() && args.sim.is_none() => {
+            Some(crate::store::open_existing(path)?)
+        }
+        Some(path) => Some(crate::store::open_or_create(path)?),
+        None => None,
+    };
     let logs = input_logs(args)?;
-    let mut sessions: Vec<Mapped> = Vec::with_capacity(logs.len());
-    for (s, log) in logs.into_iter().enumerate() {
-        let mut poses = Vec::with_capacity(log.scans.len());
-        for (k, record) in log.scans.iter().enumerate() {
-            let pose = record
-                .odom_from_robot
-                .ok_or_else(|| bad_input(format!("session {s}: scan {k} has no odometry pose")))?;
-            poses.push(pose);
-        }
-        let split = segment(
-            poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
-            &params,
-        )
-        .map_err(bad_input)?;
-        let bar = crate::progress_bar(split.spans.len(), "areas", "areas", !args.json);
-        let (mut trajectories, mut graphs) = (Vec::new(), Vec::new());
-        for (k, span) in split.spans.iter().enumerate() {
-            let part = LaserLog {
-                scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
-                params: log.params.clone(),
-                ..LaserLog::default()
-            };
-            let preset = span.environment.preset().map_err(bad_input)?;
-            let engine = EngineParams {
-                tracker: preset.tracker,
-                ..EngineParams::default()
-            };
-            let run = run_slam(&part, engine, |_| {})
-                .map_err(|e| bad_input(format!("session {s} span {k}: {e}")))?;
-            trajectories.push(run.trajectory);
-            graphs.push(run.graph);
-            bar.inc(1);
-        }
-        bar.finish_and_clear();
-        sessions.push(Mapped {
-            log,
-            split,
-            trajectories,
-            graphs,
-        });
+    let mut sessions: Vec<MappedSession> = match &store {
+        Some(store) => store
+            .load_areas(None)
+            .map_err(bad_file)?
+            .map(|stored| stored.sessions)
+            .unwrap_or_default(),
+        None => Vec::new(),
+    };
+    let stored_sessions = sessions.len();
+    let added: Vec<String> = logs.iter().map(|(name, _)| name.clone()).collect();
+    for (name, log) in logs {
+        let s = sessions.len();
+        sessions.push(map_session(s, name, log, &params, !args.json)?);
     }
-    let scans: Vec<Vec<&mapmerge_scan::LaserScan>> = sessions
-        .iter()
-        .map(|m| m.log.scans.iter().map(|r| &r.scan).collect())
-        .collect();
-    let inputs: Vec<SessionInput> = sessions
-        .iter()
-        .zip(&scans)
-        .map(|(m, scans)| SessionInput {
-            segmentation: &m.split,
-            trajectories: &m.trajectories,
-            scans,
-        })
-        .collect();
+    if sessions.is_empty() {
+        return Err(bad_input(match &args.store {
+            Some(path) => format!(
+                "{}: the store holds no areas; give LOG... or --sim WORLD",
+                path.display()
+            ),
+            None => "no sessions to map".to_string(),
+        }));
+    }
     let verifier = PlaceVerifierParams::default()
         .verifier()
         .map_err(bad_input)?;
-    let managed = manage_sessions(&inputs, &params, &verifier).map_err(bad_input)?;
+    let managed = manage_mapped(&sessions, &params, &verifier).map_err(bad_input)?;
+    let committed_version = match store.as_mut() {
+        Some(store) if !added.is_empty() => Some(
+            store
+                .commit_areas(&mapmerge_store::AreasCommit {
+                    session: &added.join(", "),
+                    sessions: &sessions,
+                    map: &managed,
+                })
+                .map_err(bad_file)?,
+        ),
+        _ => None,
+    };
     let hybrid = &managed.hybrid;
     // Global span index of each session's spans.
     let spans: Vec<(usize, usize)> = sessions
         .iter()
         .enumerate()
-        .flat_map(|(s, m)| (0..m.split.spans.len()).map(move |k| (s, k)))
+        .flat_map(|(s, m)| (0..m.segmentation.spans.len()).map(move |k| (s, k)))
         .collect();
     // One map per area from its spans, placed in the area's frame; its graph holds each
     // span's graph (vertex ids offset by 1,000,000 a span; no edges between spans).
@@ -235,7 +295,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
                 continue;
             }
             let m = &sessions[*s];
-            let span = &m.split.spans[*k];
+            let span = &m.segmentation.spans[*k];
             let Some(area_from_span) = managed.area_from_span(g) else {
                 continue;
             };
@@ -244,12 +304,12 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             trajectory.extend(m.trajectories[*k].iter().map(|p| area_from_span.compose(p)));
             let offset = 1_000_000 * g as u64;
             for (id, vertex) in m.graphs[*k].vertices() {
-                let mut moved = vertex.clone();
+                let mut moved = *vertex;
                 moved.pose = area_from_span.compose(&vertex.pose);
                 graph.add_vertex(NodeId(id.0 + offset), moved)?;
             }
             for (_, edge) in m.graphs[*k].edges() {
-                let mut moved = edge.clone();
+                let mut moved = *edge;
                 moved.from = NodeId(edge.from.0 + offset);
                 moved.to = NodeId(edge.to.0 + offset);
                 if moved.is_prior() {
@@ -278,7 +338,11 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             continue;
         }
         let m = &sessions[*s];
-        for (scan, pose) in m.split.spans[*k].scans.clone().zip(&m.trajectories[*k]) {
+        for (scan, pose) in m.segmentation.spans[*k]
+            .scans
+            .clone()
+            .zip(&m.trajectories[*k])
+        {
             if let Some(slot) = first_from_robot[*s].get_mut(scan) {
                 slot.get_or_insert(managed.first_from_span[g].compose(pose));
             }
@@ -286,8 +350,8 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     }
     let mut door_passings = Vec::new();
     for (s, m) in sessions.iter().enumerate() {
-        for (i, passing) in m.split.passings.iter().enumerate() {
-            let is_boundary = m.split.boundaries.contains(&i);
+        for (i, passing) in m.segmentation.passings.iter().enumerate() {
+            let is_boundary = m.segmentation.boundaries.contains(&i);
             let placed = first_from_robot[s].get(passing.scan).copied().flatten();
             if let Some(robot) = placed {
                 let center = robot.transform_point(&passing.center_in_robot_m);
@@ -322,7 +386,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             .enumerate()
             .filter(|(g, _)| managed.span_area.get(*g) == Some(&area))
             .map(|(_, (s, k))| {
-                let span = &sessions[*s].split.spans[*k];
+                let span = &sessions[*s].segmentation.spans[*k];
                 [*s, span.scans.start, span.scans.end]
             })
             .collect()
@@ -375,7 +439,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     let mut paths: Vec<Vec<Se2>> = vec![Vec::new(); hybrid.areas.len()];
     for (g, (s, k)) in spans.iter().enumerate() {
         let m = &sessions[*s];
-        let range = m.split.spans[*k].scans.clone();
+        let range = m.segmentation.spans[*k].scans.clone();
         let placed: Vec<(usize, Se2)> = range
             .filter_map(|scan| Some((scan, first_from_robot[*s].get(scan).copied().flatten()?)))
             .collect();
@@ -400,7 +464,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         args.resolution,
         &args.output.join("overview.png"),
     )?;
-    let passings: usize = sessions.iter().map(|m| m.split.passings.len()).sum();
+    let passings: usize = sessions.iter().map(|m| m.segmentation.passings.len()).sum();
     let report = AreasReport {
         sessions: sessions.len(),
         sessions_placed: managed.session_placed.iter().filter(|p| **p).count(),
@@ -413,6 +477,8 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         large: file.areas.iter().filter(|a| a.config == "large").count(),
         seconds: started.elapsed().as_secs_f64(),
         output: &args.output,
+        stored_sessions,
+        committed_version,
     };
     if args.json {
         print_json(&report)?;
@@ -431,6 +497,18 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             args.output.display(),
             report.seconds
         );
+        if let Some(path) = &args.store {
+            match committed_version {
+                Some(version) => println!(
+                    "store {}: {stored_sessions} sessions continued, committed version {version}",
+                    path.display()
+                ),
+                None => println!(
+                    "store {}: {stored_sessions} sessions written out, nothing committed",
+                    path.display()
+                ),
+            }
+        }
     }
     Ok(std::process::ExitCode::SUCCESS)
 }

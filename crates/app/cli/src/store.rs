@@ -101,13 +101,18 @@ pub struct RollbackArgs {
 }
 
 fn open(site: &SiteArgs) -> anyhow::Result<Store> {
-    if !site.site.is_file() {
+    open_existing(&site.site)
+}
+
+/// Opens the store at `path`; an error when there is none.
+pub(crate) fn open_existing(path: &std::path::Path) -> anyhow::Result<Store> {
+    if !path.is_file() {
         return Err(crate::bad_input(format!(
             "{}: no such store",
-            site.site.display()
+            path.display()
         )));
     }
-    Store::open_existing(&site.site).map_err(refused)
+    Store::open_existing(path).map_err(refused)
 }
 
 /// Opens the store at `path`, creating it when there is no file (`atlas --store`).
@@ -137,8 +142,8 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
                 );
                 if let (Some(version), Some(session)) = (info.newest_version, &info.session) {
                     println!(
-                        "newest: version {version} ({session}), {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m²",
-                        info.nodes, info.edges, info.keyframes, info.local_maps, info.mapped_area_m2
+                        "newest: version {version} ({session}), {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m², {} areas, {} link points",
+                        info.nodes, info.edges, info.keyframes, info.local_maps, info.mapped_area_m2, info.areas, info.link_points
                     );
                 }
             }
@@ -156,8 +161,8 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
             } else {
                 for v in &versions {
                     println!(
-                        "version {} ({}): {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m²",
-                        v.version, v.session, v.nodes, v.edges, v.keyframes, v.local_maps, v.mapped_area_m2
+                        "version {} ({}): {} nodes, {} edges, {} keyframes, {} local maps, {:.1} m², {} areas, {} link points",
+                        v.version, v.session, v.nodes, v.edges, v.keyframes, v.local_maps, v.mapped_area_m2, v.areas, v.link_points
                     );
                 }
             }

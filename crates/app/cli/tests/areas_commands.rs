@@ -83,27 +83,42 @@ fn areas_splits_a_session_at_its_doors_and_routes_between_them() {
     );
 }
 
-#[test]
-fn areas_places_a_later_session_by_a_door_it_passes_again() {
-    let dir = scratch("areas-sessions");
-    let report = ok_json(&[
+/// Session `index` of the simulated office, added to the store at `site`; areas written to
+/// `out`.
+fn add_session(site: &std::path::Path, index: &str, out: &std::path::Path) -> serde_json::Value {
+    ok_json(&[
         "areas",
         "--sim",
         "office",
         "--seed",
         "1",
-        "--sessions",
-        "2",
+        "--session-index",
+        index,
         "--duration",
         "300",
+        "--store",
+        p(site),
         "-o",
-        p(&dir),
+        p(out),
         "--json",
-    ]);
+    ])
+}
+
+#[test]
+fn areas_in_the_store_take_a_later_session_placed_by_a_door_it_passes_again() {
+    let dir = scratch("areas-sessions");
+    let site = dir.join("site.mapmerge");
+    let first = add_session(&site, "0", &dir.join("first"));
+    assert_eq!(first["committed_version"].as_i64(), Some(1), "{first}");
+    let report = add_session(&site, "1", &dir.join("second"));
+    assert_eq!(report["stored_sessions"].as_u64(), Some(1));
+    assert_eq!(report["committed_version"].as_i64(), Some(2));
     assert_eq!(report["sessions"].as_u64(), Some(2));
     assert_eq!(report["sessions_placed"].as_u64(), Some(2), "{report}");
-    let file: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("areas.json")).unwrap()).unwrap();
+    let read = |dir: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(dir.join("areas.json")).unwrap()).unwrap()
+    };
+    let file = read(&dir.join("second"));
     // Some area holds scans of both sessions.
     let both = file["areas"].as_array().unwrap().iter().any(|area| {
         let sessions: Vec<u64> = area["sessions_scans"]
@@ -120,4 +135,34 @@ fn areas_places_a_later_session_by_a_door_it_passes_again() {
         .unwrap()
         .iter()
         .all(|a| a["placed"] == true));
+    // The store alone writes the same areas; rolled back, the first session's.
+    let again = ok_json(&[
+        "areas",
+        "--store",
+        p(&site),
+        "-o",
+        p(&dir.join("again")),
+        "--json",
+    ]);
+    assert_eq!(again["committed_version"], serde_json::Value::Null);
+    assert_eq!(read(&dir.join("again")), file);
+    ok_json(&["store", "rollback", p(&site), "--to", "1", "--json"]);
+    ok_json(&[
+        "areas",
+        "--store",
+        p(&site),
+        "-o",
+        p(&dir.join("back")),
+        "--json",
+    ]);
+    assert_eq!(read(&dir.join("back")), read(&dir.join("first")));
+    // Reading a store that does not exist is an error, and creates nothing.
+    let missing = dir.join("missing.mapmerge");
+    assert_eq!(
+        run(&["areas", "--store", p(&missing), "-o", p(&dir.join("x"))])
+            .status
+            .code(),
+        Some(2)
+    );
+    assert!(!missing.exists());
 }

@@ -2,17 +2,18 @@
 //! room, corridor or hall, each built with the SLAM configuration that suits it, joined by
 //! link points at doors.
 //!
-//! This crate holds, so far:
 //! - Sec. II-B: detecting door passings from laser scans ([`DoorDetector`], three criteria of
 //!   which two must hold) and choosing the next map's configuration from the scans' extents
 //!   ([`Environment`], the presets `indoor` and `large`), scored against the simulator's
 //!   doors ([`eval`]);
 //! - Sec. II-A and II-C: splitting a log into areas at its door passings ([`segment`]) and the
-//!   hybrid map of their maps, link points and edges ([`hybrid_map`], [`HybridMap`]), with
-//!   routes by Dijkstra and the transform chain along them ([`HybridMap::route`]).
-//!
-//! Not yet: topological loop closure when a known door is passed again (each passing starts a
-//! new area), global tracking (Sec. II-D, Eq. 3) and link-point optimisation.
+//!   hybrid map of their maps, link points and edges ([`HybridMap`]), with routes by Dijkstra
+//!   and the transform chain along them ([`HybridMap::route`]);
+//! - Sec. II-C and II-D: global tracking through the link-point chain (Eq. 3's radius),
+//!   topological loop closure at a door passed again, link-point optimisation, and a later
+//!   session relocalised at a known door ([`manage_sessions`]);
+//! - sessions as mapped and stored ([`MappedSession`]), so that the lifelong store can keep a
+//!   site's areas and a later run can add to them ([`manage_mapped`]).
 
 mod door;
 mod environment;
@@ -20,6 +21,7 @@ mod error;
 pub mod eval;
 mod hybrid;
 mod manager;
+mod session;
 
 pub use door::{passways, Criteria, DoorDetector, DoorParams, DoorPassingDetection, DoorSighting};
 pub use environment::{Environment, EnvironmentParams, Extents, Preset};
@@ -29,3 +31,4 @@ pub use manager::{
     manage, manage_sessions, segment, AreaSpan, Closure, ManagedMap, ManagerParams, Segmentation,
     SessionInput, TrackingParams, TrackingStep,
 };
+pub use session::{manage_mapped, MappedSession};

@@ -4,6 +4,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{SystemTime, UNIX_EPOCH};
 
+use mapmerge_areas::{ManagedMap, MappedSession};
 use mapmerge_atlas::{
     points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot, KeyframeRecord,
     LocalMapGrid, MapId, MergeId,
@@ -42,7 +43,8 @@ pub struct StoredAtlas {
 }
 
 /// The rows a version `?1` sees.
-const VISIBLE: &str = "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
+pub(crate) const VISIBLE: &str =
+    "added_version <= ?1 AND (removed_version IS NULL OR removed_version > ?1)";
 
 /// Cell side of the rendered map that measures a version's mapped area (m).
 const AREA_RESOLUTION_M: f64 = 0.05;
@@ -71,40 +73,23 @@ impl Store {
             path: path.clone(),
             reason,
         })?;
-        let created_unix_s = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
-        let mapped_area_m2 = atlas.mapped_area_m2(AREA_RESOLUTION_M);
         let keep = i64::try_from(self.keep_versions).unwrap_or(i64::MAX);
         let transaction = self
             .connection
             .transaction_with_behavior(TransactionBehavior::Immediate)
             .map_err(classify)?;
-        let parent: Option<i64> = transaction
-            .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
-            .optional()
-            .map_err(classify)?
-            .flatten();
-        let version = parent.unwrap_or(0) + 1;
         let count = |n: usize| i64::try_from(n).unwrap_or(i64::MAX);
-        transaction
-            .execute(
-                "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
-                                       keyframes, local_maps, mapped_area_m2, bytes, retained)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, 0, 1)",
-                params![
-                    version,
-                    parent,
-                    commit.session,
-                    created_unix_s,
-                    count(atlas.num_vertices()),
-                    count(atlas.num_edges()),
-                    count(atlas.keyframes.len()),
-                    count(atlas.num_local_maps()),
-                    mapped_area_m2
-                ],
-            )
-            .map_err(classify)?;
+        let (version, parent) = begin_version(&transaction, commit.session).map_err(classify)?;
+        let areas = parent_summary(&transaction, parent).map_err(classify)?;
+        let summary = Summary {
+            nodes: count(atlas.num_vertices()),
+            edges: count(atlas.num_edges()),
+            keyframes: count(atlas.keyframes.len()),
+            local_maps: count(atlas.num_local_maps()),
+            mapped_area_m2: atlas.mapped_area_m2(AREA_RESOLUTION_M),
+            ..areas
+        };
+        write_summary(&transaction, version, &summary).map_err(classify)?;
         let counters = encode(&atlas.counters).map_err(classify)?;
         transaction
             .execute(
@@ -134,22 +119,7 @@ impl Store {
                 insert.execute(params![version, event]).map_err(classify)?;
             }
         }
-        forget_before(&transaction, version - keep + 1).map_err(classify)?;
-        // The database's size with this version in it (pages × page size).
-        let bytes: i64 = transaction
-            .query_row(
-                "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size",
-                [],
-                |row| row.get(0),
-            )
-            .map_err(classify)?;
-        transaction
-            .execute(
-                "UPDATE versions SET bytes = ?1 WHERE version = ?2",
-                [bytes, version],
-            )
-            .map_err(classify)?;
-        transaction.commit().map_err(classify)?;
+        finish_version(transaction, version, keep).map_err(classify)?;
         self.checkpoint()?;
         Ok(version)
     }
@@ -158,18 +128,11 @@ impl Store {
     pub fn load(&self, version: Option<i64>) -> Result<Option<StoredAtlas>, StoreError> {
         let path = &self.path;
         let classify = |e: rusqlite::Error| classify(path, e);
-        let version = match version {
-            Some(v) => v,
-            None => {
-                let newest: Option<i64> = self
-                    .connection
-                    .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
-                    .map_err(classify)?;
-                match newest {
-                    Some(v) => v,
-                    None => return Ok(None),
-                }
-            }
+        let Some(version) = (match version {
+            Some(v) => Some(v),
+            None => self.newest_version()?,
+        }) else {
+            return Ok(None);
         };
         require_retained(&self.connection, path, version)?;
         let corrupt = |reason: String| StoreError::Corrupt {
@@ -313,7 +276,7 @@ impl Store {
     /// The `(key, blob)` pairs `sql` selects as `key, blob, checksum` (with `?1` bound to
     /// `version` when given), each blob checked against its CRC-32; a mismatch is corruption
     /// of `table`.
-    fn checked_blobs(
+    pub(crate) fn checked_blobs(
         &self,
         sql: &str,
         version: Option<i64>,
@@ -349,7 +312,7 @@ impl Store {
 
     /// The blobs of `table` (`backups` by merge, `local_maps` by anchor) valid in `version`,
     /// checksummed and decoded, by key.
-    fn load_blobs<T: serde::de::DeserializeOwned>(
+    pub(crate) fn load_blobs<T: serde::de::DeserializeOwned>(
         &self,
         table: &str,
         key: &str,
@@ -373,7 +336,7 @@ impl Store {
     }
 
     /// The rows half of [`Store::check`]: every retained version has counters, every stored
-    /// blob decodes, and the newest version loads into a consistent atlas.
+    /// blob decodes, and the newest version loads into a consistent atlas and areas.
     pub(crate) fn check_rows(&self, versions: &[VersionInfo]) -> Result<(), StoreError> {
         let corrupt = |reason: String| StoreError::Corrupt {
             path: self.path.clone(),
@@ -402,13 +365,20 @@ impl Store {
                 )));
             }
         }
-        for (table, key) in [("graphs", "id"), ("backups", "merge"), ("local_maps", "id")] {
+        for (table, key) in [
+            ("graphs", "id"),
+            ("backups", "merge"),
+            ("local_maps", "id"),
+            ("area_sessions", "session"),
+            ("area_maps", "id"),
+        ] {
             let sql = format!("SELECT {key}, body, checksum FROM {table}");
             for (id, body) in self.checked_blobs(&sql, None, table)? {
-                let decoded = if table == "local_maps" {
-                    postcard::from_bytes::<LocalMapGrid>(&body).map(|_| ())
-                } else {
-                    postcard::from_bytes::<PoseGraph2>(&body).map(|_| ())
+                let decoded = match table {
+                    "local_maps" => postcard::from_bytes::<LocalMapGrid>(&body).map(|_| ()),
+                    "area_sessions" => postcard::from_bytes::<MappedSession>(&body).map(|_| ()),
+                    "area_maps" => postcard::from_bytes::<ManagedMap>(&body).map(|_| ()),
+                    _ => postcard::from_bytes::<PoseGraph2>(&body).map(|_| ()),
                 };
                 decoded.map_err(|e| corrupt(format!("{table} row {id}: {e}")))?;
             }
@@ -421,8 +391,13 @@ impl Store {
                 )));
             }
         }
-        if let Some(newest) = versions.last().filter(|v| with_atlas.contains(&v.version)) {
-            self.load(Some(newest.version))?;
+        if let Some(newest) = versions.last() {
+            if with_atlas.contains(&newest.version) {
+                self.load(Some(newest.version))?;
+            }
+            if newest.retained {
+                self.load_areas(Some(newest.version))?;
+            }
         }
         Ok(())
     }
@@ -436,13 +411,13 @@ fn node_id(value: i64) -> Option<NodeId> {
     id_of(value).map(NodeId)
 }
 
-fn sql_id(value: u64) -> i64 {
+pub(crate) fn sql_id(value: u64) -> i64 {
     i64::try_from(value).unwrap_or(i64::MAX)
 }
 
-/// Graphs by slot, local maps by anchor: a slot whose value changed gets a new row and the old
+/// Graphs by slot, local maps by anchor, the managed map in its slot: a slot whose value changed gets a new row and the old
 /// one is marked removed; slots that are gone are marked removed.
-fn write_slots<'a, T: serde::Serialize + 'a>(
+pub(crate) fn write_slots<'a, T: serde::Serialize + 'a>(
     transaction: &Transaction<'_>,
     table: &str,
     slot_column: &str,
@@ -533,9 +508,9 @@ fn write_keyframes(
     )
 }
 
-/// Backups never change: new ones (by key) get a row, those gone are marked removed. Only new
-/// ones are encoded.
-fn write_immutable<'a, T: serde::Serialize + 'a>(
+/// Backups and area sessions never change: new ones (by key) get a row, those gone are
+/// marked removed. Only new ones are encoded.
+pub(crate) fn write_immutable<'a, T: serde::Serialize + 'a>(
     transaction: &Transaction<'_>,
     table: &str,
     key: &str,
@@ -583,6 +558,112 @@ fn mark_removed<'a>(
         update.execute([version, *id])?;
     }
     Ok(())
+}
+
+/// A version's summary: its atlas's counts and mapped area, and its areas' counts.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Summary {
+    pub(crate) nodes: i64,
+    pub(crate) edges: i64,
+    pub(crate) keyframes: i64,
+    pub(crate) local_maps: i64,
+    pub(crate) mapped_area_m2: f64,
+    pub(crate) areas: i64,
+    pub(crate) link_points: i64,
+}
+
+/// Adds the row of a new version continuing the newest (its summary zero until
+/// [`write_summary`]); returns it and its parent.
+pub(crate) fn begin_version(
+    transaction: &Transaction<'_>,
+    session: &str,
+) -> rusqlite::Result<(i64, Option<i64>)> {
+    let created_unix_s = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| i64::try_from(d.as_secs()).unwrap_or(i64::MAX));
+    let parent: Option<i64> = transaction
+        .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
+        .optional()?
+        .flatten();
+    let version = parent.unwrap_or(0) + 1;
+    transaction.execute(
+        "INSERT INTO versions (version, parent, session, created_unix_s, nodes, edges,
+                               keyframes, local_maps, mapped_area_m2, bytes, retained)
+         VALUES (?1, ?2, ?3, ?4, 0, 0, 0, 0, 0.0, 0, 1)",
+        params![version, parent, session, created_unix_s],
+    )?;
+    Ok((version, parent))
+}
+
+/// The summary of `parent` (zero without one): what a version that changes only the atlas,
+/// or only the areas, carries over.
+pub(crate) fn parent_summary(
+    transaction: &Transaction<'_>,
+    parent: Option<i64>,
+) -> rusqlite::Result<Summary> {
+    let Some(parent) = parent else {
+        return Ok(Summary::default());
+    };
+    transaction.query_row(
+        "SELECT nodes, edges, keyframes, local_maps, mapped_area_m2, areas, link_points
+         FROM versions WHERE version = ?1",
+        [parent],
+        |row| {
+            Ok(Summary {
+                nodes: row.get(0)?,
+                edges: row.get(1)?,
+                keyframes: row.get(2)?,
+                local_maps: row.get(3)?,
+                mapped_area_m2: row.get(4)?,
+                areas: row.get(5)?,
+                link_points: row.get(6)?,
+            })
+        },
+    )
+}
+
+pub(crate) fn write_summary(
+    transaction: &Transaction<'_>,
+    version: i64,
+    s: &Summary,
+) -> rusqlite::Result<()> {
+    transaction.execute(
+        "UPDATE versions SET nodes = ?2, edges = ?3, keyframes = ?4, local_maps = ?5,
+                             mapped_area_m2 = ?6, areas = ?7, link_points = ?8
+         WHERE version = ?1",
+        params![
+            version,
+            s.nodes,
+            s.edges,
+            s.keyframes,
+            s.local_maps,
+            s.mapped_area_m2,
+            s.areas,
+            s.link_points
+        ],
+    )?;
+    Ok(())
+}
+
+/// Ends the commit of `version`: versions beyond the newest `keep` forget their rows, the
+/// version's size is recorded, and the transaction commits.
+pub(crate) fn finish_version(
+    transaction: Transaction<'_>,
+    version: i64,
+    keep: i64,
+) -> rusqlite::Result<()> {
+    forget_before(&transaction, version - keep + 1)?;
+    // The database's size with this version in it (pages × page size).
+    let bytes: i64 = transaction.query_row(
+        "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size",
+        [],
+        |row| row.get(0),
+    )?;
+    transaction.execute(
+        "UPDATE versions SET bytes = ?1 WHERE version = ?2",
+        [bytes, version],
+    )?;
+    transaction.commit()
 }
 
 /// Versions before `oldest_kept` forget their atlas: rows no version from `oldest_kept` on

@@ -69,6 +69,14 @@ pub enum StoreError {
         /// What is wrong.
         reason: String,
     },
+    /// Areas to commit do not fit their sessions; nothing was written.
+    #[error("{path}: refusing to commit areas that do not fit their sessions: {reason}")]
+    BadAreas {
+        /// The store.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// Any other SQLite failure.
     #[error("{path}: {source}")]
     Sqlite {

@@ -21,7 +21,7 @@ pub const APPLICATION_ID: i64 = 0x6d6d_7267;
 pub const SCHEMA_VERSION: i64 = MIGRATIONS.len() as i64;
 
 /// The migrations, oldest first (see the module documentation).
-pub(crate) const MIGRATIONS: [Migration; 3] = [
+pub(crate) const MIGRATIONS: [Migration; 4] = [
     // 0 → 1: map versions, one per committed session.
     Migration {
         sql: "CREATE TABLE versions (
@@ -103,10 +103,42 @@ pub(crate) const MIGRATIONS: [Migration; 3] = [
      CREATE INDEX local_maps_by_validity ON local_maps(removed_version, added_version);",
         then: Some(crate::legacy::counters_2_to_3),
     },
+    // 3 → 4: the map manager's areas (Ehlers et al.): each session as mapped (postcard
+    // `MappedSession`, by its index) and the managed map built from them (one slot), shared
+    // between versions like the atlas's rows. Versions count their areas and link points.
+    Migration {
+        sql: "ALTER TABLE versions ADD COLUMN areas INTEGER NOT NULL DEFAULT 0;
+     ALTER TABLE versions ADD COLUMN link_points INTEGER NOT NULL DEFAULT 0;
+     CREATE TABLE area_sessions (
+         session INTEGER PRIMARY KEY,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         body BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE INDEX area_sessions_by_validity ON area_sessions(removed_version, added_version);
+     CREATE TABLE area_maps (
+         id INTEGER PRIMARY KEY,
+         slot INTEGER NOT NULL,
+         added_version INTEGER NOT NULL REFERENCES versions(version),
+         removed_version INTEGER REFERENCES versions(version),
+         body BLOB NOT NULL,
+         checksum INTEGER NOT NULL
+     ) STRICT;
+     CREATE INDEX area_maps_by_validity ON area_maps(removed_version, added_version);",
+        then: None,
+    },
 ];
 
 /// The slot of the active graph in `graphs` (an inactive graph's slot is its map id).
 pub(crate) const ACTIVE_SLOT: i64 = -1;
 
 /// The tables whose rows carry `added_version` and `removed_version`.
-pub(crate) const VERSIONED_TABLES: [&str; 4] = ["graphs", "keyframes", "backups", "local_maps"];
+pub(crate) const VERSIONED_TABLES: [&str; 6] = [
+    "graphs",
+    "keyframes",
+    "backups",
+    "local_maps",
+    "area_sessions",
+    "area_maps",
+];

@@ -34,6 +34,12 @@ pub struct VersionInfo {
     /// Whether its atlas is still stored (older versions keep only this row; see
     /// [`Store::keep_versions`]).
     pub retained: bool,
+    /// The map manager's areas (0: none stored).
+    #[serde(default)]
+    pub areas: i64,
+    /// … and link points.
+    #[serde(default)]
+    pub link_points: i64,
 }
 
 /// What `mapmerge store info --json` prints about a store: its schema, how many versions it
@@ -56,8 +62,12 @@ pub struct StoreInfo {
     pub keyframes: i64,
     /// … local maps …
     pub local_maps: i64,
-    /// … and mapped area (m²).
+    /// … mapped area (m²) …
     pub mapped_area_m2: f64,
+    /// … areas …
+    pub areas: i64,
+    /// … and link points.
+    pub link_points: i64,
     /// Size of the store's files on disk now (bytes).
     pub bytes: u64,
 }
@@ -181,6 +191,13 @@ impl Store {
         &self.path
     }
 
+    /// The newest version's number (`None` without versions).
+    pub(crate) fn newest_version(&self) -> Result<Option<i64>, StoreError> {
+        self.connection
+            .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
+            .map_err(|e| classify(&self.path, e))
+    }
+
     /// Every committed version, oldest first.
     pub fn versions(&self) -> Result<Vec<VersionInfo>, StoreError> {
         let classify = |e: rusqlite::Error| classify(&self.path, e);
@@ -188,7 +205,7 @@ impl Store {
             .connection
             .prepare(
                 "SELECT version, parent, session, created_unix_s, nodes, edges, keyframes,
-                        local_maps, mapped_area_m2, bytes, retained
+                        local_maps, mapped_area_m2, bytes, retained, areas, link_points
                  FROM versions ORDER BY version",
             )
             .map_err(classify)?;
@@ -206,6 +223,8 @@ impl Store {
                     mapped_area_m2: row.get(8)?,
                     bytes: row.get(9)?,
                     retained: row.get(10)?,
+                    areas: row.get(11)?,
+                    link_points: row.get(12)?,
                 })
             })
             .map_err(classify)?;
@@ -235,6 +254,8 @@ impl Store {
             keyframes: newest.map_or(0, |v| v.keyframes),
             local_maps: newest.map_or(0, |v| v.local_maps),
             mapped_area_m2: newest.map_or(0.0, |v| v.mapped_area_m2),
+            areas: newest.map_or(0, |v| v.areas),
+            link_points: newest.map_or(0, |v| v.link_points),
             bytes,
         })
     }

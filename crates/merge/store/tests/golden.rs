@@ -118,3 +118,28 @@ fn continued(schema: i64) {
     assert_eq!(store.load(None).unwrap().unwrap().atlas, snapshot);
     store.check().unwrap();
 }
+
+#[test]
+fn a_schema_4_store_keeps_its_areas_through_an_atlas_session() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut store, listed) = upgraded(4, dir.path());
+    let areas = store.load_areas(None).unwrap().unwrap();
+    assert_eq!(areas.version, listed.last().unwrap().0);
+    assert!(!areas.sessions.is_empty());
+    assert!(areas.map.hybrid.areas.len() >= 2);
+    let stored = store.load(None).unwrap().unwrap();
+    let mut atlas: Atlas =
+        Atlas::restore(AtlasParams::default(), Default::default(), stored.atlas).unwrap();
+    atlas.end_epoch(EpochEndReason::Restart);
+    store
+        .commit_session(&SessionCommit {
+            session: "next",
+            atlas: &atlas.snapshot().unwrap(),
+            events: &[],
+            reference_poses: &BTreeMap::new(),
+        })
+        .unwrap();
+    let kept = store.load_areas(None).unwrap().unwrap();
+    assert_eq!((kept.sessions, kept.map), (areas.sessions, areas.map));
+    store.check().unwrap();
+}
