@@ -10,7 +10,8 @@
 //!
 //! Departure from the paper, for robustness: a passing is declared only once the robot's path
 //! has crossed the segment between the doorposts (map frame, from the pose the detector is
-//! given). Criterion (1) must then have been seen before the crossing, (2) after it, and (3)
+//! given; when a closer view moves the posts, the steps since the last view are checked
+//! again). Criterion (1) must then have been seen before the crossing, (2) after it, and (3)
 //! compares the box before the crossing with the box after it
 //! ([`crate::EnvironmentParams::change_travel_m`]). A front-only scanner (less than
 //! 360°) never sees (2); it then needs (1) and (3).
@@ -291,6 +292,7 @@ impl DoorDetector {
         let posts = sighting.posts_m.map(|p| map_from_robot.transform_point(&p));
         let center = 0.5 * (posts[0] + posts[1]);
         let range = sighting.center_m().norm();
+        let margin = self.params.crossing_margin_m;
         let matched = self
             .candidates
             .iter_mut()
@@ -316,22 +318,24 @@ impl DoorDetector {
                 };
                 // Seen first behind: the crossing may already lie on the path.
                 if !front {
-                    let margin = self.params.crossing_margin_m;
-                    candidate.crossed = self
-                        .path
-                        .iter()
-                        .zip(self.path.iter().skip(1))
-                        .find(|(a, b)| crosses(a.2, b.2, &posts, margin))
-                        .map(|(_, b)| (b.0, b.1));
+                    candidate.crossed = crossing_on_path(&self.path, &posts, margin, None);
                 }
                 candidate
             }
         };
-        candidate.last_seen_travel_m = travel;
         if range < candidate.sighting_range_m && candidate.crossed.is_none() {
             candidate.posts_map = posts;
             candidate.sighting_range_m = range;
+            // A closer view moves the posts (a wall's near or far face): the path since the
+            // last view may have crossed them already.
+            candidate.crossed = crossing_on_path(
+                &self.path,
+                &posts,
+                margin,
+                Some(candidate.last_seen_travel_m),
+            );
         }
+        candidate.last_seen_travel_m = travel;
         match (front, candidate.crossed.is_some()) {
             (true, false) => candidate.front = true,
             (false, true) => candidate.back = true,
@@ -376,6 +380,21 @@ impl DoorDetector {
     }
 }
 
+/// The first step of `path` (scan, travel, position) that crosses `posts`, of those from
+/// `since_travel_m` on (all without it): the scan and travel it ends at.
+fn crossing_on_path(
+    path: &VecDeque<(usize, f64, Point2)>,
+    posts: &[Point2; 2],
+    margin_m: f64,
+    since_travel_m: Option<f64>,
+) -> Option<(usize, f64)> {
+    path.iter()
+        .zip(path.iter().skip(1))
+        .filter(|(_, b)| since_travel_m.is_none_or(|t| b.1 >= t))
+        .find(|(a, b)| crosses(a.2, b.2, posts, margin_m))
+        .map(|(_, b)| (b.0, b.1))
+}
+
 /// Whether the step `a → b` crosses the segment between `posts`, widened by `margin_m` on
 /// both ends.
 fn crosses(a: Point2, b: Point2, posts: &[Point2; 2], margin_m: f64) -> bool {
@@ -393,7 +412,9 @@ fn crosses(a: Point2, b: Point2, posts: &[Point2; 2], margin_m: f64) -> bool {
 }
 
 /// Every passway of one scan (robot frame): a jump away at one post, a jump back at the
-/// other, longer ranges between, the posts a door's width apart and near enough.
+/// other, longer ranges between, the posts a door's width apart and near enough. A jump back
+/// to what still lies beyond the first post (the room behind the doorway in steps) does not
+/// end the doorway.
 pub fn passways(scan: &LaserScan, params: &DoorParams) -> Vec<DoorSighting> {
     let n = scan.len();
     if n < 3 {
@@ -471,9 +492,14 @@ pub fn passways(scan: &LaserScan, params: &DoorParams) -> Vec<DoorSighting> {
                         && ends_walls(&sighting, i, k1, &point, &previous, &next, params)
                     {
                         sightings.push(sighting);
+                        break;
                     }
                 }
-                break;
+                // A jump back to what still lies well beyond the first post is the room
+                // behind the doorway (furniture, a nearer wall), not the second post: look on.
+                if back < near + params.jump_m {
+                    break;
+                }
             }
             shortest_between = shortest_between.min(back);
             k = k1;
@@ -577,6 +603,40 @@ pub(crate) mod tests {
         let s = sightings[0];
         assert!((s.width_m() - 1.0).abs() < 0.1, "width {}", s.width_m());
         assert!((s.center_m() - Point2::new(1.5, 0.0)).norm() < 0.1);
+    }
+
+    #[test]
+    fn a_doorway_with_the_room_behind_it_in_steps_is_one_passway() {
+        // Behind half of the doorway a box 2.5 m beyond the wall: a jump back inside the
+        // doorway, still well beyond the first post.
+        let mut scan = doorway_scan(1.5);
+        let n = scan.len();
+        for i in 0..n {
+            let angle = scan.beam_angle_rad(i);
+            let (s, c) = angle.sin_cos();
+            if c > 1e-6 && (0.0..=0.5).contains(&(1.5 * s / c)) {
+                scan.ranges_m[i] = (4.0 / c) as f32;
+            }
+        }
+        let sightings = passways(&scan, &DoorParams::default());
+        assert_eq!(sightings.len(), 1, "{sightings:?}");
+        assert!((sightings[0].width_m() - 1.0).abs() < 0.1);
+        assert!((sightings[0].center_m() - Point2::new(1.5, 0.0)).norm() < 0.1);
+    }
+
+    #[test]
+    fn a_crossing_on_the_path_is_found_from_a_given_travel_on() {
+        let posts = [Point2::new(1.0, -0.5), Point2::new(1.0, 0.5)];
+        let path: VecDeque<(usize, f64, Point2)> = (0..6)
+            .map(|k| (k, 0.3 * k as f64, Point2::new(0.3 * k as f64, 0.0)))
+            .collect();
+        // The step 3 → 4 (x 0.9 → 1.2) crosses.
+        assert_eq!(crossing_on_path(&path, &posts, 0.0, None), Some((4, 1.2)));
+        assert_eq!(
+            crossing_on_path(&path, &posts, 0.0, Some(0.9)),
+            Some((4, 1.2))
+        );
+        assert_eq!(crossing_on_path(&path, &posts, 0.0, Some(1.3)), None);
     }
 
     #[test]
