@@ -73,6 +73,9 @@ pub struct AreasArgs {
 struct AreasFile {
     areas: Vec<AreaEntry>,
     link_points: Vec<LinkPointEntry>,
+    /// Doors seen in one area and not passed: `{"id", "area", "x", "y"}` in the first
+    /// area's frame.
+    link_point_candidates: Vec<CandidateEntry>,
     edges: Vec<EdgeEntry>,
     door_passings: Vec<PassingEntry>,
 }
@@ -93,6 +96,14 @@ struct LinkPointEntry {
     id: usize,
     area: usize,
     areas: [usize; 2],
+    x: f64,
+    y: f64,
+}
+
+#[derive(Serialize)]
+struct CandidateEntry {
+    id: usize,
+    area: usize,
     x: f64,
     y: f64,
 }
@@ -126,6 +137,10 @@ struct AreasReport<'a> {
     door_passings: usize,
     /// Topological loop closures (a door passed again, recognised).
     closures: usize,
+    /// … of them at a link-point candidate (a door seen from another area, then passed).
+    candidate_closures: usize,
+    /// Link-point candidates left (doors seen, not passed).
+    link_point_candidates: usize,
     /// Areas by configuration.
     indoor: usize,
     large: usize,
@@ -411,6 +426,20 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
             })
             .collect(),
         link_points,
+        link_point_candidates: hybrid
+            .candidates
+            .iter()
+            .filter_map(|c| {
+                let area = hybrid.areas.get(c.area)?;
+                let p = area.first_from_area.compose(&c.pose).translation();
+                Some(CandidateEntry {
+                    id: c.id,
+                    area: c.area,
+                    x: p.x,
+                    y: p.y,
+                })
+            })
+            .collect(),
         edges: hybrid
             .edges
             .iter()
@@ -429,6 +458,7 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         &args.output.join("tracking.json"),
         &serde_json::json!({
             "closures": managed.closures,
+            "candidate_closures": managed.candidate_closures,
             "tracking": managed.tracking,
             "sessions_placed": managed.session_placed,
         }),
@@ -472,7 +502,9 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
         areas: hybrid.areas.len(),
         link_points: hybrid.link_points.len(),
         door_passings: passings,
-        closures: managed.closures.len(),
+        closures: managed.closures.len() + managed.candidate_closures.len(),
+        candidate_closures: managed.candidate_closures.len(),
+        link_point_candidates: hybrid.candidates.len(),
         indoor: file.areas.iter().filter(|a| a.config == "indoor").count(),
         large: file.areas.iter().filter(|a| a.config == "large").count(),
         seconds: started.elapsed().as_secs_f64(),
@@ -554,6 +586,13 @@ fn overview(
     for link in &hybrid.link_points {
         if let Some(p) = link_in_first_frame(hybrid, link.id) {
             picture.draw_disc(&p, 5.0, Rgb::RED);
+        }
+    }
+    // Link-point candidates: orange.
+    for candidate in &hybrid.candidates {
+        if let Some(area) = hybrid.areas.get(candidate.area) {
+            let p = area.first_from_area.compose(&candidate.pose).translation();
+            picture.draw_disc(&p, 4.0, Rgb([240, 140, 0]));
         }
     }
     picture.save_png(path)?;

@@ -45,6 +45,9 @@ struct Report {
     lost: usize,
     closures: usize,
     false_closures: usize,
+    /// Closures at link-point candidates, and the false ones.
+    candidate_closures: usize,
+    false_candidate_closures: usize,
     sessions: usize,
     sessions_placed: usize,
     /// Largest link-point ATE after optimisation over the tours (m).
@@ -89,6 +92,8 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
         lost: sum(|t| t.lost),
         closures: sum(|t| t.closures),
         false_closures: sum(|t| t.false_closures),
+        candidate_closures: sum(|t| t.candidate_closures),
+        false_candidate_closures: sum(|t| t.false_candidate_closures),
         sessions: sum(|t| t.sessions),
         sessions_placed: sum(|t| t.sessions_placed),
         worst_link_ate_m: tours.iter().map(|t| t.link_ate_m).fold(0.0, f64::max),
@@ -97,11 +102,11 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
     if args.json {
         print_json(&report)?;
     } else {
-        println!("| world | seed | boundaries | at doors | revisits | found | lost | closures | false | link ATE m | chain ATE m | areas / spans |");
-        println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+        println!("| world | seed | boundaries | at doors | revisits | found | lost | closures | false | candidate closures | false | candidates left | link ATE m | chain ATE m | areas / spans |");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
         for t in &report.tours {
             println!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {} / {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {} / {} |",
                 t.world,
                 t.seed,
                 t.boundaries,
@@ -111,6 +116,9 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
                 t.lost,
                 t.closures,
                 t.false_closures,
+                t.candidate_closures,
+                t.false_candidate_closures,
+                t.candidates,
                 t.link_ate_m,
                 t.chain_ate_m,
                 t.areas,
@@ -118,7 +126,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             );
         }
         println!(
-            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), worst link-point ATE {:.3} m",
+            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), at candidates {} ({} false), worst link-point ATE {:.3} m",
             report.sessions_placed,
             report.sessions,
             report.revisits_found,
@@ -126,6 +134,8 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             report.lost,
             report.closures,
             report.false_closures,
+            report.candidate_closures,
+            report.false_candidate_closures,
             report.worst_link_ate_m
         );
     }

@@ -59,6 +59,9 @@ pub struct DoorParams {
     /// A door not crossed within this much travel of its last sighting is forgotten (m)
     /// (default: 6).
     pub forget_after_m: f64,
+    /// A door forgotten without ever being passed, seen in at least this many scans, is
+    /// reported as a door not passed ([`UnpassedDoor`], a link-point candidate) (default: 5).
+    pub candidate_min_sightings: usize,
     /// Environment: extents and the configuration choice ([`Environment`]).
     pub environment: crate::EnvironmentParams,
 }
@@ -77,6 +80,7 @@ impl Default for DoorParams {
             crossing_margin_m: 0.15,
             after_crossing_m: 2.0,
             forget_after_m: 6.0,
+            candidate_min_sightings: 5,
             environment: crate::EnvironmentParams::default(),
         }
     }
@@ -182,6 +186,25 @@ pub struct DoorPassingDetection {
     pub environment: Environment,
 }
 
+/// A door seen but never passed (a link-point candidate, Ehlers et al. Sec. II-A): its posts
+/// in the robot frame of the scan that saw it closest.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct UnpassedDoor {
+    /// The scan of the closest sighting.
+    pub scan: usize,
+    /// The posts in that scan's robot frame (m).
+    pub posts_in_robot_m: [Point2; 2],
+    /// Scans it was seen in.
+    pub sightings: usize,
+}
+
+impl UnpassedDoor {
+    /// The doorway's centre in the robot frame of `scan`.
+    pub fn center_in_robot_m(&self) -> Point2 {
+        0.5 * (self.posts_in_robot_m[0] + self.posts_in_robot_m[1])
+    }
+}
+
 /// A doorway being tracked.
 #[derive(Clone, Debug)]
 struct Candidate {
@@ -189,6 +212,12 @@ struct Candidate {
     posts_map: [Point2; 2],
     /// The range of that sighting's centre (closer sightings place the posts better).
     sighting_range_m: f64,
+    /// That sighting's scan and posts in its robot frame.
+    closest: (usize, [Point2; 2]),
+    /// Scans it was seen in.
+    sightings: usize,
+    /// Whether a passing of it was declared.
+    passed: bool,
     front: bool,
     back: bool,
     /// Scan and travel (m) of the crossing.
@@ -199,6 +228,15 @@ struct Candidate {
 impl Candidate {
     fn center(&self) -> Point2 {
         0.5 * (self.posts_map[0] + self.posts_map[1])
+    }
+
+    /// As a door not passed, when it is one: never passed nor crossed, seen `min` times.
+    fn unpassed(&self, min: usize) -> Option<UnpassedDoor> {
+        (!self.passed && self.crossed.is_none() && self.sightings >= min).then_some(UnpassedDoor {
+            scan: self.closest.0,
+            posts_in_robot_m: self.closest.1,
+            sightings: self.sightings,
+        })
     }
 }
 
@@ -212,6 +250,8 @@ pub struct DoorDetector {
     path: VecDeque<(usize, f64, Point2)>,
     candidates: Vec<Candidate>,
     extents: Extents,
+    /// Doors forgotten without being passed, not yet taken.
+    unpassed: Vec<UnpassedDoor>,
 }
 
 impl DoorDetector {
@@ -226,7 +266,27 @@ impl DoorDetector {
             path: VecDeque::new(),
             candidates: Vec::new(),
             extents,
+            unpassed: Vec::new(),
         })
+    }
+
+    /// The doors forgotten since the last call without ever being passed, seen often enough
+    /// ([`DoorParams::candidate_min_sightings`]).
+    pub fn take_unpassed(&mut self) -> Vec<UnpassedDoor> {
+        std::mem::take(&mut self.unpassed)
+    }
+
+    /// Ends the log: every door still tracked that was never passed, seen often enough, with
+    /// those forgotten and not yet taken.
+    pub fn finish(mut self) -> Vec<UnpassedDoor> {
+        let min = self.params.candidate_min_sightings;
+        let rest: Vec<UnpassedDoor> = self
+            .candidates
+            .iter()
+            .filter_map(|c| c.unpassed(min))
+            .collect();
+        self.unpassed.extend(rest);
+        self.unpassed
     }
 
     /// Scans given so far.
@@ -265,7 +325,7 @@ impl DoorDetector {
             let front = bearing.abs() <= half;
             let back = bearing.abs() >= std::f64::consts::PI - half;
             if front || back {
-                self.observe(map_from_robot, sighting, front, travel);
+                self.observe(scan_index, map_from_robot, sighting, front, travel);
             }
         }
         // Crossings by this step.
@@ -280,15 +340,30 @@ impl DoorDetector {
         let declared = self.declare(map_from_robot, scan_index);
         let forget = self.params.forget_after_m;
         let window = self.params.after_crossing_m;
-        self.candidates.retain(|c| match c.crossed {
-            Some((_, crossed)) => travel - crossed <= window,
-            None => travel - c.last_seen_travel_m <= forget,
+        let min = self.params.candidate_min_sightings;
+        let unpassed = &mut self.unpassed;
+        self.candidates.retain(|c| {
+            let keep = match c.crossed {
+                Some((_, crossed)) => travel - crossed <= window,
+                None => travel - c.last_seen_travel_m <= forget,
+            };
+            if !keep {
+                unpassed.extend(c.unpassed(min));
+            }
+            keep
         });
         declared
     }
 
     /// Files a sighting (robot frame) under its candidate, or starts one.
-    fn observe(&mut self, map_from_robot: &Se2, sighting: &DoorSighting, front: bool, travel: f64) {
+    fn observe(
+        &mut self,
+        scan: usize,
+        map_from_robot: &Se2,
+        sighting: &DoorSighting,
+        front: bool,
+        travel: f64,
+    ) {
         let posts = sighting.posts_m.map(|p| map_from_robot.transform_point(&p));
         let center = 0.5 * (posts[0] + posts[1]);
         let range = sighting.center_m().norm();
@@ -308,6 +383,9 @@ impl DoorDetector {
                 self.candidates.push(Candidate {
                     posts_map: posts,
                     sighting_range_m: range,
+                    closest: (scan, sighting.posts_m),
+                    sightings: 0,
+                    passed: false,
                     front: false,
                     back: false,
                     crossed: None,
@@ -323,9 +401,11 @@ impl DoorDetector {
                 candidate
             }
         };
+        candidate.sightings += 1;
         if range < candidate.sighting_range_m && candidate.crossed.is_none() {
             candidate.posts_map = posts;
             candidate.sighting_range_m = range;
+            candidate.closest = (scan, sighting.posts_m);
             // A closer view moves the posts (a wall's near or far face): the path since the
             // last view may have crossed them already.
             candidate.crossed = crossing_on_path(
@@ -373,6 +453,7 @@ impl DoorDetector {
             environment: self.extents.environment(map_from_robot),
         };
         // The door stays known (its sightings are not a new door) and starts afresh.
+        candidate.passed = true;
         candidate.crossed = None;
         candidate.front = false;
         candidate.back = false;
@@ -622,6 +703,26 @@ pub(crate) mod tests {
         assert_eq!(sightings.len(), 1, "{sightings:?}");
         assert!((sightings[0].width_m() - 1.0).abs() < 0.1);
         assert!((sightings[0].center_m() - Point2::new(1.5, 0.0)).norm() < 0.1);
+    }
+
+    #[test]
+    fn a_door_seen_and_not_passed_is_reported_at_the_end() {
+        let scan = doorway_scan(1.5);
+        let mut detector = DoorDetector::new(DoorParams::default()).unwrap();
+        for k in 0..10 {
+            // Standing still, then a step sideways: seen in front, never crossed.
+            let pose = Se2::new(0.0, 0.01 * k as f64, 0.0);
+            assert!(detector.push(&pose, &scan).is_none());
+        }
+        assert!(detector.take_unpassed().is_empty(), "still tracked");
+        let doors = detector.finish();
+        assert_eq!(doors.len(), 1, "{doors:?}");
+        assert_eq!(doors[0].sightings, 10);
+        assert!((doors[0].center_in_robot_m() - Point2::new(1.5, 0.0)).norm() < 0.1);
+        // Seen too few times: no candidate.
+        let mut brief = DoorDetector::new(DoorParams::default()).unwrap();
+        brief.push(&Se2::identity(), &scan);
+        assert!(brief.finish().is_empty());
     }
 
     #[test]

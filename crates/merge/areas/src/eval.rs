@@ -339,6 +339,15 @@ pub struct TourScore {
     pub false_closures: usize,
     /// Closures where a crossing is not at a door (a doorway-like gap passed twice).
     pub closures_off_doors: usize,
+    /// Closures at a link-point candidate (a door seen from another area, then passed) …
+    #[serde(default)]
+    pub candidate_closures: usize,
+    /// … of them, where the door passed is not the door seen (or either is at no door).
+    #[serde(default)]
+    pub false_candidate_closures: usize,
+    /// Link-point candidates left in the map.
+    #[serde(default)]
+    pub candidates: usize,
     /// RMS distance of the link-point graph's crossings from the truth after a rigid
     /// alignment (m), after optimisation …
     pub link_ate_m: f64,
@@ -434,9 +443,8 @@ pub fn score_tour(
         let (s, scan) = *boundary_scans.get(b)?;
         Some(dataset.sessions.get(s)?.truth.get(scan)?.1.translation())
     };
-    // Truth: the door (within 1 m) at each boundary's crossing.
-    let door_at = |b: usize| {
-        let p = true_position(b)?;
+    // Truth: the door within 1 m of a place, and at each boundary's crossing.
+    let nearest_door = |p: mapmerge_scan::Point2| {
         dataset
             .world
             .doors
@@ -446,7 +454,9 @@ pub fn score_tour(
             .min_by(|a, b| a.0.total_cmp(&b.0))
             .map(|(_, id)| id)
     };
-    let doors: Vec<_> = (0..boundary_scans.len()).map(door_at).collect();
+    let doors: Vec<_> = (0..boundary_scans.len())
+        .map(|b| nearest_door(true_position(b)?))
+        .collect();
     let mut score = TourScore {
         world: world.to_owned(),
         seed,
@@ -455,6 +465,8 @@ pub fn score_tour(
         boundaries: boundary_scans.len(),
         at_doors: doors.iter().filter(|d| d.is_some()).count(),
         closures: managed.closures.len(),
+        candidate_closures: managed.candidate_closures.len(),
+        candidates: managed.hybrid.candidates.len(),
         areas: managed.hybrid.areas.len(),
         spans: splits.iter().map(|s| s.spans.len()).sum(),
         ..TourScore::default()
@@ -477,6 +489,21 @@ pub fn score_tour(
         }
         if !same_place {
             score.false_closures += 1;
+        }
+    }
+    // A candidate closure is true when the door passed is the door seen (placed by the true
+    // pose of the scan that saw it).
+    for closure in &managed.candidate_closures {
+        let seen = dataset
+            .sessions
+            .get(closure.session)
+            .and_then(|s| s.truth.get(closure.door.scan))
+            .and_then(|(_, pose)| {
+                nearest_door(pose.transform_point(&closure.door.center_in_robot_m()))
+            });
+        let passed = doors.get(closure.boundary).copied().flatten();
+        if seen.is_none() || seen != passed {
+            score.false_candidate_closures += 1;
         }
     }
     for b in 0..doors.len() {

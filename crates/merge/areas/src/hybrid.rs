@@ -2,7 +2,9 @@
 //! own frame), link points L (a pose known in two adjacent maps, placed at a door) and edges E
 //! between the link points of one map (all of them: "all link-points on the same map are fully
 //! connected"). Dijkstra over E gives routes between poses in any two maps (Sec. II-C), and the
-//! chain of transforms along them.
+//! chain of transforms along them. Link-point candidates are doors seen in one map and not
+//! passed yet: known in one map only, they join no route until a passing makes them link
+//! points.
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::Point2;
@@ -49,6 +51,18 @@ impl LinkPoint {
     }
 }
 
+/// A link-point candidate: a door seen in one map but not passed (yet).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LinkCandidate {
+    /// Its id (its index).
+    pub id: usize,
+    /// The map it was seen in.
+    pub area: usize,
+    /// The doorway in that map's frame: its centre, heading along the door's normal away
+    /// from where it was seen (into the unknown side).
+    pub pose: Se2,
+}
+
 /// An edge between two link points of one map.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LinkEdge {
@@ -71,6 +85,9 @@ pub struct HybridMap {
     pub link_points: Vec<LinkPoint>,
     /// E, derived from L ([`HybridMap::connect`]).
     pub edges: Vec<LinkEdge>,
+    /// Link-point candidates (doors seen, not passed).
+    #[serde(default)]
+    pub candidates: Vec<LinkCandidate>,
 }
 
 /// A route between two poses.

@@ -23,12 +23,14 @@ mod hybrid;
 mod manager;
 mod session;
 
-pub use door::{passways, Criteria, DoorDetector, DoorParams, DoorPassingDetection, DoorSighting};
+pub use door::{
+    passways, Criteria, DoorDetector, DoorParams, DoorPassingDetection, DoorSighting, UnpassedDoor,
+};
 pub use environment::{Environment, EnvironmentParams, Extents, Preset};
 pub use error::AreasError;
-pub use hybrid::{Area, HybridMap, LinkEdge, LinkPoint, Route};
+pub use hybrid::{Area, HybridMap, LinkCandidate, LinkEdge, LinkPoint, Route};
 pub use manager::{
-    manage, manage_sessions, segment, AreaSpan, Closure, ManagedMap, ManagerParams, Segmentation,
-    SessionInput, TrackingParams, TrackingStep,
+    manage, manage_sessions, segment, AreaSpan, CandidateClosure, Closure, ManagedMap,
+    ManagerParams, Segmentation, SessionInput, TrackingParams, TrackingStep,
 };
 pub use session::{manage_mapped, MappedSession};

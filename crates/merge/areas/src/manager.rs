@@ -13,15 +13,15 @@ use std::ops::Range;
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{GeometricVerifier, Keyframe, Verification};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, Vertex};
-use mapmerge_scan::{voxel_downsample, BeamFilter, LaserScan};
+use mapmerge_scan::{voxel_downsample, BeamFilter, LaserScan, Point2};
 use mapmerge_solve::{optimize, OptimizerParams};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::door::{DoorDetector, DoorParams, DoorPassingDetection};
+use crate::door::{DoorDetector, DoorParams, DoorPassingDetection, UnpassedDoor};
 use crate::environment::{Environment, Extents};
 use crate::error::AreasError;
-use crate::hybrid::{Area, HybridMap, LinkPoint};
+use crate::hybrid::{Area, HybridMap, LinkCandidate, LinkPoint};
 
 /// Parameters of the map manager.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -132,6 +132,9 @@ pub struct Segmentation {
     pub spans: Vec<AreaSpan>,
     /// For each boundary between span `k` and `k + 1`: the passing (index into `passings`).
     pub boundaries: Vec<usize>,
+    /// Doors seen but never passed (link-point candidates), in the order they were forgotten.
+    #[serde(default)]
+    pub unpassed: Vec<UnpassedDoor>,
 }
 
 /// Splits a log (`odom_from_robot` and scan of each scan) at its door passings.
@@ -205,6 +208,7 @@ pub fn segment<'a>(
         passings,
         boundaries: cuts.iter().map(|(_, i)| *i).collect(),
         spans,
+        unpassed: detector.finish(),
     })
 }
 
@@ -216,6 +220,20 @@ pub struct Closure {
     pub boundary: usize,
     /// The earlier boundary it re-observed.
     pub earlier: usize,
+    /// The verification's score.
+    pub score: f64,
+}
+
+/// A topological loop closure at a link-point candidate: a passing through a door seen
+/// earlier, but not passed, from another area.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CandidateClosure {
+    /// The passing's boundary (over all sessions).
+    pub boundary: usize,
+    /// The session that saw the door …
+    pub session: usize,
+    /// … and the door as it saw it.
+    pub door: UnpassedDoor,
     /// The verification's score.
     pub score: f64,
 }
@@ -253,6 +271,9 @@ pub struct ManagedMap {
     pub boundary_link: Vec<Option<usize>>,
     /// Topological loop closures.
     pub closures: Vec<Closure>,
+    /// Topological loop closures at link-point candidates.
+    #[serde(default)]
+    pub candidate_closures: Vec<CandidateClosure>,
     /// Global tracking at each boundary (boundaries of all sessions, in order).
     pub tracking: Vec<TrackingStep>,
     /// Whether each session was placed in session 0's frame (session 0 is; a later one once a
@@ -477,6 +498,60 @@ pub fn manage_sessions(
             tracking,
         )
     };
+    // Link-point candidates: doors a span saw and no boundary of that span passed.
+    let mut span_candidates: Vec<SpanCandidate> = Vec::new();
+    let mut first = 0usize;
+    for (s, session) in sessions.iter().enumerate() {
+        let seg = session.segmentation;
+        for door in &seg.unpassed {
+            let Some(k) = seg
+                .spans
+                .iter()
+                .position(|sp| sp.scans.contains(&door.scan))
+            else {
+                continue;
+            };
+            let g = first + k;
+            let robot_in_span = pose_at(g, door.scan)?;
+            let centre = door.center_in_robot_m();
+            let along = door.posts_in_robot_m[1] - door.posts_in_robot_m[0];
+            let mut normal = Point2::new(-along.y, along.x);
+            if normal.dot(&centre) < 0.0 {
+                normal = -normal;
+            }
+            let door_in_robot = Se2::new(centre.x, centre.y, normal.y.atan2(normal.x));
+            let in_span = robot_in_span.compose(&door_in_robot);
+            let near =
+                |p: Se2| (p.translation() - in_span.translation()).norm() <= tracking.same_door_m;
+            let passed = boundaries
+                .iter()
+                .any(|b| (b.before == g && near(b.exit)) || (b.after == g && near(b.entry)));
+            let duplicate = span_candidates
+                .iter()
+                .any(|c| c.span == g && near(c.in_span));
+            if !passed && !duplicate {
+                span_candidates.push(SpanCandidate {
+                    span: g,
+                    session: s,
+                    door: *door,
+                    robot_in_span,
+                    door_in_robot,
+                    in_span,
+                    used: false,
+                });
+            }
+        }
+        first += seg.spans.len();
+    }
+    // Where span g's frame lies in the graph's.
+    let frame_of = |graph: &PoseGraph2, g: usize| {
+        graph
+            .vertex(node(entry_node[g]))
+            .map(|v| v.pose)
+            .unwrap_or_else(Se2::identity)
+            .compose(&entry_pose[g].inverse())
+    };
+    let mut candidate_closures = Vec::new();
     // 2–3. Tracking and closures, boundary by boundary.
     let mut placed: Vec<bool> = (0..sessions.len()).map(|s| s == 0).collect();
     let mut groups = UnionFind::new(span_refs.len());
@@ -527,9 +602,6 @@ pub fn manage_sessions(
         if !relocalising {
             candidates.truncate(tracking.max_candidates);
         }
-        if candidates.is_empty() {
-            continue;
-        }
         let query = local_map_at(i);
         let mut best: Option<(usize, Verification)> = None;
         // Relocalising: the best score at each candidate, for the ambiguity test.
@@ -577,6 +649,93 @@ pub fn manage_sessions(
             }
         }
         let Some((j, found)) = best else {
+            if relocalising {
+                continue;
+            }
+            // No earlier crossing: a door seen from another area and not passed there, within
+            // the radius, verified on the local map around where it was seen.
+            let mut near: Vec<(f64, usize)> = span_candidates
+                .iter()
+                .enumerate()
+                .filter(|(_, c)| !c.used && groups.find(c.span) != groups.find(b.before))
+                .filter(|(_, c)| c.session == b.session || placed[c.session])
+                .filter_map(|(k, c)| {
+                    let at = frame_of(&graph, c.span).compose(&c.in_span);
+                    let d = (at.translation() - here.translation()).norm();
+                    (d <= radius_m).then_some((d, k))
+                })
+                .collect();
+            near.sort_by(|a, b| a.0.total_cmp(&b.0));
+            near.truncate(tracking.max_candidates);
+            let mut chosen: Option<(usize, Verification)> = None;
+            for (_, k) in &near {
+                let c = &span_candidates[*k];
+                let (span, trajectory, s) = span_of(c.span);
+                let seen = local_map(
+                    c.door.scan,
+                    &c.robot_in_span,
+                    span,
+                    trajectory,
+                    sessions[s].scans,
+                    tracking,
+                );
+                let guess = frame_of(&graph, c.span)
+                    .compose(&c.robot_in_span)
+                    .inverse()
+                    .compose(&here);
+                let Some(found) = verifier.verify(&query, &seen, &guess) else {
+                    continue;
+                };
+                let correction_m = guess
+                    .between(&found.candidate_from_query)
+                    .translation()
+                    .norm();
+                let at_door = (found.candidate_from_query.translation()
+                    - c.door_in_robot.translation())
+                .norm()
+                    <= tracking.same_door_m;
+                if found.score >= tracking.min_score
+                    && at_door
+                    && correction_m <= radius_m
+                    && chosen.as_ref().is_none_or(|(_, v)| found.score > v.score)
+                {
+                    chosen = Some((*k, found));
+                }
+            }
+            let Some((k, found)) = chosen else {
+                continue;
+            };
+            span_candidates[k].used = true;
+            let c = span_candidates[k];
+            graph
+                .add_edge(Edge {
+                    from: node(entry_node[c.span]),
+                    to: node(node_of[i]),
+                    measurement: entry_pose[c.span]
+                        .inverse()
+                        .compose(&c.robot_in_span)
+                        .compose(&found.candidate_from_query),
+                    information: closure_information(&found),
+                    kind: EdgeKind::Loop,
+                })
+                .map_err(graph_error)?;
+            let _ = optimize(&mut graph, &OptimizerParams::default());
+            // Heading along the door's normal, away from where it was seen: the robot leaves
+            // the side it was seen from.
+            let leaving_seen_side =
+                (found.candidate_from_query.theta_rad - c.door_in_robot.theta_rad).cos() > 0.0;
+            if leaving_seen_side {
+                groups.union(b.before, c.span);
+            } else {
+                groups.union(b.after, c.span);
+            }
+            candidate_closures.push(CandidateClosure {
+                boundary: i,
+                session: c.session,
+                door: c.door,
+                score: found.score,
+            });
+            since_closure_m = 0.0;
             continue;
         };
         if relocalising {
@@ -706,10 +865,29 @@ pub fn manage_sessions(
             ],
         });
     }
+    // Candidates not passed, one per door of an area, none at a link point.
+    let mut candidates: Vec<LinkCandidate> = Vec::new();
+    for c in span_candidates.iter().filter(|c| !c.used) {
+        let area = span_area[c.span];
+        let pose = area_from_span[c.span].compose(&c.in_span);
+        let near = |p: Se2| (p.translation() - pose.translation()).norm() <= tracking.same_door_m;
+        let known = candidates.iter().any(|k| k.area == area && near(k.pose))
+            || link_points
+                .iter()
+                .any(|l| l.pose_in(area).is_some_and(near));
+        if !known {
+            candidates.push(LinkCandidate {
+                id: candidates.len(),
+                area,
+                pose,
+            });
+        }
+    }
     let mut hybrid = HybridMap {
         areas,
         link_points,
         edges: Vec::new(),
+        candidates,
     };
     hybrid.connect();
     let span_session: Vec<usize> = span_refs.iter().map(|(s, _)| *s).collect();
@@ -721,9 +899,28 @@ pub fn manage_sessions(
         crossings,
         boundary_link,
         closures,
+        candidate_closures,
         tracking: steps,
         session_placed: placed,
     })
+}
+
+/// A door a span saw and did not pass: a link-point candidate while the manager runs.
+#[derive(Clone, Copy, Debug)]
+struct SpanCandidate {
+    /// The span (over all sessions) and its session.
+    span: usize,
+    session: usize,
+    /// The door as the detector reported it.
+    door: UnpassedDoor,
+    /// The robot at the door's closest sighting, in the span's frame.
+    robot_in_span: Se2,
+    /// The doorway in that robot frame: centre, heading along its normal away from the robot.
+    door_in_robot: Se2,
+    /// … and in the span's frame.
+    in_span: Se2,
+    /// Whether a passing joined it.
+    used: bool,
 }
 
 /// Information of the link-point edge over a leg of `leg_m` travel.
@@ -910,6 +1107,26 @@ mod tests {
                 door_at(closure.earlier),
                 "{closure:?}"
             );
+        }
+        // Every closure at a link-point candidate passes the door that was seen.
+        let nearest_door = |p: Point2| {
+            session
+                .world
+                .doors
+                .iter()
+                .min_by(|x, y| (x.center_m - p).norm().total_cmp(&(y.center_m - p).norm()))
+                .map(|d| d.id)
+        };
+        for closure in &managed.candidate_closures {
+            let seen = session.truth[closure.door.scan]
+                .1
+                .transform_point(&closure.door.center_in_robot_m());
+            assert_eq!(nearest_door(seen), door_at(closure.boundary), "{closure:?}");
+        }
+        // Doors seen but not passed are candidates, each in an area of the map.
+        assert!(!split.unpassed.is_empty());
+        for candidate in &managed.hybrid.candidates {
+            assert!(candidate.area < managed.hybrid.areas.len());
         }
         assert!(managed.hybrid.areas.len() <= split.spans.len());
         assert_eq!(managed.span_area.len(), split.spans.len());
