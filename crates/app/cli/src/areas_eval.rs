@@ -48,6 +48,8 @@ struct Report {
     /// Closures at link-point candidates, and the false ones.
     candidate_closures: usize,
     false_candidate_closures: usize,
+    /// Passed doors whose two sides ended in one area.
+    doors_inside_areas: usize,
     sessions: usize,
     sessions_placed: usize,
     /// Largest link-point ATE after optimisation over the tours (m).
@@ -94,6 +96,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
         false_closures: sum(|t| t.false_closures),
         candidate_closures: sum(|t| t.candidate_closures),
         false_candidate_closures: sum(|t| t.false_candidate_closures),
+        doors_inside_areas: sum(|t| t.doors_inside_areas),
         sessions: sum(|t| t.sessions),
         sessions_placed: sum(|t| t.sessions_placed),
         worst_link_ate_m: tours.iter().map(|t| t.link_ate_m).fold(0.0, f64::max),
@@ -102,11 +105,11 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
     if args.json {
         print_json(&report)?;
     } else {
-        println!("| world | seed | boundaries | at doors | revisits | found | lost | closures | false | candidate closures | false | candidates left | link ATE m | chain ATE m | areas / spans |");
-        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        println!("| world | seed | boundaries | at doors | revisits | found | lost | closures | false | candidate closures | false | candidates left | doors inside areas | link ATE m | chain ATE m | areas / spans |");
+        println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
         for t in &report.tours {
             println!(
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {} / {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {:.3} | {:.3} | {} / {} |",
                 t.world,
                 t.seed,
                 t.boundaries,
@@ -119,6 +122,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
                 t.candidate_closures,
                 t.false_candidate_closures,
                 t.candidates,
+                t.doors_inside_areas,
                 t.link_ate_m,
                 t.chain_ate_m,
                 t.areas,
@@ -126,7 +130,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             );
         }
         println!(
-            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), at candidates {} ({} false), worst link-point ATE {:.3} m",
+            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), at candidates {} ({} false), passed doors inside one area {}, worst link-point ATE {:.3} m",
             report.sessions_placed,
             report.sessions,
             report.revisits_found,
@@ -136,6 +140,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             report.false_closures,
             report.candidate_closures,
             report.false_candidate_closures,
+            report.doors_inside_areas,
             report.worst_link_ate_m
         );
     }

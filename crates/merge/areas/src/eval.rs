@@ -342,12 +342,19 @@ pub struct TourScore {
     /// Closures at a link-point candidate (a door seen from another area, then passed) …
     #[serde(default)]
     pub candidate_closures: usize,
-    /// … of them, where the door passed is not the door seen (or either is at no door).
+    /// … of them, where the door passed is not the door seen (or either is at no door) …
     #[serde(default)]
     pub false_candidate_closures: usize,
+    /// … and where it is, but the wrong side joined the area the door was seen from.
+    #[serde(default)]
+    pub wrong_side_candidate_closures: usize,
     /// Link-point candidates left in the map.
     #[serde(default)]
     pub candidates: usize,
+    /// Boundaries at a true door whose two sides ended in one area (a closure joined the
+    /// wrong sides: one map then holds two rooms).
+    #[serde(default)]
+    pub doors_inside_areas: usize,
     /// RMS distance of the link-point graph's crossings from the truth after a rigid
     /// alignment (m), after optimisation …
     pub link_ate_m: f64,
@@ -494,16 +501,33 @@ pub fn score_tour(
     // A candidate closure is true when the door passed is the door seen (placed by the true
     // pose of the scan that saw it).
     for closure in &managed.candidate_closures {
-        let seen = dataset
+        let seer = dataset
             .sessions
             .get(closure.session)
             .and_then(|s| s.truth.get(closure.door.scan))
-            .and_then(|(_, pose)| {
-                nearest_door(pose.transform_point(&closure.door.center_in_robot_m()))
-            });
+            .map(|(_, pose)| *pose);
+        let seen = seer
+            .and_then(|pose| nearest_door(pose.transform_point(&closure.door.center_in_robot_m())));
         let passed = doors.get(closure.boundary).copied().flatten();
         if seen.is_none() || seen != passed {
             score.false_candidate_closures += 1;
+            continue;
+        }
+        // The side joined: the seer's side of the door is the side the robot came from when
+        // the area before the crossing joined it, else the side it went to.
+        let door = passed.and_then(|id| dataset.world.door(id));
+        let (s, scan) = boundary_scans[closure.boundary];
+        let before = dataset
+            .sessions
+            .get(s)
+            .and_then(|session| session.truth.get(scan.saturating_sub(5)))
+            .map(|(_, pose)| pose.translation());
+        if let (Some(door), Some(seer), Some(before)) = (door, seer, before) {
+            let side =
+                |p: mapmerge_scan::Point2| (p - door.center_m).dot(&door.passage_direction()) > 0.0;
+            if (side(before) == side(seer.translation())) == closure.joined_after {
+                score.wrong_side_candidate_closures += 1;
+            }
         }
     }
     for b in 0..doors.len() {
@@ -528,6 +552,21 @@ pub fn score_tour(
         if !earlier.iter().any(|j| within.contains(j)) {
             score.lost += 1;
         }
+    }
+    // Both sides of a passed door in one area.
+    let mut first_span = 0usize;
+    let mut b = 0usize;
+    for split in &splits {
+        for k in 0..split.boundaries.len() {
+            let (before, after) = (first_span + k, first_span + k + 1);
+            if doors.get(b).copied().flatten().is_some()
+                && managed.span_area.get(before) == managed.span_area.get(after)
+            {
+                score.doors_inside_areas += 1;
+            }
+            b += 1;
+        }
+        first_span += split.spans.len();
     }
     // ATE over the crossings of placed sessions, in the world frame all sessions share.
     let placed_boundaries: Vec<usize> = (0..boundary_scans.len())

@@ -72,6 +72,10 @@ pub struct TrackingParams {
     pub relocalisation_margin: f64,
     /// … trying this many headings (default: 12, every 30°: the verifier searches ±15°).
     pub relocalisation_headings: usize,
+    /// A later session is placed only once a second door agrees with the first on where
+    /// its frame lies (default: true; false places it at the first door matched). A building
+    /// with mirror-image doors fools one door.
+    pub relocalisation_second_door: bool,
 }
 
 impl Default for TrackingParams {
@@ -87,6 +91,7 @@ impl Default for TrackingParams {
             relocalisation_min_score: 0.97,
             relocalisation_margin: 0.01,
             relocalisation_headings: 12,
+            relocalisation_second_door: true,
         }
     }
 }
@@ -236,6 +241,9 @@ pub struct CandidateClosure {
     pub door: UnpassedDoor,
     /// The verification's score.
     pub score: f64,
+    /// Whether the span after the crossing joined the seen side's area (else the one before).
+    #[serde(default)]
+    pub joined_after: bool,
 }
 
 /// Global tracking at one boundary (Sec. II-D).
@@ -504,13 +512,17 @@ pub fn manage_sessions(
     for (s, session) in sessions.iter().enumerate() {
         let seg = session.segmentation;
         for door in &seg.unpassed {
-            let Some(k) = seg
-                .spans
+            // The span whose own part (between its crossings, overlaps aside) holds the scan:
+            // the robot's side of the doors at that scan.
+            let k = seg
+                .boundaries
                 .iter()
-                .position(|sp| sp.scans.contains(&door.scan))
-            else {
+                .filter_map(|p| seg.passings.get(*p))
+                .filter(|p| p.crossing_scan <= door.scan)
+                .count();
+            if k >= seg.spans.len() {
                 continue;
-            };
+            }
             let g = first + k;
             let robot_in_span = pose_at(g, door.scan)?;
             let centre = door.center_in_robot_m();
@@ -552,6 +564,8 @@ pub fn manage_sessions(
             .compose(&entry_pose[g].inverse())
     };
     let mut candidate_closures = Vec::new();
+    // Per session: a relocalisation waiting for a second door to confirm it.
+    let mut pending: Vec<Option<Pending>> = vec![None; sessions.len()];
     // 2–3. Tracking and closures, boundary by boundary.
     let mut placed: Vec<bool> = (0..sessions.len()).map(|s| s == 0).collect();
     let mut groups = UnionFind::new(span_refs.len());
@@ -658,7 +672,12 @@ pub fn manage_sessions(
                 .iter()
                 .enumerate()
                 .filter(|(_, c)| !c.used && groups.find(c.span) != groups.find(b.before))
-                .filter(|(_, c)| c.session == b.session || placed[c.session])
+                // Seen before this crossing: in an earlier session that is placed, or earlier
+                // in this one.
+                .filter(|(_, c)| {
+                    (c.session < b.session && placed[c.session])
+                        || (c.session == b.session && c.door.scan < b.crossing)
+                })
                 .filter_map(|(k, c)| {
                     let at = frame_of(&graph, c.span).compose(&c.in_span);
                     let d = (at.translation() - here.translation()).norm();
@@ -734,10 +753,13 @@ pub fn manage_sessions(
                 session: c.session,
                 door: c.door,
                 score: found.score,
+                joined_after: !leaving_seen_side,
             });
             since_closure_m = 0.0;
             continue;
         };
+        // The closures to add: this one, and the pending relocalisation it confirms.
+        let mut joins = vec![(i, j, found)];
         if relocalising {
             // Ambiguous when another door scores about as well.
             let at_j = pose(&graph, j).translation();
@@ -748,15 +770,52 @@ pub fn manage_sessions(
                 })
                 .map(|(_, score)| *score)
                 .fold(f64::NEG_INFINITY, f64::max);
-            if rival >= found.score - tracking.relocalisation_margin {
+            if rival >= joins[0].2.score - tracking.relocalisation_margin {
                 continue;
             }
-        }
-        if relocalising {
-            // Move the session's component so that this crossing sits where the match puts
-            // it, then let its start go.
-            let target = pose(&graph, j).compose(&found.candidate_from_query);
+            // Where the session's frame goes for this crossing to sit where the match puts it.
+            let target = pose(&graph, j).compose(&joins[0].2.candidate_from_query);
             let delta = target.compose(&here.inverse());
+            // Placed once a second door agrees on the frame (both crossings land within Eq.
+            // 3's radius of the travel between them), unless one door is enough.
+            let confirmed = match pending[b.session].take() {
+                Some(p) => {
+                    let tolerance_m = tracking.search_radius_m(since_closure_m - p.travel_m);
+                    let apart = |n: usize| {
+                        let at = pose(&graph, n);
+                        (delta.compose(&at).translation() - p.delta.compose(&at).translation())
+                            .norm()
+                    };
+                    if apart(i) <= tolerance_m && apart(p.boundary) <= tolerance_m {
+                        joins.insert(0, (p.boundary, p.earlier, p.found));
+                        true
+                    } else {
+                        pending[b.session] = Some(Pending {
+                            boundary: i,
+                            earlier: j,
+                            found: joins[0].2.clone(),
+                            delta,
+                            travel_m: since_closure_m,
+                        });
+                        false
+                    }
+                }
+                None if !tracking.relocalisation_second_door => true,
+                None => {
+                    pending[b.session] = Some(Pending {
+                        boundary: i,
+                        earlier: j,
+                        found: joins[0].2.clone(),
+                        delta,
+                        travel_m: since_closure_m,
+                    });
+                    false
+                }
+            };
+            if !confirmed {
+                continue;
+            }
+            // Move the session's component by it, then let its start go.
             let members: Vec<usize> = std::iter::once(session_start[b.session])
                 .chain(
                     boundaries
@@ -776,33 +835,37 @@ pub fn manage_sessions(
             }
             placed[b.session] = true;
         }
-        graph
-            .add_edge(Edge {
-                from: node(node_of[j]),
-                to: node(node_of[i]),
-                measurement: found.candidate_from_query,
-                information: closure_information(&found),
-                kind: EdgeKind::Loop,
-            })
-            .map_err(graph_error)?;
+        for (i, j, found) in &joins {
+            graph
+                .add_edge(Edge {
+                    from: node(node_of[*j]),
+                    to: node(node_of[*i]),
+                    measurement: found.candidate_from_query,
+                    information: closure_information(found),
+                    kind: EdgeKind::Loop,
+                })
+                .map_err(graph_error)?;
+        }
         // A numerical failure keeps the last good state, which is the chain: still a map.
         let _ = optimize(&mut graph, &OptimizerParams::default());
-        let (there, here) = (pose(&graph, j), pose(&graph, i));
-        let earlier = boundaries[j];
-        // Same direction through the door: the same sides; else swapped.
-        if wrap_angle_rad(here.theta_rad - there.theta_rad).abs() < FRAC_PI_2 {
-            groups.union(b.before, earlier.before);
-            groups.union(b.after, earlier.after);
-        } else {
-            groups.union(b.before, earlier.after);
-            groups.union(b.after, earlier.before);
+        for (i, j, found) in joins {
+            let (there, here) = (pose(&graph, j), pose(&graph, i));
+            let (now, earlier) = (boundaries[i], boundaries[j]);
+            // Same direction through the door: the same sides; else swapped.
+            if wrap_angle_rad(here.theta_rad - there.theta_rad).abs() < FRAC_PI_2 {
+                groups.union(now.before, earlier.before);
+                groups.union(now.after, earlier.after);
+            } else {
+                groups.union(now.before, earlier.after);
+                groups.union(now.after, earlier.before);
+            }
+            merged_into[i] = Some(j);
+            closures.push(Closure {
+                boundary: i,
+                earlier: j,
+                score: found.score,
+            });
         }
-        merged_into[i] = Some(j);
-        closures.push(Closure {
-            boundary: i,
-            earlier: j,
-            score: found.score,
-        });
         since_closure_m = 0.0;
     }
     // 4. Frames, areas, link points.
@@ -903,6 +966,19 @@ pub fn manage_sessions(
         tracking: steps,
         session_placed: placed,
     })
+}
+
+/// A relocalisation of an unplaced session at one door, waiting for a second to agree.
+#[derive(Clone, Debug)]
+struct Pending {
+    /// The crossing and the placed crossing it matched.
+    boundary: usize,
+    earlier: usize,
+    found: Verification,
+    /// The move of the session's frame it implies.
+    delta: Se2,
+    /// The session's travel at it (m), as tracking counts it.
+    travel_m: f64,
 }
 
 /// A door a span saw and did not pass: a link-point candidate while the manager runs.
@@ -1091,15 +1167,17 @@ mod tests {
             assert!(error.translation().norm() < 0.05, "span {k}: {error:?}");
         }
         // Every closure joins two passings of one true door.
-        let door_at = |b: usize| {
-            let c = split.passings[split.boundaries[b]].crossing_scan;
-            let p = session.truth[c].1.translation();
+        let nearest_door = |p: Point2| {
             session
                 .world
                 .doors
                 .iter()
                 .min_by(|x, y| (x.center_m - p).norm().total_cmp(&(y.center_m - p).norm()))
                 .map(|d| d.id)
+        };
+        let door_at = |b: usize| {
+            let c = split.passings[split.boundaries[b]].crossing_scan;
+            nearest_door(session.truth[c].1.translation())
         };
         for closure in &managed.closures {
             assert_eq!(
@@ -1109,14 +1187,6 @@ mod tests {
             );
         }
         // Every closure at a link-point candidate passes the door that was seen.
-        let nearest_door = |p: Point2| {
-            session
-                .world
-                .doors
-                .iter()
-                .min_by(|x, y| (x.center_m - p).norm().total_cmp(&(y.center_m - p).norm()))
-                .map(|d| d.id)
-        };
         for closure in &managed.candidate_closures {
             let seen = session.truth[closure.door.scan]
                 .1

@@ -100,10 +100,7 @@ impl Store {
     /// The areas of `version` (default: the newest); `None` when the store has no version or
     /// the version holds no areas.
     pub fn load_areas(&self, version: Option<i64>) -> Result<Option<StoredAreas>, StoreError> {
-        let Some(version) = (match version {
-            Some(v) => Some(v),
-            None => self.newest_version()?,
-        }) else {
+        let Some(version) = self.given_or_newest(version)? else {
             return Ok(None);
         };
         require_retained(&self.connection, &self.path, version)?;

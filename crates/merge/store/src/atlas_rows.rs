@@ -80,14 +80,14 @@ impl Store {
             .map_err(classify)?;
         let count = |n: usize| i64::try_from(n).unwrap_or(i64::MAX);
         let (version, parent) = begin_version(&transaction, commit.session).map_err(classify)?;
-        let areas = parent_summary(&transaction, parent).map_err(classify)?;
+        let carried = parent_summary(&transaction, parent).map_err(classify)?;
         let summary = Summary {
             nodes: count(atlas.num_vertices()),
             edges: count(atlas.num_edges()),
             keyframes: count(atlas.keyframes.len()),
             local_maps: count(atlas.num_local_maps()),
             mapped_area_m2: atlas.mapped_area_m2(AREA_RESOLUTION_M),
-            ..areas
+            ..carried
         };
         write_summary(&transaction, version, &summary).map_err(classify)?;
         let counters = encode(&atlas.counters).map_err(classify)?;
@@ -128,10 +128,7 @@ impl Store {
     pub fn load(&self, version: Option<i64>) -> Result<Option<StoredAtlas>, StoreError> {
         let path = &self.path;
         let classify = |e: rusqlite::Error| classify(path, e);
-        let Some(version) = (match version {
-            Some(v) => Some(v),
-            None => self.newest_version()?,
-        }) else {
+        let Some(version) = self.given_or_newest(version)? else {
             return Ok(None);
         };
         require_retained(&self.connection, path, version)?;

@@ -191,8 +191,12 @@ impl Store {
         &self.path
     }
 
-    /// The newest version's number (`None` without versions).
-    pub(crate) fn newest_version(&self) -> Result<Option<i64>, StoreError> {
+    /// `version`, or the newest version's number when none is given (`None` without
+    /// versions).
+    pub(crate) fn given_or_newest(&self, version: Option<i64>) -> Result<Option<i64>, StoreError> {
+        if version.is_some() {
+            return Ok(version);
+        }
         self.connection
             .query_row("SELECT max(version) FROM versions", [], |row| row.get(0))
             .map_err(|e| classify(&self.path, e))
