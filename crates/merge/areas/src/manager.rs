@@ -778,37 +778,30 @@ pub fn manage_sessions(
             let delta = target.compose(&here.inverse());
             // Placed once a second door agrees on the frame (both crossings land within Eq.
             // 3's radius of the travel between them), unless one door is enough.
+            let agrees = |p: &Pending| {
+                let tolerance_m = tracking.search_radius_m(since_closure_m - p.travel_m);
+                let apart = |n: usize| {
+                    let at = pose(&graph, n);
+                    (delta.compose(&at).translation() - p.delta.compose(&at).translation()).norm()
+                };
+                apart(i) <= tolerance_m && apart(p.boundary) <= tolerance_m
+            };
+            let this = Pending {
+                boundary: i,
+                earlier: j,
+                found: joins[0].2.clone(),
+                delta,
+                travel_m: since_closure_m,
+            };
             let confirmed = match pending[b.session].take() {
-                Some(p) => {
-                    let tolerance_m = tracking.search_radius_m(since_closure_m - p.travel_m);
-                    let apart = |n: usize| {
-                        let at = pose(&graph, n);
-                        (delta.compose(&at).translation() - p.delta.compose(&at).translation())
-                            .norm()
-                    };
-                    if apart(i) <= tolerance_m && apart(p.boundary) <= tolerance_m {
-                        joins.insert(0, (p.boundary, p.earlier, p.found));
-                        true
-                    } else {
-                        pending[b.session] = Some(Pending {
-                            boundary: i,
-                            earlier: j,
-                            found: joins[0].2.clone(),
-                            delta,
-                            travel_m: since_closure_m,
-                        });
-                        false
-                    }
+                Some(p) if agrees(&p) => {
+                    joins.insert(0, (p.boundary, p.earlier, p.found));
+                    true
                 }
                 None if !tracking.relocalisation_second_door => true,
-                None => {
-                    pending[b.session] = Some(Pending {
-                        boundary: i,
-                        earlier: j,
-                        found: joins[0].2.clone(),
-                        delta,
-                        travel_m: since_closure_m,
-                    });
+                // The first door, or one that disagrees with the pending: wait for another.
+                _ => {
+                    pending[b.session] = Some(this);
                     false
                 }
             };
