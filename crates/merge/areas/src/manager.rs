@@ -357,10 +357,13 @@ struct Boundary {
 ///    verified by scan matching their local maps (`verifier`, our place recognition's, in
 ///    place of the paper's images); the best accepted one becomes a loop edge, the graph is
 ///    optimised (the re-observed link point is the landmark), and the spans on each side of
-///    the door are joined into one area. A later session starts unplaced: its crossings are
-///    checked against every placed crossing over all headings until one is re-observed
-///    (global relocalisation); its nodes then join the graph;
-/// 4. areas, link points (one per door) and edges.
+///    the door are joined into one area. Without an earlier crossing to close with, the
+///    link-point candidates of other areas (doors seen there before, not passed) are tried
+///    the same way, and a verified one joins the span on the side the door was seen from. A
+///    later session starts unplaced: its crossings are checked against every placed crossing
+///    over all headings (global relocalisation); once two of them agree on where its frame
+///    lies (`relocalisation_second_door`), its nodes join the graph;
+/// 4. areas, link points (one per door), candidates left and edges.
 pub fn manage_sessions(
     sessions: &[SessionInput<'_>],
     params: &ManagerParams,
