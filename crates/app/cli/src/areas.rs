@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_areas::{manage_mapped, segment, HybridMap, ManagerParams, MappedSession, Route};
+use mapmerge_areas::{manage_mapped, map_session, HybridMap, ManagerParams, MappedSession, Route};
 use mapmerge_engine::{run_slam, EngineParams};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::InsertParams;
@@ -189,55 +189,6 @@ fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<(String, LaserLog)>> {
     }
 }
 
-/// One log split at its door passings, each span mapped with its environment's preset.
-fn map_session(
-    s: usize,
-    name: String,
-    log: LaserLog,
-    params: &ManagerParams,
-    show_progress: bool,
-) -> anyhow::Result<MappedSession> {
-    let mut poses = Vec::with_capacity(log.scans.len());
-    for (k, record) in log.scans.iter().enumerate() {
-        let pose = record
-            .odom_from_robot
-            .ok_or_else(|| bad_input(format!("{name}: scan {k} has no odometry pose")))?;
-        poses.push(pose);
-    }
-    let segmentation = segment(
-        poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
-        params,
-    )
-    .map_err(bad_input)?;
-    let bar = crate::progress_bar(segmentation.spans.len(), "areas", "areas", show_progress);
-    let (mut trajectories, mut graphs) = (Vec::new(), Vec::new());
-    for (k, span) in segmentation.spans.iter().enumerate() {
-        let part = LaserLog {
-            scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
-            params: log.params.clone(),
-            ..LaserLog::default()
-        };
-        let preset = span.environment.preset().map_err(bad_input)?;
-        let engine = EngineParams {
-            tracker: preset.tracker,
-            ..EngineParams::default()
-        };
-        let run = run_slam(&part, engine, |_| {})
-            .map_err(|e| bad_input(format!("session {s} span {k}: {e}")))?;
-        trajectories.push(run.trajectory);
-        graphs.push(run.graph);
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    Ok(MappedSession {
-        name,
-        log,
-        segmentation,
-        trajectories,
-        graphs,
-    })
-}
-
 /// Runs `mapmerge areas`.
 pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     check_resolution(args.resolution)?;
@@ -264,8 +215,19 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
     let stored_sessions = sessions.len();
     let added: Vec<String> = logs.iter().map(|(name, _)| name.clone()).collect();
     for (name, log) in logs {
-        let s = sessions.len();
-        sessions.push(map_session(s, name, log, &params, !args.json)?);
+        // Scans mapped (spans overlap at doors by a metre: the count ends a little high).
+        let bar = crate::progress_bar(log.scans.len(), "scans", "areas", !args.json);
+        let mut map_span = |part: &LaserLog, preset: &mapmerge_areas::Preset| {
+            let engine = EngineParams {
+                tracker: preset.tracker.clone(),
+                ..EngineParams::default()
+            };
+            let run = run_slam(part, engine, |_| {}).map_err(|e| e.to_string())?;
+            bar.inc(part.scans.len() as u64);
+            Ok((run.trajectory, run.graph))
+        };
+        sessions.push(map_session(name, log, &params, &mut map_span).map_err(bad_input)?);
+        bar.finish_and_clear();
     }
     if sessions.is_empty() {
         return Err(bad_input(match &args.store {

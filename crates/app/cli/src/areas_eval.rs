@@ -71,7 +71,7 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
                     ..EngineParams::default()
                 };
                 run_slam(log, engine, |_| {})
-                    .map(|run| run.trajectory)
+                    .map(|run| (run.trajectory, run.graph))
                     .map_err(|e| e.to_string())
             };
             let score = score_tour(

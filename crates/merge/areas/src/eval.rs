@@ -377,64 +377,31 @@ pub fn score_tour(
     duration_secs: f64,
     params: &crate::ManagerParams,
     verifier: &dyn mapmerge_place::GeometricVerifier,
-    map_span: &mut dyn FnMut(
-        &mapmerge_scan::LaserLog,
-        &crate::Preset,
-    ) -> Result<Vec<mapmerge_geometry::Se2>, String>,
+    map_span: &mut crate::MapSpan<'_>,
 ) -> Result<TourScore, AreasError> {
-    use mapmerge_geometry::{LieGroup, Se2};
     let mut sim = SimParams::default()
         .with_preset_name(world)?
         .with_sessions(sessions.max(1))
         .with_duration_secs(duration_secs);
     sim.kidnap.max_per_session = 0;
     let dataset = simulate(&sim, seed)?;
-    let mut splits = Vec::new();
-    let mut trajectories = Vec::new();
-    for session in &dataset.sessions {
-        let poses: Vec<Se2> = session
-            .log
-            .scans
-            .iter()
-            .map(|r| r.odom_from_robot.unwrap_or_else(Se2::identity))
-            .collect();
-        let split = crate::segment(
-            poses
-                .iter()
-                .copied()
-                .zip(session.log.scans.iter().map(|r| &r.scan)),
-            params,
-        )?;
-        let mut mapped = Vec::with_capacity(split.spans.len());
-        for span in &split.spans {
-            let part = mapmerge_scan::LaserLog {
-                scans: session
-                    .log
-                    .scans
-                    .get(span.scans.clone())
-                    .unwrap_or(&[])
-                    .to_vec(),
-                ..mapmerge_scan::LaserLog::default()
-            };
-            let preset = span.environment.preset()?;
-            mapped.push(map_span(&part, &preset).map_err(AreasError::Mapping)?);
-        }
-        splits.push(split);
-        trajectories.push(mapped);
-    }
-    let scans: Vec<Vec<&mapmerge_scan::LaserScan>> = dataset
+    let mapped: Vec<crate::MappedSession> = dataset
         .sessions
         .iter()
-        .map(|s| s.log.scans.iter().map(|r| &r.scan).collect())
-        .collect();
-    let inputs: Vec<crate::SessionInput> = (0..dataset.sessions.len())
-        .map(|s| crate::SessionInput {
-            segmentation: &splits[s],
-            trajectories: &trajectories[s],
-            scans: &scans[s],
+        .enumerate()
+        .map(|(s, session)| {
+            crate::map_session(
+                format!("session {s}"),
+                session.log.clone(),
+                params,
+                map_span,
+            )
         })
-        .collect();
-    let managed = crate::manage_sessions(&inputs, params, verifier)?;
+        .collect::<Result<_, _>>()?;
+    let managed = crate::manage_mapped(&mapped, params, verifier)?;
+    let splits: Vec<&crate::Segmentation> = mapped.iter().map(|m| &m.segmentation).collect();
+    let trajectories: Vec<&Vec<Vec<mapmerge_geometry::Se2>>> =
+        mapped.iter().map(|m| &m.trajectories).collect();
     // Boundaries over all sessions, as `manage_sessions` numbers them: (session, scan).
     let boundary_scans: Vec<(usize, usize)> = splits
         .iter()

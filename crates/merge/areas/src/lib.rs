@@ -33,4 +33,4 @@ pub use manager::{
     manage, manage_sessions, segment, AreaSpan, CandidateClosure, Closure, ManagedMap,
     ManagerParams, Segmentation, SessionInput, TrackingParams, TrackingStep,
 };
-pub use session::{manage_mapped, MappedSession};
+pub use session::{manage_mapped, map_session, MapSpan, MappedSession};

@@ -619,6 +619,10 @@ pub fn manage_sessions(
         if !relocalising {
             candidates.truncate(tracking.max_candidates);
         }
+        // Nothing to verify against: no local map to build.
+        if candidates.is_empty() && (relocalising || span_candidates.iter().all(|c| c.used)) {
+            continue;
+        }
         let query = local_map_at(i);
         let mut best: Option<(usize, Verification)> = None;
         // Relocalising: the best score at each candidate, for the ambiguity test.

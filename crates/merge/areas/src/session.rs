@@ -7,9 +7,58 @@ use mapmerge_posegraph::PoseGraph2;
 use mapmerge_scan::{LaserLog, LaserScan};
 use serde::{Deserialize, Serialize};
 
+use crate::environment::Preset;
 use crate::error::AreasError;
-use crate::manager::{manage_sessions, ManagedMap, ManagerParams, Segmentation, SessionInput};
+use crate::manager::{
+    manage_sessions, segment, ManagedMap, ManagerParams, Segmentation, SessionInput,
+};
 use mapmerge_place::GeometricVerifier;
+
+/// Maps one span: its scans (a log of their own) with its environment's preset in, each
+/// scan's `map_from_robot` and the span's pose graph out. The caller brings the SLAM
+/// pipeline (the app layer's `run_slam`), so this crate stays below it.
+pub type MapSpan<'a> = dyn FnMut(&LaserLog, &Preset) -> Result<(Vec<Se2>, PoseGraph2), String> + 'a;
+
+/// Splits `log` at its door passings (its scans' odometry poses) and maps each span with
+/// `map_span`: one session as the manager keeps it.
+pub fn map_session(
+    name: String,
+    log: LaserLog,
+    params: &ManagerParams,
+    map_span: &mut MapSpan<'_>,
+) -> Result<MappedSession, AreasError> {
+    let mut poses = Vec::with_capacity(log.scans.len());
+    for (k, record) in log.scans.iter().enumerate() {
+        let pose = record
+            .odom_from_robot
+            .ok_or_else(|| AreasError::Mapping(format!("{name}: scan {k} has no odometry pose")))?;
+        poses.push(pose);
+    }
+    let segmentation = segment(
+        poses.iter().copied().zip(log.scans.iter().map(|r| &r.scan)),
+        params,
+    )?;
+    let (mut trajectories, mut graphs) = (Vec::new(), Vec::new());
+    for (k, span) in segmentation.spans.iter().enumerate() {
+        let part = LaserLog {
+            scans: log.scans.get(span.scans.clone()).unwrap_or(&[]).to_vec(),
+            params: log.params.clone(),
+            ..LaserLog::default()
+        };
+        let preset = span.environment.preset()?;
+        let (trajectory, graph) = map_span(&part, &preset)
+            .map_err(|e| AreasError::Mapping(format!("{name} span {k}: {e}")))?;
+        trajectories.push(trajectory);
+        graphs.push(graph);
+    }
+    Ok(MappedSession {
+        name,
+        log,
+        segmentation,
+        trajectories,
+        graphs,
+    })
+}
 
 /// One session, mapped area by area.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
