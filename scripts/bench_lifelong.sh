@@ -85,9 +85,16 @@ def row(label, runs):
     scans = sum(r["scans"] for _, r in runs); secs = sum(r["seconds"] for _, r in runs)
     share = f"{merged / epochs:.0%}" if epochs else "—"
     rej_share = f"{rej / cond:.1%}" if cond else "—"
-    print(f"| {label} | {len(runs)} | {epochs} | {merged} ({share}) | {wrong} | {wrong_ok} of {wrong} | {correct} | {correct_undone} | {correct_rejected} | {cond} | {rej} ({rej_share}) | {amb} | {1e3 * secs / max(scans, 1):.1f} |")
-print("| runs | count | epochs after the first | ending correctly merged | wrong merges | wrong rejected/undone ≤ 10 m | correct merges | correct undone | correct rejected (conditional) | conditional merges | conditional later rejected | ambiguous keyframes | ms/scan |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    # Epochs that travelled ≥ 5 m where an earlier epoch had been (older builds: "—").
+    if all(r.get("epochs_revisiting") is not None for _, r in runs):
+        revisiting = sum(r["epochs_revisiting"] for _, r in runs)
+        revisit_merged = sum(r["epochs_revisiting_merged_correctly"] for _, r in runs)
+        revisits = f"{revisit_merged} of {revisiting}" + (f" ({revisit_merged / revisiting:.0%})" if revisiting else "")
+    else:
+        revisits = "—"
+    print(f"| {label} | {len(runs)} | {epochs} | {merged} ({share}) | {revisits} | {wrong} | {wrong_ok} of {wrong} | {correct} | {correct_undone} | {correct_rejected} | {cond} | {rej} ({rej_share}) | {amb} | {1e3 * secs / max(scans, 1):.1f} |")
+print("| runs | count | epochs after the first | ending correctly merged | of those revisiting ≥ 5 m, ending correctly merged | wrong merges | wrong rejected/undone ≤ 10 m | correct merges | correct undone | correct rejected (conditional) | conditional merges | conditional later rejected | ambiguous keyframes | ms/scan |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 tune = load("tune-office-aliased-*.json")
 if tune: row("tuning: office-aliased seeds 1–10", tune)
 for world in ["office", "office-aliased", "corridor-loop", "warehouse", "symmetric-hall"]:

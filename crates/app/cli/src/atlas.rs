@@ -32,6 +32,7 @@ use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 use mapmerge_verify::{
     ChangeDetectionDetector, DetectorScan, InvalidMergeDetector, MergedMap, PointClass,
 };
+use nalgebra::Vector2;
 use serde::Serialize;
 
 use crate::invalid_merge_eval::{Label, MergeResult};
@@ -185,12 +186,31 @@ struct Report {
     correct_undone: Option<usize>,
     correct_rejected: Option<usize>,
     epochs_merged_correctly: Option<usize>,
+    /// Simulation, fresh runs: epochs after the first whose true path ran at least
+    /// `REVISIT_MIN_M` within `REVISIT_RADIUS_M` of an earlier epoch's (the others had
+    /// little or no chance to merge), those of them that end with a kept correct merge, and
+    /// every epoch's figures.
+    epochs_revisiting: Option<usize>,
+    epochs_revisiting_merged_correctly: Option<usize>,
+    epoch_revisits: Option<Vec<EpochRevisit>>,
     pictures: Vec<PathBuf>,
     events: PathBuf,
     /// With `--store`: what was continued and what was committed.
     store: Option<StoreRunReport>,
     seconds: f64,
     ms_per_scan: f64,
+}
+
+/// One epoch after the first, against the ground truth.
+#[derive(Serialize)]
+struct EpochRevisit {
+    epoch: usize,
+    /// Its true path's length (m) …
+    travel_m: f64,
+    /// … and the part of it within `REVISIT_RADIUS_M` of an earlier epoch's true path (m).
+    revisit_travel_m: f64,
+    /// Whether it ends with a kept correct merge.
+    merged_correctly: bool,
 }
 
 /// `atlas --store`: the version continued and the versions committed.
@@ -251,6 +271,12 @@ impl SiteMap {
 const TRUE_WITHIN: (f64, f64) = (0.5, 0.1745);
 /// A wrong merge must be undone within this much travel (m) (issue target).
 const UNDO_WITHIN_M: f64 = 10.0;
+/// An epoch revisits where its true path passes within this of an earlier epoch's (m): a
+/// 360° scan there sees the same place …
+const REVISIT_RADIUS_M: f64 = 1.5;
+/// … and counts as revisiting with at least this much such travel (m): the full merge
+/// criteria need 5 observations over views 2 m apart, about 5 m of travel.
+const REVISIT_MIN_M: f64 = 5.0;
 
 fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
     if let Some(preset) = &args.sim {
@@ -366,6 +392,11 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let bar = crate::progress_bar(total, "scans", "", visible);
     let mut pictures = Vec::new();
     let mut picture_count = 0usize;
+    // Every epoch's true path (a fresh run with the truth of every session only): which
+    // epochs could have been merged at all.
+    let mut true_paths: Option<Vec<Vec<Vector2<f64>>>> = (resumed_from.is_none()
+        && sessions.iter().all(|s| s.truth.is_some()))
+    .then(|| vec![Vec::new()]);
     for (s, session) in sessions.iter().enumerate() {
         bar.set_message(session.name.clone());
         let events_before = engine.events().len();
@@ -373,12 +404,24 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         // A restart ends the epoch, unless the last session ended it (`--store`).
         if (s > 0 || resumed_from.is_some()) && engine.atlas().active().num_vertices() > 0 {
             engine.end_epoch(EpochEndReason::Restart)?;
+            if let Some(paths) = true_paths.as_mut() {
+                paths.push(Vec::new());
+            }
         }
         let mut previous_odometry = None;
         for (k, record) in session.log.scans.iter().enumerate() {
             bar.inc(1);
             if session.kidnaps.contains(&k) {
                 engine.end_epoch(EpochEndReason::Kidnap)?;
+                if let Some(paths) = true_paths.as_mut() {
+                    paths.push(Vec::new());
+                }
+            }
+            if let (Some(path), Some(truth)) = (
+                true_paths.as_mut().and_then(|p| p.last_mut()),
+                session.truth.as_ref().and_then(|t| t.get(k)),
+            ) {
+                path.push(truth.translation());
             }
             let odometry = record
                 .odom_from_robot
@@ -466,8 +509,33 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         .filter(|m| m.state == MergeState::Full)
         .map(|m| m.epoch)
         .collect();
+    // Epochs after the first: how far each travelled where an earlier epoch had been.
+    let epoch_revisits: Option<Vec<EpochRevisit>> = true_paths
+        .filter(|paths| judged && paths.len() == epochs)
+        .map(|paths| {
+            let revisit_m = mapmerge_eval::revisit_travel_m(&paths, REVISIT_RADIUS_M);
+            (1..paths.len())
+                .map(|e| EpochRevisit {
+                    epoch: e,
+                    travel_m: paths[e].windows(2).map(|w| (w[1] - w[0]).norm()).sum(),
+                    revisit_travel_m: revisit_m[e],
+                    merged_correctly: u32::try_from(e).is_ok_and(|e| kept_correct.contains(&e)),
+                })
+                .collect()
+        });
+    let revisiting = |e: &&EpochRevisit| e.revisit_travel_m >= REVISIT_MIN_M;
     let seconds = started.elapsed().as_secs_f64();
     let report = Report {
+        epochs_revisiting: epoch_revisits
+            .as_ref()
+            .map(|r| r.iter().filter(revisiting).count()),
+        epochs_revisiting_merged_correctly: epoch_revisits.as_ref().map(|r| {
+            r.iter()
+                .filter(revisiting)
+                .filter(|e| e.merged_correctly)
+                .count()
+        }),
+        epoch_revisits,
         sessions: sessions.len(),
         scans: engine.scans(),
         epochs,
@@ -587,6 +655,14 @@ fn print_text(report: &Report) {
         println!(
             "  against the ground truth: {u} of {w} wrong merges rejected or undone within {UNDO_WITHIN_M} m; {cu} of {c} correct merges undone, {cr} rejected; {e} of {} later epochs end merged correctly",
             report.epochs_with_a_map
+        );
+    }
+    if let (Some(r), Some(m)) = (
+        report.epochs_revisiting,
+        report.epochs_revisiting_merged_correctly,
+    ) {
+        println!(
+            "  {m} of the {r} later epochs that travelled {REVISIT_MIN_M} m or more within {REVISIT_RADIUS_M} m of an earlier epoch's path end merged correctly"
         );
     }
     if let Some(store) = &report.store {

@@ -98,6 +98,35 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         assert!(report["hypotheses"][key].is_u64(), "{report}");
     }
     assert!(report["ambiguous_keyframes"].is_u64());
+    // Every later epoch's revisit of earlier places, against the truth: one entry per epoch
+    // after the first, the revisit part of its path, and the merged ones as counted above.
+    let revisits = report["epoch_revisits"].as_array().unwrap();
+    assert_eq!(revisits.len(), started - 1, "{report}");
+    let mut merged_correctly = 0;
+    let mut revisiting = (0, 0);
+    for (k, e) in revisits.iter().enumerate() {
+        assert_eq!(e["epoch"].as_u64().unwrap() as usize, k + 1);
+        let (travel, revisit) = (
+            e["travel_m"].as_f64().unwrap(),
+            e["revisit_travel_m"].as_f64().unwrap(),
+        );
+        assert!((0.0..=travel + 1e-9).contains(&revisit), "{e}");
+        let merged = e["merged_correctly"].as_bool().unwrap();
+        merged_correctly += usize::from(merged);
+        if revisit >= 5.0 {
+            revisiting.0 += 1;
+            revisiting.1 += usize::from(merged);
+        }
+    }
+    assert_eq!(
+        report["epochs_merged_correctly"].as_u64().unwrap() as usize,
+        merged_correctly
+    );
+    assert_eq!(report["epochs_revisiting"].as_u64().unwrap() as usize, revisiting.0);
+    assert_eq!(
+        report["epochs_revisiting_merged_correctly"].as_u64().unwrap() as usize,
+        revisiting.1
+    );
     assert!(dir.join("atlas/active.g2o").is_file());
     // --merge-results: one line per judged merge and method (the detector's own reading
     // first), labelled by the truth, in the format `eval calibrate --results` reads.
@@ -164,6 +193,7 @@ fn a_public_log_cut_by_a_kidnap_gives_two_epochs() {
     assert_eq!(report["epochs"], 2, "{report}");
     // Without ground truth nothing is judged.
     assert!(report["wrong_merges"].is_null());
+    assert!(report["epoch_revisits"].is_null());
     let kidnap = events(&dir)
         .into_iter()
         .find(|e| e["event"] == "epoch_ended")

@@ -94,7 +94,7 @@ impl Default for RecognitionParams {
             min_confidence: 0.05,
             every_keyframes: 5,
             min_epoch_keyframes: 10,
-            verifier: PlaceVerifierParams::default(),
+            verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
         }
     }
 }

@@ -64,6 +64,14 @@ pub struct EvidenceParams {
     pub flip_weight: f64,
     /// See `flip_weight` (default: 0.5: a turned query that fits half as well is normal).
     pub flip_tolerance: f64,
+    /// With both keyframes' free space, measure the flip on the whole-map scale instead of
+    /// the scan matcher's: `flip_ratio` becomes the best placement's disagreement over the
+    /// turned placement's, `(1 − agreement) / (1 − turned agreement)` (1 when the turned
+    /// placement agrees as well; [`disagreement_ratio`]) (default: false). In a corridor
+    /// the turned local map fits the matcher almost as well (ratio 0.8–0.9, so the true
+    /// place scores 0.3–0.45) while disagreeing several times as much over the whole
+    /// overlap (docs/benchmarks.md §10, issue 14).
+    pub flip_by_agreement: bool,
     /// Matched structure (m of line-like wall in the weakest direction) from which the score is
     /// not reduced; below it the score shrinks in proportion (default: 3). Higher refuses
     /// more corridor-like places.
@@ -100,6 +108,7 @@ impl Default for EvidenceParams {
             violation_weight: 3.0,
             flip_weight: 2.0,
             flip_tolerance: 0.5,
+            flip_by_agreement: false,
             full_constraint_m: 3.0,
             min_overlap_fraction: 0.5,
             agreement_z: 0.0,
@@ -125,7 +134,8 @@ pub struct Evidence {
     /// Matched line-like structure in the weakest direction (m of wall).
     pub constraint_m: f64,
     /// Scan-matcher score with the query turned by 180° over the score of the alignment
-    /// (0 when that search found nothing).
+    /// (0 when that search found nothing); with `EvidenceParams::flip_by_agreement` on whole
+    /// maps, the alignment's whole-map disagreement over the turned placement's.
     pub flip_ratio: f64,
     /// Whether both keyframes carried their free space: the score is then the whole-map
     /// agreement's.
@@ -187,6 +197,18 @@ impl Evidence {
             1.0
         };
         (support * constrained).clamp(0.0, 1.0)
+    }
+}
+
+/// How nearly a turned placement agrees as well as the best one, in `[0, 1]`: the best
+/// placement's disagreement over the turned one's, `(1 − best) / (1 − turned)` for whole-map
+/// agreements `best` and `turned`; 1 when the turned placement agrees at least as well.
+pub fn disagreement_ratio(best_agreement: f64, turned_agreement: f64) -> f64 {
+    let (best, turned) = (1.0 - best_agreement, 1.0 - turned_agreement);
+    if turned <= best {
+        1.0
+    } else {
+        (best / turned).clamp(0.0, 1.0)
     }
 }
 

@@ -64,7 +64,7 @@ pub mod submap_descriptor;
 mod verify;
 
 pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
-pub use evidence::{evidence, Evidence, EvidenceParams};
+pub use evidence::{disagreement_ratio, evidence, Evidence, EvidenceParams};
 pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
 pub use loops::{

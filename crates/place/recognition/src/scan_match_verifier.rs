@@ -10,7 +10,7 @@ use mapmerge_scanmatch::{
 use serde::{Deserialize, Serialize};
 use std::sync::Mutex;
 
-use crate::evidence::{evidence, Evidence, EvidenceParams};
+use crate::evidence::{disagreement_ratio, evidence, Evidence, EvidenceParams};
 use crate::{GeometricVerifier, Keyframe, Verification};
 
 /// The verifier of place recognition without a pose prior (the atlas's merge search, the
@@ -47,6 +47,13 @@ impl Default for PlaceVerifierParams {
 }
 
 impl PlaceVerifierParams {
+    /// The same parameters with the flip measured on the whole-map scale
+    /// ([`EvidenceParams::flip_by_agreement`]).
+    pub fn with_flip_by_agreement(mut self) -> Self {
+        self.evidence.flip_by_agreement = true;
+        self
+    }
+
     /// The verifier (fails on invalid matcher parameters).
     pub fn verifier(&self) -> Result<ScanMatchVerifier, ScanMatchError> {
         Ok(ScanMatchVerifier::new(self.matcher, self.window)?.with_evidence(self.evidence))
@@ -176,8 +183,8 @@ impl ScanMatchVerifier {
         // above `flip_tolerance` of the best lowers the score, so the search for it prunes
         // everything below (the same score, far fewer candidates); `flip_ratio` reads 0 for
         // a turned fit below the floor. The ratio is of correlative scores, so no ICP.
-        let flip_ratio = if self.window.angular_rad >= std::f64::consts::PI || found.score <= 0.0 {
-            0.0
+        let flipped = if self.window.angular_rad >= std::f64::consts::PI || found.score <= 0.0 {
+            None
         } else {
             let floor = (params.flip_tolerance * found.score)
                 .max(self.matcher.params().correlative.min_score);
@@ -188,15 +195,25 @@ impl ScanMatchVerifier {
                 &self.window,
                 floor,
             )
-            .map_or(0.0, |flipped| flipped.score / found.score)
         };
-        let proof = evidence(
+        let flip_ratio = flipped
+            .as_ref()
+            .map_or(0.0, |flipped| flipped.score / found.score);
+        let mut proof = evidence(
             query,
             candidate,
             &found.target_from_query,
             flip_ratio,
             &params,
         );
+        if params.flip_by_agreement && proof.whole_map {
+            // The turned placement weighed on the same whole-map scale as the best one.
+            proof.flip_ratio = flipped.map_or(0.0, |flipped| {
+                let turned = evidence(query, candidate, &flipped.target_from_query, 0.0, &params);
+                disagreement_ratio(proof.agreement, turned.agreement)
+            });
+            proof.score = proof.score_with(&params);
+        }
         (
             Verification {
                 candidate_from_query: found.target_from_query,
@@ -340,6 +357,107 @@ mod tests {
         }
         assert!(flips[0] > 0.5, "the rectangle fits turned: {flips:?}");
         assert!(flips[1] <= 0.5, "the irregular room does not: {flips:?}");
+    }
+
+    /// A 360° scan (720 beams, robot frame) of the closed polygon `corners` from `world_from_robot`,
+    /// as a keyframe with the free space its beams crossed.
+    fn scanned(corners: &[Point2], world_from_robot: &Se2, id: u64) -> Keyframe {
+        let origin = world_from_robot.translation();
+        let mut points = Vec::new();
+        for i in 0..720 {
+            let bearing = i as f64 * std::f64::consts::TAU / 720.0;
+            let angle = world_from_robot.theta_rad + bearing;
+            let d = Point2::new(angle.cos(), angle.sin());
+            let mut nearest = f64::INFINITY;
+            for (k, a) in corners.iter().enumerate() {
+                let e = corners[(k + 1) % corners.len()] - a;
+                let denom = d.x * -e.y + d.y * e.x;
+                if denom.abs() < 1e-12 {
+                    continue;
+                }
+                let r = a - origin;
+                let t = (r.x * -e.y + r.y * e.x) / denom;
+                let u = (d.x * r.y - d.y * r.x) / denom;
+                if t > 1e-6 && (0.0..=1.0).contains(&u) {
+                    nearest = nearest.min(t);
+                }
+            }
+            if nearest.is_finite() {
+                points.push(Point2::new(bearing.cos(), bearing.sin()) * nearest);
+            }
+        }
+        let rays = points
+            .iter()
+            .map(|p| (Point2::zeros(), *p))
+            .collect::<Vec<_>>();
+        let free = crate::FreeSpace::from_rays(0.1, rays).unwrap();
+        Keyframe::new(id, points).with_free_space(free)
+    }
+
+    /// Whole maps: in a corridor with one niche the turned placement fits the matcher almost
+    /// as well (the true place is scored down), while over the whole overlap it disagrees
+    /// where the niche opens, so measured by agreement the true place keeps its score. A
+    /// rectangle fits turned either way, and both measures say so.
+    #[test]
+    fn the_flip_by_agreement_spares_a_corridor_and_still_catches_a_symmetric_room() {
+        let corridor = [
+            Point2::new(-6.0, -1.0),
+            Point2::new(6.0, -1.0),
+            Point2::new(6.0, 1.0),
+            Point2::new(2.5, 1.0),
+            Point2::new(2.5, 2.5),
+            Point2::new(1.5, 2.5),
+            Point2::new(1.5, 1.0),
+            Point2::new(-6.0, 1.0),
+        ];
+        let rectangle = [
+            Point2::new(-3.0, -2.0),
+            Point2::new(3.0, -2.0),
+            Point2::new(3.0, 2.0),
+            Point2::new(-3.0, 2.0),
+        ];
+        let by_matcher = PlaceVerifierParams::default();
+        let by_agreement = PlaceVerifierParams::default().with_flip_by_agreement();
+        let guess = Se2::new(0.0, 0.0, 0.05);
+        let proofs = |corners: &[Point2]| {
+            let candidate = scanned(corners, &Se2::new(0.0, 0.0, 0.0), 1);
+            let query = scanned(corners, &Se2::new(0.3, -0.2, 0.1), 2);
+            [&by_matcher, &by_agreement].map(|params| {
+                let (verification, proof) = params
+                    .verifier()
+                    .unwrap()
+                    .verify_with_evidence(&query, &candidate, &guess)
+                    .unwrap();
+                assert!(proof.whole_map);
+                (verification.score, proof.flip_ratio)
+            })
+        };
+        let [(matcher_score, matcher_flip), (agreement_score, agreement_flip)] = proofs(&corridor);
+        assert!(
+            matcher_flip > 0.5,
+            "the corridor fits the matcher turned: {matcher_flip}"
+        );
+        assert!(matcher_score < 0.7, "{matcher_score}");
+        assert!(
+            agreement_flip <= 0.5,
+            "but disagrees turned: {agreement_flip}"
+        );
+        assert!(agreement_score > 0.9, "{agreement_score}");
+        let [(_, matcher_flip), (agreement_score, agreement_flip)] = proofs(&rectangle);
+        assert!(matcher_flip > 0.5, "{matcher_flip}");
+        assert!(
+            agreement_flip > 0.5,
+            "the rectangle agrees turned: {agreement_flip}"
+        );
+        assert!(agreement_score < 0.5, "{agreement_score}");
+    }
+
+    #[test]
+    fn disagreement_ratio_is_one_for_an_equal_fit_and_falls_with_the_turned_disagreement() {
+        assert_eq!(disagreement_ratio(1.0, 1.0), 1.0);
+        assert_eq!(disagreement_ratio(0.95, 0.97), 1.0);
+        assert!((disagreement_ratio(0.98, 0.9) - 0.2).abs() < 1e-12);
+        assert_eq!(disagreement_ratio(1.0, 0.8), 0.0);
     }
 
     /// A target rebuilt in a spare target's memory verifies as a fresh one: a big room, then

@@ -70,6 +70,7 @@ mod odometry_noise;
 mod outliers;
 mod pose;
 mod relations;
+mod revisit;
 mod rng;
 mod roc;
 mod score;
@@ -92,6 +93,7 @@ pub use relations::{
     RelationsError, RelationsInfo, RelationsParams, RelativePoseError, RpeDelta, TrajectoryReport,
     DEFAULT_RPE_DELTAS,
 };
+pub use revisit::revisit_travel_m;
 pub use roc::{roc_auc, roc_curve, RocPoint};
 pub use score::{precision_recall, RejectionScore};
 pub use simulate::{simulate_manhattan_2d, ManhattanParams};
