@@ -122,9 +122,14 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         report["epochs_merged_correctly"].as_u64().unwrap() as usize,
         merged_correctly
     );
-    assert_eq!(report["epochs_revisiting"].as_u64().unwrap() as usize, revisiting.0);
     assert_eq!(
-        report["epochs_revisiting_merged_correctly"].as_u64().unwrap() as usize,
+        report["epochs_revisiting"].as_u64().unwrap() as usize,
+        revisiting.0
+    );
+    assert_eq!(
+        report["epochs_revisiting_merged_correctly"]
+            .as_u64()
+            .unwrap() as usize,
         revisiting.1
     );
     assert!(dir.join("atlas/active.g2o").is_file());

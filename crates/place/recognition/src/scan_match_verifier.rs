@@ -359,33 +359,24 @@ mod tests {
         assert!(flips[1] <= 0.5, "the irregular room does not: {flips:?}");
     }
 
-    /// A 360° scan (720 beams, robot frame) of the closed polygon `corners` from `world_from_robot`,
-    /// as a keyframe with the free space its beams crossed.
+    /// A 360° scan (720 beams, robot frame) of the closed polygon `corners` from
+    /// `world_from_robot` by the simulator's ray caster, as a keyframe with the free space
+    /// its beams crossed.
     fn scanned(corners: &[Point2], world_from_robot: &Se2, id: u64) -> Keyframe {
+        let walls: Vec<mapmerge_sim::Segment> = corners
+            .iter()
+            .zip(corners.iter().cycle().skip(1))
+            .map(|(a, b)| mapmerge_sim::Segment::new(*a, *b))
+            .collect();
+        let caster = mapmerge_sim::RayCaster::from_segments(&walls, 1.0);
         let origin = world_from_robot.translation();
-        let mut points = Vec::new();
-        for i in 0..720 {
-            let bearing = i as f64 * std::f64::consts::TAU / 720.0;
-            let angle = world_from_robot.theta_rad + bearing;
-            let d = Point2::new(angle.cos(), angle.sin());
-            let mut nearest = f64::INFINITY;
-            for (k, a) in corners.iter().enumerate() {
-                let e = corners[(k + 1) % corners.len()] - a;
-                let denom = d.x * -e.y + d.y * e.x;
-                if denom.abs() < 1e-12 {
-                    continue;
-                }
-                let r = a - origin;
-                let t = (r.x * -e.y + r.y * e.x) / denom;
-                let u = (d.x * r.y - d.y * r.x) / denom;
-                if t > 1e-6 && (0.0..=1.0).contains(&u) {
-                    nearest = nearest.min(t);
-                }
-            }
-            if nearest.is_finite() {
-                points.push(Point2::new(bearing.cos(), bearing.sin()) * nearest);
-            }
-        }
+        let points: Vec<Point2> = (0..720)
+            .filter_map(|i| {
+                let bearing = i as f64 * std::f64::consts::TAU / 720.0;
+                let range_m = caster.cast(&origin, world_from_robot.theta_rad + bearing, 30.0)?;
+                Some(Point2::new(bearing.cos(), bearing.sin()) * range_m)
+            })
+            .collect();
         let rays = points
             .iter()
             .map(|p| (Point2::zeros(), *p))
