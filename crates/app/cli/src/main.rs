@@ -93,18 +93,46 @@ impl std::fmt::Display for BadInput {
 
 impl std::error::Error for BadInput {}
 
-/// Parameters from a JSON file (any subset of the fields; the rest keep their defaults, as
-/// the types' `#[serde(default)]` says), or the defaults without one. A file that cannot be
-/// read or parsed is bad input (exit code 2).
-pub fn read_config<T: serde::de::DeserializeOwned + Default>(
+/// Parameters from a JSON file, or the defaults without one. The file may give any subset
+/// of the fields at any depth: it is laid over `T::default()` written as JSON, so a field it
+/// leaves out keeps the value `T`'s default has there, also inside a nested object (a
+/// nested struct's own default can differ: the atlas's `recognition.place` is not
+/// `PlaceParams::default()`). Unknown fields are still refused where the types deny them. A
+/// file that cannot be read or parsed is bad input (exit code 2).
+pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     path: Option<&std::path::Path>,
 ) -> anyhow::Result<T> {
     let Some(path) = path else {
         return Ok(T::default());
     };
-    let text =
-        std::fs::read_to_string(path).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
-    serde_json::from_str(&text).map_err(|e| bad_input(format!("{}: {e}", path.display())))
+    let bad = |e: &dyn std::fmt::Display| bad_input(format!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(|e| bad(&e))?;
+    let given: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&e))?;
+    let mut merged = serde_json::to_value(T::default()).map_err(|e| bad(&e))?;
+    overlay(&mut merged, given);
+    serde_json::from_value(merged).map_err(|e| bad(&e))
+}
+
+/// `given` laid over `base`: objects field by field, recursively; anything else replaces,
+/// and so does an object naming another variant of a tagged enum than `base`'s (a different
+/// `"kind"`, the tag of the parameters' enums, e.g. `RobustKernel`): its fields are the new
+/// variant's own.
+fn overlay(base: &mut serde_json::Value, given: serde_json::Value) {
+    let other_variant = |base: &serde_json::Value, given: &serde_json::Value| matches!((base.get("kind"), given.get("kind")), (Some(b), Some(g)) if b != g);
+    match (base, given) {
+        (base, given) if other_variant(base, &given) => *base = given,
+        (serde_json::Value::Object(base), serde_json::Value::Object(given)) => {
+            for (key, value) in given {
+                match base.get_mut(&key) {
+                    Some(slot) => overlay(slot, value),
+                    None => {
+                        base.insert(key, value);
+                    }
+                }
+            }
+        }
+        (base, given) => *base = given,
+    }
 }
 
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
@@ -239,5 +267,94 @@ fn main() -> ExitCode {
                 ExitCode::from(1)
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    /// `read_config` of `text` (written to a scratch file).
+    fn config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
+        name: &str,
+        text: &str,
+    ) -> anyhow::Result<T> {
+        let path = std::env::temp_dir().join(format!(
+            "mapmerge-config-{}-{name}.json",
+            std::process::id()
+        ));
+        std::fs::write(&path, text).unwrap();
+        let read = read_config(Some(&path));
+        std::fs::remove_file(&path).unwrap();
+        read
+    }
+
+    /// An empty object gives the defaults of every parameter type a command reads: each
+    /// default survives being written as JSON and read back.
+    #[test]
+    fn an_empty_config_is_every_types_default() {
+        fn same<T: serde::de::DeserializeOwned + serde::Serialize + Default>(name: &str) {
+            let read: T = config(name, "{}").unwrap();
+            assert_eq!(
+                serde_json::to_value(read).unwrap(),
+                serde_json::to_value(T::default()).unwrap(),
+                "{name}"
+            );
+        }
+        same::<mapmerge_engine::EngineParams>("engine");
+        same::<mapmerge_areas::ManagerParams>("manager");
+        same::<mapmerge_areas::DoorParams>("doors");
+        same::<mapmerge_assemble::AssembleParams>("assemble");
+        same::<mapmerge_gridmatch::GridMatchParams>("gridmatch");
+    }
+
+    /// A field given deep inside keeps its siblings at the enclosing default, which differs
+    /// from the nested type's own (the atlas's recognition accepts from 0.975, a bare
+    /// `PlaceParams` from 0.5); a misspelt field is still refused.
+    #[test]
+    fn a_nested_field_keeps_its_siblings_at_the_enclosing_default() {
+        let params: mapmerge_engine::EngineParams = config(
+            "nested",
+            r#"{"atlas": {"recognition": {"place": {"candidates_per_query": 6}}}}"#,
+        )
+        .unwrap();
+        let defaults = mapmerge_engine::EngineParams::default();
+        let place = &params.atlas.recognition.place;
+        assert_eq!(place.candidates_per_query, 6);
+        assert_eq!(place.min_score, defaults.atlas.recognition.place.min_score);
+        assert_eq!(place.min_score, 0.975);
+        assert!(config::<mapmerge_engine::EngineParams>(
+            "typo",
+            r#"{"atlas": {"recognition": {"place": {"min_scor": 0.5}}}}"#
+        )
+        .is_err());
+        assert!(config::<mapmerge_engine::EngineParams>("broken", "{").is_err());
+    }
+
+    /// Another variant of a tagged enum replaces the default's (whose fields it does not
+    /// have); the same variant takes the given fields.
+    #[test]
+    fn another_variant_of_a_tagged_enum_replaces_the_defaults() {
+        use mapmerge_solve::RobustKernel;
+        let params: mapmerge_engine::EngineParams = config(
+            "variant",
+            r#"{"atlas": {"loops": {"optimizer": {"robust": {"kind": "huber", "delta": 2.0}}}}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            params.atlas.loops.optimizer.robust,
+            RobustKernel::Huber { delta: 2.0 }
+        );
+        let params: mapmerge_engine::EngineParams = config(
+            "same-variant",
+            r#"{"atlas": {"loops": {"optimizer": {"robust": {"phi": 3.0}}}}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            params.atlas.loops.optimizer.robust,
+            RobustKernel::Dcs { phi: 3.0 }
+        );
     }
 }

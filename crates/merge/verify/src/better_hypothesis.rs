@@ -69,8 +69,8 @@ pub struct BetterHypothesisParams {
     /// before). A look-alike room scores as well as the place the merge chose, so it is no
     /// evidence against the merge; the true place elsewhere outscores a wrong placement.
     /// Where the other epochs have no keyframe that near, the contradiction counts. On the
-    /// simulator's tuning seeds every correct merge that better hypothesis undid was undone
-    /// by look-alike rooms this way (docs/benchmarks.md §10).
+    /// simulator's tuning seeds two such look-alike contradictions undid a correct merge
+    /// (seed 4; docs/benchmarks.md §10).
     pub current_placement_within_m: f64,
     /// See `current_placement_within_m` (default: 0.02 on the whole-map score).
     pub better_by: f64,

@@ -68,7 +68,7 @@ pub struct EvidenceParams {
     /// the scan matcher's: `flip_ratio` becomes the best placement's disagreement over the
     /// turned placement's, `(1 − agreement) / (1 − turned agreement)` (1 when the turned
     /// placement agrees as well; [`disagreement_ratio`]) (default: false). In a corridor
-    /// the turned local map fits the matcher almost as well (ratio 0.8–0.9, so the true
+    /// the turned local map fits the matcher almost as well (ratio 0.8–0.95, so the true
     /// place scores 0.3–0.45) while disagreeing several times as much over the whole
     /// overlap (docs/benchmarks.md §10, issue 14).
     pub flip_by_agreement: bool,
