@@ -392,11 +392,10 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let bar = crate::progress_bar(total, "scans", "", visible);
     let mut pictures = Vec::new();
     let mut picture_count = 0usize;
-    // Every epoch's true path (a fresh run with the truth of every session only): which
-    // epochs could have been merged at all.
-    let mut true_paths: Option<Vec<Vec<Vector2<f64>>>> = (resumed_from.is_none()
-        && sessions.iter().all(|s| s.truth.is_some()))
-    .then(|| vec![Vec::new()]);
+    // Every scan's true position (a fresh run with the truth of every session only), cut
+    // into epochs afterwards where the engine's events say they started.
+    let mut true_positions: Option<Vec<Vector2<f64>>> =
+        (resumed_from.is_none() && sessions.iter().all(|s| s.truth.is_some())).then(Vec::new);
     for (s, session) in sessions.iter().enumerate() {
         bar.set_message(session.name.clone());
         let events_before = engine.events().len();
@@ -404,24 +403,18 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         // A restart ends the epoch, unless the last session ended it (`--store`).
         if (s > 0 || resumed_from.is_some()) && engine.atlas().active().num_vertices() > 0 {
             engine.end_epoch(EpochEndReason::Restart)?;
-            if let Some(paths) = true_paths.as_mut() {
-                paths.push(Vec::new());
-            }
         }
         let mut previous_odometry = None;
         for (k, record) in session.log.scans.iter().enumerate() {
             bar.inc(1);
             if session.kidnaps.contains(&k) {
                 engine.end_epoch(EpochEndReason::Kidnap)?;
-                if let Some(paths) = true_paths.as_mut() {
-                    paths.push(Vec::new());
-                }
             }
-            if let (Some(path), Some(truth)) = (
-                true_paths.as_mut().and_then(|p| p.last_mut()),
+            if let (Some(positions), Some(truth)) = (
+                true_positions.as_mut(),
                 session.truth.as_ref().and_then(|t| t.get(k)),
             ) {
-                path.push(truth.translation());
+                positions.push(truth.translation());
             }
             let odometry = record
                 .odom_from_robot
@@ -510,8 +503,23 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         .map(|m| m.epoch)
         .collect();
     // Epochs after the first: how far each travelled where an earlier epoch had been.
-    let epoch_revisits: Option<Vec<EpochRevisit>> = true_paths
-        .filter(|paths| judged && paths.len() == epochs)
+    let epoch_revisits: Option<Vec<EpochRevisit>> = true_positions
+        .filter(|positions| judged && positions.len() == engine.scans())
+        .map(|positions| {
+            // An epoch's scans: from the scan count at its start to the next one's.
+            let mut starts: Vec<usize> = engine
+                .events()
+                .iter()
+                .filter(|e| matches!(e.atlas(), Some(AtlasEvent::EpochStarted { .. })))
+                .map(|e| e.scan.min(positions.len()))
+                .collect();
+            starts.push(positions.len());
+            starts
+                .windows(2)
+                .map(|w| positions.get(w[0]..w[1]).unwrap_or_default().to_vec())
+                .collect::<Vec<_>>()
+        })
+        .filter(|paths| paths.len() == epochs)
         .map(|paths| {
             let revisit_m = mapmerge_eval::revisit_travel_m(&paths, REVISIT_RADIUS_M);
             (1..paths.len())

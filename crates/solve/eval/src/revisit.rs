@@ -1,8 +1,7 @@
 //! How much of each epoch could have been merged at all: the travel along its true path that
 //! passes near a place an earlier epoch visited (the chance place recognition had).
 
-use std::collections::HashMap;
-
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use nalgebra::Vector2;
 
 /// For every epoch (its true positions in one world frame, in order), the travel (m) along
@@ -10,45 +9,35 @@ use nalgebra::Vector2;
 /// there. The first epoch has nothing before it (0). Positions that are not finite are
 /// skipped; a `radius_m` that is not positive gives 0 everywhere.
 pub fn revisit_travel_m(epochs: &[Vec<Vector2<f64>>], radius_m: f64) -> Vec<f64> {
-    let mut out = Vec::with_capacity(epochs.len());
     if radius_m.is_nan() || radius_m <= 0.0 {
-        out.resize(epochs.len(), 0.0);
-        return out;
+        return vec![0.0; epochs.len()];
     }
-    // Earlier epochs' positions, hashed in cells of the radius: a neighbour lies in the 3×3
-    // cells around a point's.
-    let cell = |p: &Vector2<f64>| {
-        (
-            (p.x / radius_m).floor() as i64,
-            (p.y / radius_m).floor() as i64,
-        )
-    };
-    let mut earlier: HashMap<(i64, i64), Vec<Vector2<f64>>> = HashMap::new();
+    let finite = |p: &&Vector2<f64>| p.x.is_finite() && p.y.is_finite();
+    let mut earlier: Vec<[f64; 2]> = Vec::new();
+    let mut out = Vec::with_capacity(epochs.len());
     for path in epochs {
+        let tree: Option<ImmutableKdTree<f64, 2>> = (!earlier.is_empty())
+            .then(|| ImmutableKdTree::new_from_slice(&earlier).ok())
+            .flatten();
         let near_earlier = |p: &Vector2<f64>| {
-            let (cx, cy) = cell(p);
-            (-1..=1).any(|dx| {
-                (-1..=1).any(|dy| {
-                    earlier
-                        .get(&(cx + dx, cy + dy))
-                        .is_some_and(|ps| ps.iter().any(|q| (q - p).norm() <= radius_m))
-                })
+            tree.as_ref().is_some_and(|tree| {
+                let nearest = tree
+                    .query(&[p.x, p.y])
+                    .nearest_one::<SquaredEuclidean<f64>>()
+                    .execute();
+                nearest.distance <= radius_m * radius_m
             })
         };
         let mut travel_m = 0.0;
-        let mut last: Option<Vector2<f64>> = None;
-        for p in path.iter().filter(|p| p.x.is_finite() && p.y.is_finite()) {
-            if let Some(previous) = last {
-                if near_earlier(p) {
-                    travel_m += (p - previous).norm();
-                }
+        let mut last: Option<&Vector2<f64>> = None;
+        for p in path.iter().filter(finite) {
+            if last.is_some_and(|_| near_earlier(p)) {
+                travel_m += last.map_or(0.0, |q| (p - q).norm());
             }
-            last = Some(*p);
+            last = Some(p);
         }
         out.push(travel_m);
-        for p in path.iter().filter(|p| p.x.is_finite() && p.y.is_finite()) {
-            earlier.entry(cell(p)).or_default().push(*p);
-        }
+        earlier.extend(path.iter().filter(finite).map(|p| [p.x, p.y]));
     }
     out
 }
