@@ -26,11 +26,14 @@ use crate::{bad_file, bad_input, check_resolution, print_json};
 /// Arguments of `mapmerge areas`.
 #[derive(Args, Debug)]
 pub struct AreasArgs {
-    /// CARMEN laser logs (`.xz` accepted), one session each, in order: their scans' odometry
+    /// CARMEN laser logs (`.xz` accepted) or ROS 2 bags, one session each, in order: their scans' odometry
     /// poses drive door detection and each area's SLAM. A later session is placed in the
     /// first one's frame once it passes a door seen before. With `--store` and no logs, the
     /// stored areas are written out.
     pub logs: Vec<PathBuf>,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Instead of logs, the sessions of a simulated world (a preset of `mapmerge sim`),
     /// without kidnaps.
     #[arg(long, conflicts_with = "logs")]
@@ -159,7 +162,7 @@ fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<(String, LaserLog)>> {
         (logs, None) if !logs.is_empty() => logs
             .iter()
             .map(|path| {
-                let log = mapmerge_io::read_carmen(path).map_err(bad_file)?;
+                let log = crate::read_log(path, &args.topics)?;
                 Ok((path.display().to_string(), log))
             })
             .collect(),

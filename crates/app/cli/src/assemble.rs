@@ -29,7 +29,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::{bad_file, bad_input, check_resolution, print_json, progress_bar};
+use crate::{bad_input, check_resolution, print_json, progress_bar};
 
 /// Arrival order of the segments.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize)]
@@ -53,10 +53,13 @@ pub enum TrajectorySource {
 
 #[derive(Args, Debug)]
 pub struct AssembleArgs {
-    /// Segments: CARMEN logs (`.log`, `.log.xz`) named by their file stems, or KITTI-style
-    /// folders (3D) named by the folder.
+    /// Segments: CARMEN logs (`.log`, `.log.xz`) or ROS 2 bags (`.mcap`, `.db3`, bag
+    /// directories) named by their file stems, or KITTI-style folders (3D) named by the folder.
     #[arg(required = true)]
     pub segments: Vec<PathBuf>,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Output folder.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -98,10 +101,12 @@ pub enum LoadedSegment {
 /// KITTI-style folders. Mixing the two is bad input.
 pub fn load_segments(
     paths: &[PathBuf],
+    topics: &crate::BagTopics,
     source: TrajectorySource,
     progress: bool,
 ) -> anyhow::Result<Vec<LoadedSegment>> {
-    let folders: Vec<&PathBuf> = paths.iter().filter(|p| p.is_dir()).collect();
+    let is_kitti_folder = |p: &Path| p.is_dir() && !mapmerge_rosbag::is_bag(p);
+    let folders: Vec<&PathBuf> = paths.iter().filter(|p| is_kitti_folder(p)).collect();
     if let Some(folder) = folders.first().filter(|_| folders.len() < paths.len()) {
         return Err(bad_input(format!(
             "{}: a folder (a 3D segment) among CARMEN logs; segments are either logs (2D) or \
@@ -124,13 +129,13 @@ pub fn load_segments(
     let loaded: Vec<anyhow::Result<LoadedSegment>> = paths
         .par_iter()
         .map(|path| {
-            if path.is_dir() {
+            if is_kitti_folder(path) {
                 let segment = load_kitti_folder(path, &KittiFolderOptions::default())
                     .map_err(|e| bad_input(e.to_string()))?;
                 bar.inc(1);
                 return Ok(LoadedSegment::Spatial(segment));
             }
-            let log = mapmerge_io::read_carmen(path).map_err(bad_file)?;
+            let log = crate::read_log(path, topics)?;
             if log.scans.is_empty() {
                 return Err(bad_input(format!("{}: no laser scans", path.display())));
             }
@@ -224,7 +229,7 @@ struct AssembleReport<'a> {
 pub fn run(args: &AssembleArgs) -> anyhow::Result<()> {
     check_resolution(args.resolution)?;
     let started = Instant::now();
-    let mut loaded = load_segments(&args.segments, args.trajectory, !args.json)?;
+    let mut loaded = load_segments(&args.segments, &args.topics, args.trajectory, !args.json)?;
     let spatial = loaded
         .iter()
         .any(|s| matches!(s, LoadedSegment::Spatial(_)));

@@ -41,8 +41,12 @@ use crate::{bad_file, bad_input, print_json};
 /// Arguments of `mapmerge atlas`.
 #[derive(Args, Debug)]
 pub struct AtlasArgs {
-    /// CARMEN logs, one per session, in order (`.xz` accepted).
+    /// CARMEN logs (`.xz` accepted) or ROS 2 bags (`.mcap`, `.db3`, bag directories), one
+    /// per session, in order.
     pub logs: Vec<PathBuf>,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Scans (counted over all logs from 0) where the robot was kidnapped: each starts a new
     /// epoch.
     #[arg(long, value_delimiter = ',')]
@@ -312,7 +316,7 @@ fn load_sessions(args: &AtlasArgs) -> anyhow::Result<Vec<Session>> {
     let mut sessions = Vec::new();
     let mut offset = 0;
     for path in &args.logs {
-        let log = mapmerge_io::read_carmen(path).map_err(bad_file)?;
+        let log = crate::read_log(path, &args.topics)?;
         let n = log.scans.len();
         let kidnaps = args
             .kidnap_at

@@ -204,7 +204,7 @@ fn is_tum(path: &Path) -> bool {
 
 /// A CARMEN log and its scan poses (bad input when a scan has none).
 fn read_log(path: &Path) -> anyhow::Result<(mapmerge_scan::LaserLog, Vec<Se2>)> {
-    let log = mapmerge_io::read_carmen(path).map_err(bad_file)?;
+    let log = crate::read_log(path, &crate::BagTopics::default())?;
     let poses = scan_poses(&log).map_err(|e| bad_input(format!("{}: {e}", path.display())))?;
     Ok((log, poses))
 }

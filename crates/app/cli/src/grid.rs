@@ -18,9 +18,12 @@ use crate::{bad_file, bad_input, check_resolution, print_json};
 /// Arguments of `mapmerge grid`.
 #[derive(Args, Debug)]
 pub struct GridArgs {
-    /// CARMEN laser log (`.xz` accepted).
+    /// CARMEN laser log (`.xz` accepted) or ROS 2 bag (`.mcap`, `.db3`, or a bag directory).
     #[arg(long)]
     pub log: PathBuf,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Poses of the scans, one per scan in log order: a TUM trajectory (`.tum`/`.txt`) or
     /// a CARMEN log whose scan poses are used (e.g. a corrected log). Default: the poses in
     /// `--log` itself.
@@ -73,8 +76,12 @@ pub struct PosedLog {
 /// Reads `log` and the poses of its scans: from `poses` (TUM, or a CARMEN log's scan poses)
 /// or from the log itself. Scans are paired with poses by order, not by stamp (some public
 /// logs have broken stamps).
-pub fn load_posed_log(log: &Path, poses_path: Option<&Path>) -> anyhow::Result<PosedLog> {
-    let laser_log = mapmerge_io::read_carmen(log).map_err(bad_file)?;
+pub fn load_posed_log(
+    log: &Path,
+    poses_path: Option<&Path>,
+    topics: &crate::BagTopics,
+) -> anyhow::Result<PosedLog> {
+    let laser_log = crate::read_log(log, topics)?;
     let scan_count = laser_log.scans.len();
     let poses = match poses_path {
         None => poses_of(&laser_log, log)?,
@@ -83,7 +90,7 @@ pub fn load_posed_log(log: &Path, poses_path: Option<&Path>) -> anyhow::Result<P
             .into_iter()
             .map(|(_, pose)| pose)
             .collect(),
-        Some(path) => poses_of(&mapmerge_io::read_carmen(path).map_err(bad_file)?, path)?,
+        Some(path) => poses_of(&crate::read_log(path, topics)?, path)?,
     };
     if poses.len() != scan_count {
         return Err(bad_input(format!(
@@ -147,7 +154,7 @@ pub fn build_grid(
 /// Runs `mapmerge grid`.
 pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
     check_resolution(args.resolution)?;
-    let posed = load_posed_log(&args.log, args.poses.as_deref())?;
+    let posed = load_posed_log(&args.log, args.poses.as_deref(), &args.topics)?;
     let mut params = InsertParams::default();
     if let Some(max_range) = args.max_range {
         params.max_hit_range_m = max_range;

@@ -201,7 +201,7 @@ pub fn run(args: &GridMergeEvalArgs) -> anyhow::Result<()> {
     }
     let mut logs = Vec::new();
     for path in &args.logs {
-        let posed = crate::grid::load_posed_log(path, None)?;
+        let posed = crate::grid::load_posed_log(path, None, &crate::BagTopics::default())?;
         let mut combinations = Vec::new();
         for (k, (own_m, other_m)) in [(r1, r1), (r1, r2), (r2, r1)].into_iter().enumerate() {
             if !args.json {

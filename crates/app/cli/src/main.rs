@@ -14,6 +14,7 @@ mod assemble_eval;
 mod atlas;
 mod calibrate_eval;
 mod compare;
+mod convert;
 mod corrupt;
 mod door_eval;
 mod eval;
@@ -65,6 +66,9 @@ enum Command {
     Sim(sim::SimArgs),
     /// Build an occupancy grid (ROS map_server YAML + PGM) from a laser log and poses.
     Grid(grid::GridArgs),
+    /// Convert a laser log (CARMEN or ROS 2 bag) to a ROS 2 bag (`.mcap`, `.db3`) or a
+    /// CARMEN log.
+    Convert(convert::ConvertArgs),
     /// Merge two ROS map_server maps of any resolution without an initial guess (exit code 3:
     /// no acceptable hypothesis).
     GridMerge(grid_merge::GridMergeArgs),
@@ -136,7 +140,8 @@ fn overlay(base: &mut serde_json::Value, given: serde_json::Value) {
 }
 
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
-/// (`…/intel_03.log.xz` → `intel_03`).
+/// (`…/intel_03.log.xz` → `intel_03`); a bag's without `.mcap` / `.db3` (a bag directory's
+/// name is its stem).
 pub fn log_file_stem(path: &std::path::Path) -> String {
     let name = path
         .file_name()
@@ -146,7 +151,33 @@ pub fn log_file_stem(path: &std::path::Path) -> String {
         .strip_suffix(".xz")
         .or_else(|| name.strip_suffix(".gz"))
         .unwrap_or(&name);
-    name.strip_suffix(".log").unwrap_or(name).to_owned()
+    [".log", ".mcap", ".db3"]
+        .iter()
+        .find_map(|suffix| name.strip_suffix(suffix))
+        .unwrap_or(name)
+        .to_owned()
+}
+
+/// `--scan-topic` / `--odom-topic`: which topics of a ROS 2 bag to read, for every command
+/// that takes a LOG (a CARMEN log or a bag: `.mcap`, `.db3` or a bag directory).
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct BagTopics {
+    /// The bag's `sensor_msgs/msg/LaserScan` topic (default: the only one).
+    #[arg(long)]
+    pub scan_topic: Option<String>,
+    /// The bag's `nav_msgs/msg/Odometry` topic (default: the only one; none: scans without
+    /// poses).
+    #[arg(long)]
+    pub odom_topic: Option<String>,
+}
+
+/// Reads a laser session from a CARMEN log or a ROS 2 bag; failures are bad input (exit 2).
+pub fn read_log(path: &std::path::Path, topics: &BagTopics) -> anyhow::Result<mapmerge_scan::LaserLog> {
+    let choice = mapmerge_rosbag::TopicChoice {
+        scan_topic: topics.scan_topic.clone(),
+        odom_topic: topics.odom_topic.clone(),
+    };
+    mapmerge_rosbag::read_log(path, &choice).map_err(bad_file)
 }
 
 /// A public log's short name: its stem without `-corrected` (`…/intel-corrected.log.xz` →
@@ -247,6 +278,7 @@ fn main() -> ExitCode {
         Command::Compare(args) => compare::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Sim(args) => sim::run(args),
+        Command::Convert(args) => convert::run(args),
         Command::Areas(args) => areas::run(args),
         Command::Route(args) => areas::route(args),
         Command::Grid(args) => grid::run(args),

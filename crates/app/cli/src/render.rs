@@ -74,7 +74,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
             .and_then(|m| m.to_grid())
             .map_err(bad_file)?,
         (None, Some(log)) => {
-            let posed = load_posed_log(log, args.poses.as_deref())?;
+            let posed = load_posed_log(log, args.poses.as_deref(), &crate::BagTopics::default())?;
             build_grid(
                 &posed,
                 args.resolution,

@@ -59,6 +59,10 @@ pub struct SimArgs {
     /// Skip the PNG pictures (faster).
     #[arg(long)]
     pub no_pictures: bool,
+    /// Also write each session as a ROS 2 bag, `session_K.mcap` or `session_K.db3` (`/scan`,
+    /// `/odom`, `/tf_static`; see `mapmerge convert`).
+    #[arg(long, value_parser = ["mcap", "db3"])]
+    pub bag: Option<String>,
     /// Also write `corrected.log`: every session's scans at their true poses (world frame),
     /// one session after another, stamps shifted to increase — a corrected log, e.g. for
     /// `eval make-merge-cases --split-at-jumps-m 1` (its segments then end at the jumps
@@ -94,6 +98,9 @@ struct SimReport<'a> {
 struct SessionSummary<'a> {
     index: usize,
     log: String,
+    /// `--bag`'s file.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    bag: Option<String>,
     truth: String,
     world_map: String,
     start_room: String,
@@ -204,6 +211,15 @@ fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
         let log = format!("{stem}.log{}", if args.compress { ".xz" } else { "" });
         let truth = format!("{stem}.truth.tum");
         mapmerge_io::write_carmen(&dir.join(&log), &session.log)?;
+        let bag = match &args.bag {
+            Some(extension) => {
+                let name = format!("{stem}.{extension}");
+                let params = mapmerge_rosbag::BagWriteParams::default();
+                mapmerge_rosbag::write_bag(&dir.join(&name), &session.log, &params)?;
+                Some(name)
+            }
+            None => None,
+        };
         mapmerge_io::write_tum_planar(&dir.join(&truth), &session.truth)?;
         // A changed world gets its own map, so detectors can be scored against it.
         let world_map = if session.world_changes.is_empty() {
@@ -229,6 +245,7 @@ fn write_dataset(dataset: &Dataset, args: &SimArgs) -> anyhow::Result<()> {
         summaries.push(SessionSummary {
             index: session.index,
             log,
+            bag,
             truth,
             world_map,
             start_room,

@@ -22,13 +22,17 @@ use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
 use crate::grid::{build_grid, PosedLog};
-use crate::{bad_file, bad_input, check_resolution, print_json};
+use crate::{bad_input, check_resolution, print_json};
 
 /// Arguments of `mapmerge slam`.
 #[derive(Args, Debug)]
 pub struct SlamArgs {
-    /// CARMEN laser log (`.xz` accepted); its scans' odometry poses are the wheel odometry.
+    /// CARMEN laser log (`.xz` accepted) or ROS 2 bag (`.mcap`, `.db3`, or a bag
+    /// directory); its scans' odometry poses are the wheel odometry.
     pub log: PathBuf,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Output folder: graph.g2o, map.yaml + map.pgm, map.png, trajectory.tum.
     #[arg(short, long)]
     pub output: PathBuf,
@@ -209,7 +213,7 @@ fn loop_precision(run: &SlamRun, reference: &[Se2]) -> LoopPrecision {
 /// Runs `mapmerge slam`.
 pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     check_resolution(args.resolution)?;
-    let mut log = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
+    let mut log = crate::read_log(&args.log, &args.topics)?;
     if log.scans.is_empty() {
         return Err(bad_input(format!("{}: no laser scans", args.log.display())));
     }

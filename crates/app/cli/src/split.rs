@@ -31,13 +31,17 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::{LaserLog, OdometryReading};
 use serde::Serialize;
 
-use crate::{bad_file, bad_input, print_json};
+use crate::{bad_input, print_json};
 
 /// Arguments of `mapmerge split`.
 #[derive(Args, Debug)]
 pub struct SplitArgs {
-    /// Corrected CARMEN laser log (`.xz` accepted); its scan poses are the ground truth.
+    /// Corrected CARMEN laser log (`.xz` accepted) or ROS 2 bag (`.mcap`, `.db3`, or a bag
+    /// directory); its scan poses are the ground truth.
     pub log: PathBuf,
+    /// Topics of a ROS 2 bag.
+    #[command(flatten)]
+    pub topics: crate::BagTopics,
     /// Number of segments.
     #[arg(long)]
     pub segments: usize,
@@ -161,7 +165,7 @@ fn rebased_segment(log: &LaserLog, truth: &[Se2], first: usize, end: usize) -> L
 /// Runs `mapmerge split`.
 pub fn run(args: &SplitArgs) -> anyhow::Result<ExitCode> {
     let profile = OdometryNoiseProfile::from_name(&args.odometry_noise).map_err(bad_input)?;
-    let log = mapmerge_io::read_carmen(&args.log).map_err(bad_file)?;
+    let log = crate::read_log(&args.log, &args.topics)?;
     let ranges = segment_ranges(log.scans.len(), args.segments, args.overlap)
         .map_err(|reason| bad_input(format!("{}: {reason}", args.log.display())))?;
     let truth = scan_poses(&log).map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;

@@ -1,0 +1,58 @@
+//! ROS 2 bags without ROS: rosbag2's two storage formats (MCAP and SQLite `.db3`, a single
+//! file or a bag directory with `metadata.yaml`), CDR decoding of the messages a laser
+//! session needs, and writing bags from laser logs.
+//!
+//! Entry points:
+//! - [`read_log`]: a CARMEN log or a bag, whichever `path` is → [`LaserLog`], the one
+//!   session type of every command that takes a LOG;
+//! - [`read_bag`]: a bag → [`BagSession`] (the log and [`BagInfo`]: topics, frames, the
+//!   laser's mount, scans left out); scans are paired with the odometry at their stamp,
+//!   interpolated on SE(2), and the laser's mount comes from tf (`/tf_static`, else `/tf`);
+//! - [`read_point_clouds`]: `sensor_msgs/msg/PointCloud2` messages → points;
+//! - [`write_bag`]: a [`LaserLog`] → `.mcap` or `.db3`.
+//!
+//! Nothing here panics on input; every problem is an [`IoError`] naming the file and, for a
+//! message, its topic and index.
+
+mod clouds;
+mod messages;
+mod msgdefs;
+mod session;
+mod storage;
+mod write;
+
+use std::path::Path;
+
+use mapmerge_io::IoError;
+use mapmerge_scan::LaserLog;
+
+pub use clouds::{read_point_clouds, StampedCloud};
+pub use messages::{
+    decode, encode, Header, LaserScanMessage, OdometryMessage, PointCloud2Message, PointField,
+    Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3, LASER_SCAN_TYPE,
+    ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE,
+};
+pub use msgdefs::definition as message_definition;
+pub use session::{
+    read_bag, BagInfo, BagSession, MountSource, TopicChoice, MAX_LASER_TILT_DEG, ODOMETRY_HOLD_S,
+};
+pub use storage::{is_bag, Storage, Topic};
+pub use write::{write_bag, BagWriteParams, BagWriteReport, MOUNT_TOLERANCE};
+
+/// Reads a laser session from `path`: a rosbag2 bag (see [`is_bag`]) through [`read_bag`],
+/// anything else as a CARMEN log (plain or xz).
+pub fn read_log(path: &Path, choice: &TopicChoice) -> Result<LaserLog, IoError> {
+    if is_bag(path) {
+        Ok(read_bag(path, choice)?.log)
+    } else {
+        mapmerge_io::read_carmen(path)
+    }
+}
+
+/// Reads the laser scans of one MCAP file's bytes, for fuzzing: every input gives a
+/// session or an error, never a panic.
+pub fn parse_mcap_session(bytes: &[u8], choice: &TopicChoice) -> Result<LaserLog, String> {
+    let mut bag = storage::RawBag::default();
+    storage::read_mcap(&mut bag, bytes, &|_| true)?;
+    session::session_of(bag, choice).map(|session| session.log)
+}

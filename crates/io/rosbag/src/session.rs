@@ -1,0 +1,517 @@
+//! A bag → the session type the CARMEN reader produces ([`LaserLog`]): each scan with the
+//! odometry pose at its stamp (interpolated on SE(2)) and the laser's mount from tf.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use mapmerge_geometry::{LieGroup as _, Se2, Se3};
+use mapmerge_io::IoError;
+use mapmerge_scan::{LaserLog, LaserScan, OdometryReading, ScanRecord};
+use nalgebra::{UnitQuaternion, Vector3};
+
+use crate::messages::{
+    decode, LaserScanMessage, OdometryMessage, Quaternion, TfMessage, Transform, LASER_SCAN_TYPE,
+    ODOMETRY_TYPE, TF_TYPE,
+};
+use crate::storage::{read_raw_bag, RawBag, Storage, Topic};
+
+/// Which topics to read; `None` finds the one topic of the right type.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct TopicChoice {
+    /// The `sensor_msgs/msg/LaserScan` topic.
+    pub scan_topic: Option<String>,
+    /// The `nav_msgs/msg/Odometry` topic.
+    pub odom_topic: Option<String>,
+}
+
+/// A scan this far (s) before the first or after the last odometry message takes that
+/// message's pose; farther out it has no odometry and is left out.
+pub const ODOMETRY_HOLD_S: f64 = 0.05;
+
+/// Largest angle (deg) between the laser's axis of rotation and the robot's vertical: a
+/// planar scanner mounted within it is projected onto the plane, upright or upside down.
+pub const MAX_LASER_TILT_DEG: f64 = 10.0;
+
+/// Where the laser's mount came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MountSource {
+    /// `/tf_static`.
+    TfStatic,
+    /// The first transform on `/tf` (no static one).
+    Tf,
+    /// The scans are in the robot's own frame.
+    SameFrame,
+    /// The bag has no tf at all: the laser is taken to sit at the robot's origin.
+    NoTf,
+}
+
+/// What was read, and how the session was put together.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct BagInfo {
+    /// MCAP or SQLite.
+    pub storage: Storage,
+    /// Bytes read from disk.
+    pub bytes: u64,
+    /// Every topic of the bag.
+    pub topics: Vec<Topic>,
+    /// The scans' topic.
+    pub scan_topic: String,
+    /// The odometry's topic, if there is one.
+    pub odom_topic: Option<String>,
+    /// The scans' frame.
+    pub laser_frame: String,
+    /// The robot's frame (odometry's `child_frame_id`, else `base_link`).
+    pub base_frame: String,
+    /// The laser's mount on the robot, projected onto the plane.
+    pub robot_from_sensor: Se2,
+    /// True when the laser is mounted upside down (its beams are mirrored).
+    pub laser_upside_down: bool,
+    /// Where the mount came from.
+    pub mount_from: MountSource,
+    /// Scans in the session.
+    pub scans: usize,
+    /// Scans left out: no odometry within [`ODOMETRY_HOLD_S`] of their stamp.
+    pub scans_without_odometry: usize,
+    /// Odometry messages read.
+    pub odometry_messages: usize,
+}
+
+/// A bag read as a laser session.
+#[derive(Clone, Debug)]
+pub struct BagSession {
+    /// The session, as the CARMEN reader gives it.
+    pub log: LaserLog,
+    /// How it was read.
+    pub info: BagInfo,
+}
+
+fn invalid(file: &Path, reason: impl Into<String>) -> IoError {
+    IoError::Invalid {
+        file: file.display().to_string(),
+        reason: reason.into(),
+    }
+}
+
+/// The topic named `given`, or the only one of `message_type`; `None` when the bag has none
+/// of that type and none was named.
+pub(crate) fn choose_topic(
+    topics: &[Topic],
+    message_type: &str,
+    given: Option<&str>,
+    flag: &str,
+) -> Result<Option<usize>, String> {
+    let list = |pick: &dyn Fn(&Topic) -> bool| {
+        let names: Vec<String> = topics
+            .iter()
+            .filter(|t| pick(t))
+            .map(|t| format!("{} ({})", t.name, t.message_type))
+            .collect();
+        if names.is_empty() {
+            "none".to_owned()
+        } else {
+            names.join(", ")
+        }
+    };
+    let index = match given {
+        Some(name) => {
+            let index = topics
+                .iter()
+                .position(|t| t.name == name)
+                .ok_or_else(|| format!("no topic '{name}' (topics: {})", list(&|_| true)))?;
+            if topics[index].message_type != message_type {
+                return Err(format!(
+                    "topic '{name}' carries {}, not {message_type}",
+                    topics[index].message_type
+                ));
+            }
+            index
+        }
+        None => {
+            let of_type: Vec<usize> = (0..topics.len())
+                .filter(|&i| topics[i].message_type == message_type)
+                .collect();
+            match of_type.as_slice() {
+                [] => return Ok(None),
+                [only] => *only,
+                _ => {
+                    return Err(format!(
+                        "several {message_type} topics: {}; choose one with {flag}",
+                        list(&|t| t.message_type == message_type)
+                    ))
+                }
+            }
+        }
+    };
+    let topic = &topics[index];
+    if topic.encoding != "cdr" {
+        return Err(format!(
+            "topic '{}' is serialised as '{}'; only CDR (ROS 2) is read",
+            topic.name, topic.encoding
+        ));
+    }
+    Ok(Some(index))
+}
+
+fn rotation_of(quaternion: &Quaternion) -> Option<UnitQuaternion<f64>> {
+    let q = nalgebra::Quaternion::new(quaternion.w, quaternion.x, quaternion.y, quaternion.z);
+    let norm = q.norm();
+    (norm.is_finite() && norm > 1e-9).then(|| UnitQuaternion::from_quaternion(q))
+}
+
+fn se3_of(transform: &Transform) -> Option<Se3> {
+    let t = &transform.translation;
+    let translation = Vector3::new(t.x, t.y, t.z);
+    translation
+        .iter()
+        .all(|v| v.is_finite())
+        .then_some(())
+        .and(rotation_of(&transform.rotation))
+        .map(|rotation| Se3::new(rotation, translation))
+}
+
+/// Heading (rad) of a rotation about z, from its quaternion.
+fn yaw_of(rotation: &UnitQuaternion<f64>) -> f64 {
+    let matrix = rotation.to_rotation_matrix();
+    matrix[(1, 0)].atan2(matrix[(0, 0)])
+}
+
+/// Transforms by child frame: `(parent, parent_from_child)`.
+#[derive(Default)]
+struct TfTree {
+    edges: HashMap<String, (String, Se3)>,
+}
+
+impl TfTree {
+    fn insert_first(&mut self, tf: &TfMessage) -> Result<(), String> {
+        for stamped in &tf.transforms {
+            let child = stamped.child_frame_id.trim_start_matches('/').to_owned();
+            let parent = stamped.header.frame_id.trim_start_matches('/').to_owned();
+            if self.edges.contains_key(&child) {
+                continue;
+            }
+            let transform = se3_of(&stamped.transform).ok_or_else(|| {
+                format!("the transform {parent} → {child} is not finite or has a zero quaternion")
+            })?;
+            self.edges.insert(child, (parent, transform));
+        }
+        Ok(())
+    }
+
+    /// `(frame, frame_from_start)` from `start` up to its root.
+    fn chain(&self, start: &str) -> Vec<(String, Se3)> {
+        let mut chain = vec![(start.to_owned(), Se3::identity())];
+        while let Some((frame, from_start)) = chain.last() {
+            let Some((parent, parent_from_frame)) = self.edges.get(frame) else {
+                break;
+            };
+            if chain.len() > self.edges.len() || chain.iter().any(|(f, _)| f == parent) {
+                break; // a cycle
+            }
+            let next = (parent.clone(), parent_from_frame.compose(from_start));
+            chain.push(next);
+        }
+        chain
+    }
+
+    /// `base_from_laser` through the frames' first common ancestor.
+    fn lookup(&self, base: &str, laser: &str) -> Option<Se3> {
+        let base_chain = self.chain(base);
+        self.chain(laser).into_iter().find_map(|(frame, frame_from_laser)| {
+            base_chain
+                .iter()
+                .find(|(f, _)| *f == frame)
+                .map(|(_, frame_from_base)| frame_from_base.inverse().compose(&frame_from_laser))
+        })
+    }
+}
+
+/// `base_from_laser` on the plane, and whether the laser is upside down.
+fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
+    let rotation = base_from_laser.rotation.to_rotation_matrix();
+    let up = rotation[(2, 2)];
+    let tilt_deg = up.abs().clamp(-1.0, 1.0).acos().to_degrees();
+    if tilt_deg > MAX_LASER_TILT_DEG {
+        return Err(format!(
+            "the laser is tilted {tilt_deg:.1}° from the robot's plane; a planar scanner within {MAX_LASER_TILT_DEG}° is needed"
+        ));
+    }
+    let t = &base_from_laser.translation_m;
+    Ok((Se2::new(t.x, t.y, yaw_of(&base_from_laser.rotation)), up < 0.0))
+}
+
+/// The pose at `stamp_secs` among stamped poses in non-decreasing stamp order: interpolated on
+/// SE(2) between the two around it, held for [`ODOMETRY_HOLD_S`] past either end.
+pub(crate) fn pose_at(stamps_secs: &[f64], poses: &[Se2], stamp_secs: f64) -> Option<Se2> {
+    let after = stamps_secs.partition_point(|&t| t <= stamp_secs);
+    let (first, last) = (stamps_secs.first()?, stamps_secs.last()?);
+    if after == 0 {
+        return (first - stamp_secs <= ODOMETRY_HOLD_S).then(|| poses[0]);
+    }
+    let before = after - 1;
+    if stamps_secs[before] == stamp_secs {
+        return Some(poses[before]);
+    }
+    if after == stamps_secs.len() {
+        return (stamp_secs - last <= ODOMETRY_HOLD_S).then(|| poses[before]);
+    }
+    let fraction = (stamp_secs - stamps_secs[before]) / (stamps_secs[after] - stamps_secs[before]);
+    Some(poses[before].interpolate(&poses[after], fraction))
+}
+
+/// Checks that `stamps` never decrease.
+fn check_monotonic(stamps_secs: &[f64], topic: &str) -> Result<(), String> {
+    match stamps_secs.windows(2).position(|w| !(w[1] >= w[0])) {
+        Some(i) => Err(format!(
+            "{topic}: header stamps are not monotonic: message {} is stamped {} s, after {} s",
+            i + 2,
+            stamps_secs[i + 1],
+            stamps_secs[i]
+        )),
+        None => Ok(()),
+    }
+}
+
+/// Reads the bag at `path` (a `.mcap` or `.db3` file, or a bag directory) as a laser session.
+pub fn read_bag(path: &Path, choice: &TopicChoice) -> Result<BagSession, IoError> {
+    let wanted = |t: &str| t == LASER_SCAN_TYPE || t == ODOMETRY_TYPE || t == TF_TYPE;
+    let raw = read_raw_bag(path, &wanted)?;
+    session_of(raw, choice).map_err(|reason| invalid(path, reason))
+}
+
+pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession, String> {
+    let topics = &raw.topics;
+    let scan_topic = choose_topic(topics, LASER_SCAN_TYPE, choice.scan_topic.as_deref(), "--scan-topic")?
+        .ok_or_else(|| {
+            let names: Vec<&str> = topics.iter().map(|t| t.name.as_str()).collect();
+            format!("no {LASER_SCAN_TYPE} topic (topics: {})", names.join(", "))
+        })?;
+    let odom_topic = choose_topic(topics, ODOMETRY_TYPE, choice.odom_topic.as_deref(), "--odom-topic")?;
+    let mut scans: Vec<LaserScanMessage> = Vec::new();
+    let mut odometry: Vec<OdometryMessage> = Vec::new();
+    let (mut static_tf, mut dynamic_tf) = (TfTree::default(), TfTree::default());
+    let mut counts = vec![0usize; topics.len()];
+    let mut any_tf = false;
+    for message in &raw.messages {
+        let topic = &topics[message.topic];
+        counts[message.topic] += 1;
+        let context = |reason: String| format!("topic '{}', message {}: {reason}", topic.name, counts[message.topic]);
+        if message.topic == scan_topic {
+            scans.push(decode(&message.data).map_err(context)?);
+        } else if Some(message.topic) == odom_topic {
+            odometry.push(decode(&message.data).map_err(context)?);
+        } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
+            any_tf = true;
+            let tf: TfMessage = decode(&message.data).map_err(context)?;
+            let tree = if topic.name.ends_with("tf_static") { &mut static_tf } else { &mut dynamic_tf };
+            tree.insert_first(&tf).map_err(context)?;
+        }
+    }
+    let scan_name = &topics[scan_topic].name;
+    let first_scan = scans
+        .first()
+        .ok_or_else(|| format!("topic '{scan_name}' has no messages"))?;
+    let laser_frame = first_scan.header.frame_id.trim_start_matches('/').to_owned();
+    let base_frame = odometry
+        .first()
+        .map(|o| o.child_frame_id.trim_start_matches('/'))
+        .filter(|f| !f.is_empty())
+        .unwrap_or("base_link")
+        .to_owned();
+    let (robot_from_sensor, upside_down, mount_from) = if laser_frame == base_frame || laser_frame.is_empty() {
+        (Se2::identity(), false, MountSource::SameFrame)
+    } else if !any_tf {
+        (Se2::identity(), false, MountSource::NoTf)
+    } else {
+        let (base_from_laser, source) = match static_tf.lookup(&base_frame, &laser_frame) {
+            Some(found) => (found, MountSource::TfStatic),
+            None => (
+                dynamic_tf.lookup(&base_frame, &laser_frame).ok_or_else(|| {
+                    format!("tf has no transform between the robot's frame '{base_frame}' and the laser's frame '{laser_frame}'")
+                })?,
+                MountSource::Tf,
+            ),
+        };
+        let (mount, upside_down) = planar_mount(&base_from_laser)?;
+        (mount, upside_down, source)
+    };
+
+    let scan_stamps: Vec<f64> = scans.iter().map(|s| s.header.stamp.seconds()).collect();
+    check_monotonic(&scan_stamps, scan_name)?;
+    let odom_stamps: Vec<f64> = odometry.iter().map(|o| o.header.stamp.seconds()).collect();
+    if let Some(odom) = odom_topic {
+        check_monotonic(&odom_stamps, &topics[odom].name)?;
+    }
+    let odom_poses: Vec<Se2> = odometry
+        .iter()
+        .map(|o| {
+            let p = &o.pose.pose;
+            let yaw = rotation_of(&p.orientation).map_or(f64::NAN, |r| yaw_of(&r));
+            Se2::new(p.position.x, p.position.y, yaw)
+        })
+        .collect();
+    if let Some(bad) = odom_poses.iter().position(|p| !p.is_finite()) {
+        return Err(format!(
+            "odometry message {}: the pose is not finite or its quaternion is zero",
+            bad + 1
+        ));
+    }
+
+    let mut log = LaserLog {
+        odometry: odometry
+            .iter()
+            .zip(&odom_poses)
+            .map(|(o, pose)| OdometryReading {
+                stamp_secs: o.header.stamp.seconds(),
+                odom_from_robot: *pose,
+                velocity_m_per_s: o.twist.twist.linear.x,
+                turn_rate_rad_per_s: o.twist.twist.angular.z,
+            })
+            .collect(),
+        ..Default::default()
+    };
+    let mut scans_without_odometry = 0;
+    let mirror = if upside_down { -1.0 } else { 1.0 };
+    for (message, stamp_secs) in scans.into_iter().zip(scan_stamps) {
+        let odom_from_robot = match odom_topic {
+            Some(_) => match pose_at(&odom_stamps, &odom_poses, stamp_secs) {
+                Some(pose) => Some(pose),
+                None => {
+                    scans_without_odometry += 1;
+                    continue;
+                }
+            },
+            None => None,
+        };
+        log.scans.push(ScanRecord {
+            stamp_secs,
+            scan: LaserScan {
+                angle_min_rad: mirror * f64::from(message.angle_min),
+                angle_increment_rad: mirror * f64::from(message.angle_increment),
+                range_min_m: message.range_min,
+                range_max_m: message.range_max,
+                ranges_m: message.ranges,
+                robot_from_sensor,
+            },
+            odom_from_robot,
+            source_tag: "LaserScan".to_owned(),
+        });
+    }
+    if log.scans.is_empty() {
+        return Err(format!(
+            "none of the {scans_without_odometry} scans on '{scan_name}' has odometry within {ODOMETRY_HOLD_S} s of its stamp"
+        ));
+    }
+    let info = BagInfo {
+        storage: raw.storage.unwrap_or(Storage::Mcap),
+        bytes: raw.bytes,
+        topics: raw.topics.clone(),
+        scan_topic: scan_name.clone(),
+        odom_topic: odom_topic.map(|i| raw.topics[i].name.clone()),
+        laser_frame,
+        base_frame,
+        robot_from_sensor,
+        laser_upside_down: upside_down,
+        mount_from,
+        scans: log.scans.len(),
+        scans_without_odometry,
+        odometry_messages: log.odometry.len(),
+    };
+    Ok(BagSession { log, info })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn poses_interpolate_between_stamps_and_hold_briefly_at_the_ends() {
+        let stamps = [1.0, 2.0];
+        let poses = [Se2::new(0.0, 0.0, 0.0), Se2::new(2.0, 0.0, 0.2)];
+        let mid = pose_at(&stamps, &poses, 1.5).unwrap();
+        assert!((mid.x_m - 1.0).abs() < 0.02 && (mid.theta_rad - 0.1).abs() < 1e-12, "{mid:?}");
+        assert_eq!(pose_at(&stamps, &poses, 2.0), Some(poses[1]));
+        assert_eq!(pose_at(&stamps, &poses, 0.97), Some(poses[0]));
+        assert_eq!(pose_at(&stamps, &poses, 2.04), Some(poses[1]));
+        assert_eq!(pose_at(&stamps, &poses, 0.9), None);
+        assert_eq!(pose_at(&stamps, &poses, 2.1), None);
+        assert_eq!(pose_at(&[], &[], 2.1), None);
+    }
+
+    #[test]
+    fn tf_chains_meet_at_a_common_ancestor() {
+        let edge = |parent: &str, child: &str, x: f64, yaw: f64| crate::messages::TransformStamped {
+            header: crate::messages::Header {
+                frame_id: parent.into(),
+                ..Default::default()
+            },
+            child_frame_id: child.into(),
+            transform: Transform {
+                translation: crate::messages::Vector3 { x, y: 0.0, z: 0.3 },
+                rotation: Quaternion::from_yaw(yaw),
+            },
+        };
+        let mut tree = TfTree::default();
+        tree.insert_first(&TfMessage {
+            transforms: vec![
+                edge("base_footprint", "base_link", 0.1, 0.0),
+                edge("base_link", "laser_mount", 0.2, 0.5),
+                edge("laser_mount", "laser", 0.0, 0.25),
+            ],
+        })
+        .unwrap();
+        let (mount, upside_down) = planar_mount(&tree.lookup("base_link", "laser").unwrap()).unwrap();
+        assert!(!upside_down);
+        assert!((mount.x_m - 0.2).abs() < 1e-12 && (mount.theta_rad - 0.75).abs() < 1e-12);
+        // Seen from a sibling's child: through base_footprint.
+        let back = tree.lookup("laser", "base_footprint").unwrap();
+        let (planar, _) = planar_mount(&back).unwrap();
+        let expected = Se2::new(0.3, 0.0, 0.75).inverse();
+        assert!((planar.x_m - expected.x_m).abs() < 1e-12 && (planar.y_m - expected.y_m).abs() < 1e-12);
+        assert!(tree.lookup("base_link", "camera").is_none());
+    }
+
+    #[test]
+    fn upside_down_and_tilted_lasers() {
+        let flipped = Se3::new(
+            UnitQuaternion::from_euler_angles(std::f64::consts::PI, 0.0, 0.4),
+            Vector3::new(0.1, 0.0, 0.0),
+        );
+        let (mount, upside_down) = planar_mount(&flipped).unwrap();
+        assert!(upside_down && (mount.theta_rad - 0.4).abs() < 1e-9, "{mount:?}");
+        let tilted = Se3::new(UnitQuaternion::from_euler_angles(0.0, 0.3, 0.0), Vector3::zeros());
+        assert!(planar_mount(&tilted).unwrap_err().contains("tilted 17.2°"));
+    }
+
+    #[test]
+    fn topics_are_found_by_type_or_named() {
+        let topic = |name: &str, message_type: &str| Topic {
+            name: name.into(),
+            message_type: message_type.into(),
+            encoding: "cdr".into(),
+            messages: 1,
+        };
+        let topics = vec![
+            topic("/scan", LASER_SCAN_TYPE),
+            topic("/scan_rear", LASER_SCAN_TYPE),
+            topic("/odom", ODOMETRY_TYPE),
+        ];
+        assert_eq!(choose_topic(&topics, ODOMETRY_TYPE, None, "--odom-topic"), Ok(Some(2)));
+        let err = choose_topic(&topics, LASER_SCAN_TYPE, None, "--scan-topic").unwrap_err();
+        assert!(err.contains("several") && err.contains("/scan_rear") && err.contains("--scan-topic"), "{err}");
+        assert_eq!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/scan_rear"), "--scan-topic"), Ok(Some(1)));
+        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/odom"), "x").unwrap_err().contains("carries nav_msgs/msg/Odometry"));
+        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/nope"), "x").unwrap_err().contains("no topic '/nope'"));
+        assert_eq!(choose_topic(&topics, TF_TYPE, None, "x"), Ok(None));
+        let json = vec![Topic { encoding: "json".into(), ..topic("/odom", ODOMETRY_TYPE) }];
+        assert!(choose_topic(&json, ODOMETRY_TYPE, None, "x").unwrap_err().contains("only CDR"));
+    }
+
+    #[test]
+    fn stamps_must_not_go_back() {
+        assert!(check_monotonic(&[1.0, 1.0, 2.0], "/scan").is_ok());
+        let err = check_monotonic(&[1.0, 3.0, 2.0], "/scan").unwrap_err();
+        assert!(err.contains("message 3 is stamped 2 s, after 3 s"), "{err}");
+        assert!(check_monotonic(&[1.0, f64::NAN], "/scan").is_err());
+    }
+}

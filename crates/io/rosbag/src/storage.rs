@@ -1,0 +1,310 @@
+//! The two rosbag2 storage formats, read into one shape: topics with their message types, and
+//! the serialized messages of the topics asked for, in log-time order.
+//!
+//! - MCAP (rosbag2's default since Iron): schemas named `pkg/msg/Type`, channels with
+//!   `message_encoding: cdr`; chunks may be zstd- or lz4-compressed (the `mcap` crate).
+//! - SQLite `.db3` (the default before): tables `topics(id, name, type,
+//!   serialization_format, …)` and `messages(id, topic_id, timestamp, data)`.
+//! - A bag directory: `metadata.yaml` names the storage and the files, read in order.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use mapmerge_io::IoError;
+
+/// How a bag is stored.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Storage {
+    /// MCAP files.
+    Mcap,
+    /// SQLite 3 files (`.db3`).
+    Sqlite3,
+}
+
+impl Storage {
+    /// The storage of a file, by its extension (`.mcap`, `.db3`).
+    pub fn of_file(path: &Path) -> Option<Self> {
+        match path.extension()?.to_str()? {
+            "mcap" => Some(Self::Mcap),
+            "db3" => Some(Self::Sqlite3),
+            _ => None,
+        }
+    }
+    /// rosbag2's name of the storage plugin.
+    pub fn identifier(self) -> &'static str {
+        match self {
+            Self::Mcap => "mcap",
+            Self::Sqlite3 => "sqlite3",
+        }
+    }
+}
+
+/// One topic of a bag.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Topic {
+    /// Its name (`/scan`).
+    pub name: String,
+    /// Its message type, normalised to `pkg/msg/Type`.
+    pub message_type: String,
+    /// How its messages are serialised (`cdr`).
+    pub encoding: String,
+    /// How many messages it has.
+    pub messages: usize,
+}
+
+/// One serialized message.
+#[derive(Clone, Debug)]
+pub(crate) struct RawMessage {
+    /// Index into [`RawBag::topics`].
+    pub topic: usize,
+    /// When it was recorded (ns).
+    pub log_time_ns: i64,
+    /// Encapsulated CDR.
+    pub data: Vec<u8>,
+}
+
+/// A bag's topics, and the messages of the topics whose type was asked for.
+#[derive(Debug, Default)]
+pub(crate) struct RawBag {
+    pub storage: Option<Storage>,
+    pub topics: Vec<Topic>,
+    pub messages: Vec<RawMessage>,
+    /// Bytes read from disk.
+    pub bytes: u64,
+}
+
+impl RawBag {
+    /// The index of `name` among the topics, adding it when new.
+    fn topic_index(&mut self, name: &str, message_type: &str, encoding: &str) -> usize {
+        let message_type = normalise_type(message_type);
+        if let Some(index) = self.topics.iter().position(|t| t.name == name && t.message_type == message_type) {
+            return index;
+        }
+        self.topics.push(Topic {
+            name: name.to_owned(),
+            message_type,
+            encoding: encoding.to_owned(),
+            messages: 0,
+        });
+        self.topics.len() - 1
+    }
+}
+
+/// `pkg/Type` (ROS 1 style) → `pkg/msg/Type`; anything else unchanged.
+fn normalise_type(message_type: &str) -> String {
+    match message_type.split('/').collect::<Vec<_>>().as_slice() {
+        [package, name] => format!("{package}/msg/{name}"),
+        _ => message_type.to_owned(),
+    }
+}
+
+fn invalid(file: &Path, reason: impl Into<String>) -> IoError {
+    IoError::Invalid {
+        file: file.display().to_string(),
+        reason: reason.into(),
+    }
+}
+
+fn io_error(file: &Path, source: std::io::Error) -> IoError {
+    IoError::Io {
+        file: file.display().to_string(),
+        source,
+    }
+}
+
+/// True when `path` names a bag: a `.mcap` or `.db3` file, or a directory with
+/// `metadata.yaml`.
+pub fn is_bag(path: &Path) -> bool {
+    Storage::of_file(path).is_some() || path.join("metadata.yaml").is_file()
+}
+
+/// Reads the bag at `path` (file or directory), keeping the messages whose type `wanted`
+/// accepts; messages come out sorted by log time (stable within a time).
+pub(crate) fn read_raw_bag(path: &Path, wanted: &dyn Fn(&str) -> bool) -> Result<RawBag, IoError> {
+    let mut bag = RawBag::default();
+    if path.is_dir() {
+        for (storage, file) in bag_directory_files(path)? {
+            read_file(&mut bag, &file, storage, wanted)?;
+        }
+    } else {
+        let storage = Storage::of_file(path).ok_or_else(|| {
+            invalid(path, "not a bag: expected a .mcap or .db3 file or a directory with metadata.yaml")
+        })?;
+        read_file(&mut bag, path, storage, wanted)?;
+    }
+    bag.messages.sort_by_key(|m| m.log_time_ns);
+    Ok(bag)
+}
+
+fn read_file(
+    bag: &mut RawBag,
+    file: &Path,
+    storage: Storage,
+    wanted: &dyn Fn(&str) -> bool,
+) -> Result<(), IoError> {
+    if bag.storage.is_some_and(|s| s != storage) {
+        return Err(invalid(file, "a bag mixes storage formats"));
+    }
+    bag.storage = Some(storage);
+    match storage {
+        Storage::Mcap => {
+            let bytes = std::fs::read(file).map_err(|e| io_error(file, e))?;
+            bag.bytes += bytes.len() as u64;
+            read_mcap(bag, &bytes, wanted).map_err(|reason| invalid(file, reason))
+        }
+        Storage::Sqlite3 => {
+            bag.bytes += std::fs::metadata(file).map_err(|e| io_error(file, e))?.len();
+            read_db3(bag, file, wanted).map_err(|reason| invalid(file, reason))
+        }
+    }
+}
+
+/// Reads the messages of one MCAP file's bytes into `bag`. Public to the crate's fuzz target
+/// through [`crate::parse_mcap_topics`].
+pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
+    let mut stream = mcap::read::RawMessageStream::new(bytes).map_err(|e| format!("not a readable MCAP file: {e}"))?;
+    // Channel id → topic index, or None for a channel whose type is not wanted.
+    let mut channels: BTreeMap<u16, Option<usize>> = BTreeMap::new();
+    while let Some(next) = stream.next() {
+        let message = next.map_err(|e| format!("malformed MCAP: {e}"))?;
+        let channel_id = message.header.channel_id;
+        let topic = match channels.get(&channel_id) {
+            Some(topic) => *topic,
+            None => {
+                let channel = stream
+                    .get_channel(channel_id)
+                    .ok_or_else(|| format!("message on unknown channel {channel_id}"))?;
+                let message_type = channel.schema.as_ref().map_or("", |s| s.name.as_str());
+                let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
+                let topic = wanted(&bag.topics[index].message_type).then_some(index);
+                channels.insert(channel_id, topic);
+                topic
+            }
+        };
+        if let Some(topic) = topic {
+            bag.topics[topic].messages += 1;
+            bag.messages.push(RawMessage {
+                topic,
+                log_time_ns: i64::try_from(message.header.log_time).unwrap_or(i64::MAX),
+                data: message.data.into_owned(),
+            });
+        }
+    }
+    Ok(())
+}
+
+fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
+    use rusqlite::OpenFlags;
+    let sql = |e: rusqlite::Error| format!("not a readable rosbag2 SQLite file: {e}");
+    let connection = rusqlite::Connection::open_with_flags(
+        file,
+        OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
+    )
+    .map_err(sql)?;
+    let mut ids: BTreeMap<i64, Option<usize>> = BTreeMap::new();
+    {
+        let mut statement = connection
+            .prepare("SELECT id, name, type, serialization_format FROM topics")
+            .map_err(sql)?;
+        let rows = statement
+            .query_map([], |row| {
+                Ok((row.get::<_, i64>(0)?, row.get::<_, String>(1)?, row.get::<_, String>(2)?, row.get::<_, String>(3)?))
+            })
+            .map_err(sql)?;
+        for row in rows {
+            let (id, name, message_type, encoding) = row.map_err(sql)?;
+            let index = bag.topic_index(&name, &message_type, &encoding);
+            ids.insert(id, wanted(&bag.topics[index].message_type).then_some(index));
+        }
+    }
+    let mut statement = connection
+        .prepare("SELECT topic_id, timestamp, data FROM messages ORDER BY timestamp, id")
+        .map_err(sql)?;
+    let mut rows = statement.query([]).map_err(sql)?;
+    while let Some(row) = rows.next().map_err(sql)? {
+        let topic_id: i64 = row.get(0).map_err(sql)?;
+        let topic = match ids.get(&topic_id) {
+            Some(Some(topic)) => *topic,
+            Some(None) => continue,
+            None => return Err(format!("a message names topic id {topic_id}, which the topics table lacks")),
+        };
+        bag.topics[topic].messages += 1;
+        bag.messages.push(RawMessage {
+            topic,
+            log_time_ns: row.get(1).map_err(sql)?,
+            data: row.get(2).map_err(sql)?,
+        });
+    }
+    Ok(())
+}
+
+/// `metadata.yaml` of a bag directory, the fields read here.
+#[derive(serde::Deserialize)]
+struct Metadata {
+    rosbag2_bagfile_information: BagfileInformation,
+}
+
+#[derive(serde::Deserialize)]
+struct BagfileInformation {
+    storage_identifier: String,
+    #[serde(default)]
+    relative_file_paths: Vec<String>,
+    #[serde(default)]
+    compression_format: String,
+}
+
+/// The files of a bag directory, in the order `metadata.yaml` gives.
+fn bag_directory_files(directory: &Path) -> Result<Vec<(Storage, PathBuf)>, IoError> {
+    let metadata_path = directory.join("metadata.yaml");
+    let text = std::fs::read_to_string(&metadata_path).map_err(|e| io_error(&metadata_path, e))?;
+    let metadata: Metadata =
+        serde_yaml_ng::from_str(&text).map_err(|e| invalid(&metadata_path, format!("not rosbag2 metadata: {e}")))?;
+    let info = metadata.rosbag2_bagfile_information;
+    if !info.compression_format.is_empty() {
+        return Err(invalid(
+            &metadata_path,
+            format!("file compression '{}' is not supported; decompress the bag first (ros2 bag convert)", info.compression_format),
+        ));
+    }
+    let storage = match info.storage_identifier.as_str() {
+        "mcap" => Storage::Mcap,
+        "sqlite3" => Storage::Sqlite3,
+        other => return Err(invalid(&metadata_path, format!("unknown storage '{other}' (mcap and sqlite3 are read)"))),
+    };
+    if info.relative_file_paths.is_empty() {
+        return Err(invalid(&metadata_path, "no relative_file_paths: the bag has no files"));
+    }
+    Ok(info
+        .relative_file_paths
+        .iter()
+        .map(|file| (storage, directory.join(file)))
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn types_normalise_to_the_ros2_form() {
+        assert_eq!(normalise_type("sensor_msgs/LaserScan"), "sensor_msgs/msg/LaserScan");
+        assert_eq!(normalise_type("sensor_msgs/msg/LaserScan"), "sensor_msgs/msg/LaserScan");
+        assert_eq!(normalise_type(""), "");
+    }
+
+    #[test]
+    fn garbage_is_an_error_not_a_panic() {
+        let mut bag = RawBag::default();
+        assert!(read_mcap(&mut bag, b"\x89MCAP0\r\nnonsense", &|_| true).is_err());
+        assert!(read_mcap(&mut bag, b"", &|_| true).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let db3 = dir.path().join("x.db3");
+        std::fs::write(&db3, b"not sqlite at all, not at all, not at all").unwrap();
+        let err = read_raw_bag(&db3, &|_| true).unwrap_err().to_string();
+        assert!(err.contains("x.db3") && err.contains("SQLite"), "{err}");
+        std::fs::write(dir.path().join("metadata.yaml"), "rosbag2_bagfile_information:\n  storage_identifier: rosbag_v1\n").unwrap();
+        let err = read_raw_bag(dir.path(), &|_| true).unwrap_err().to_string();
+        assert!(err.contains("unknown storage 'rosbag_v1'"), "{err}");
+    }
+}
