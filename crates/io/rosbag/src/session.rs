@@ -507,6 +507,50 @@ mod tests {
         assert!(choose_topic(&json, ODOMETRY_TYPE, None, "x").unwrap_err().contains("only CDR"));
     }
 
+    /// A bag in memory: scans at `scan_stamps`, odometry at `odom_stamps` (s).
+    fn raw_bag(scan_stamps: &[i32], odom_stamps: &[i32], scan_encoding: &str) -> RawBag {
+        let topic = |name: &str, message_type: &str, encoding: &str| Topic {
+            name: name.into(),
+            message_type: message_type.into(),
+            encoding: encoding.into(),
+            messages: 0,
+        };
+        let mut bag = RawBag {
+            topics: vec![topic("/scan", LASER_SCAN_TYPE, scan_encoding), topic("/odom", ODOMETRY_TYPE, "cdr")],
+            ..Default::default()
+        };
+        let stamp = |sec| crate::messages::Header { stamp: crate::messages::Time { sec, nanosec: 0 }, frame_id: String::new() };
+        for &sec in scan_stamps {
+            let scan = LaserScanMessage { header: stamp(sec), ranges: vec![1.0; 4], ..Default::default() };
+            let data = crate::messages::encode(&scan).unwrap();
+            bag.messages.push(crate::storage::RawMessage { topic: 0, log_time_ns: 0, data });
+        }
+        for &sec in odom_stamps {
+            let odometry = OdometryMessage { header: stamp(sec), ..Default::default() };
+            let data = crate::messages::encode(&odometry).unwrap();
+            bag.messages.push(crate::storage::RawMessage { topic: 1, log_time_ns: 0, data });
+        }
+        bag
+    }
+
+    #[test]
+    fn sessions_refuse_backward_stamps_and_other_encodings() {
+        let ok = session_of(raw_bag(&[1, 2, 3], &[1, 2, 3], "cdr"), &TopicChoice::default()).unwrap();
+        assert_eq!((ok.log.scans.len(), ok.info.mount_from), (3, MountSource::SameFrame));
+        let err = session_of(raw_bag(&[1, 3, 2], &[1, 2, 3], "cdr"), &TopicChoice::default()).unwrap_err();
+        assert!(err.contains("/scan: header stamps are not monotonic: message 3"), "{err}");
+        let err = session_of(raw_bag(&[1, 2], &[2, 1], "cdr"), &TopicChoice::default()).unwrap_err();
+        assert!(err.contains("/odom: header stamps are not monotonic"), "{err}");
+        let err = session_of(raw_bag(&[1, 2], &[1, 2], "ros1"), &TopicChoice::default()).unwrap_err();
+        assert!(err.contains("serialised as 'ros1'"), "{err}");
+        let err = session_of(raw_bag(&[5, 6], &[1, 2], "cdr"), &TopicChoice::default()).unwrap_err();
+        assert!(err.contains("none of the 2 scans"), "{err}");
+        let mut corrupt = raw_bag(&[1, 2], &[1, 2], "cdr");
+        corrupt.messages[1].data.truncate(20);
+        let err = session_of(corrupt, &TopicChoice::default()).unwrap_err();
+        assert!(err.contains("topic '/scan', message 2: malformed CDR"), "{err}");
+    }
+
     #[test]
     fn stamps_must_not_go_back() {
         assert!(check_monotonic(&[1.0, 1.0, 2.0], "/scan").is_ok());
