@@ -26,7 +26,7 @@ use std::path::Path;
 use mapmerge_io::IoError;
 use mapmerge_scan::LaserLog;
 
-pub use clouds::{read_point_clouds, StampedCloud};
+pub use clouds::{cloud_points, read_point_clouds, StampedCloud};
 pub use messages::{
     decode, encode, Header, LaserScanMessage, OdometryMessage, PointCloud2Message, PointField,
     Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3, LASER_SCAN_TYPE,

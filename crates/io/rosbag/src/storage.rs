@@ -160,35 +160,61 @@ fn read_file(
     }
 }
 
-/// Reads the messages of one MCAP file's bytes into `bag`. Public to the crate's fuzz target
-/// through [`crate::parse_mcap_topics`].
+/// Largest decompressed record (bytes) per byte of an MCAP file: far above real compression
+/// ratios, and a bound on what a corrupt length can make the reader allocate (the `mcap`
+/// crate's chunk flattener has no such bound and aborts on a huge length).
+const MAX_RECORD_BYTES_PER_FILE_BYTE: usize = 64;
+
+/// Reads the messages of one MCAP file's bytes into `bag`, through the `mcap` crate's sans-io
+/// reader (chunks decompressed, records length-limited); schemas and channels are linked here.
 pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
-    let mut stream = mcap::read::RawMessageStream::new(bytes).map_err(|e| format!("not a readable MCAP file: {e}"))?;
-    // Channel id → topic index, or None for a channel whose type is not wanted.
+    use mcap::records::Record;
+    use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
+    let limit = bytes.len().saturating_mul(MAX_RECORD_BYTES_PER_FILE_BYTE).max(1 << 20);
+    let mut reader = LinearReader::new_with_options(
+        LinearReaderOptions::default()
+            .with_record_length_limit(limit)
+            .with_emit_chunks(false),
+    );
+    let malformed = |e: mcap::McapError| format!("malformed MCAP: {e}");
+    let mut unread = bytes;
+    // Schema id → message type; channel id → topic index, or None when its type is unwanted.
+    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
     let mut channels: BTreeMap<u16, Option<usize>> = BTreeMap::new();
-    while let Some(next) = stream.next() {
-        let message = next.map_err(|e| format!("malformed MCAP: {e}"))?;
-        let channel_id = message.header.channel_id;
-        let topic = match channels.get(&channel_id) {
-            Some(topic) => *topic,
-            None => {
-                let channel = stream
-                    .get_channel(channel_id)
-                    .ok_or_else(|| format!("message on unknown channel {channel_id}"))?;
-                let message_type = channel.schema.as_ref().map_or("", |s| s.name.as_str());
-                let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
-                let topic = wanted(&bag.topics[index].message_type).then_some(index);
-                channels.insert(channel_id, topic);
-                topic
+    while let Some(event) = reader.next_event() {
+        let (opcode, data) = match event.map_err(malformed)? {
+            LinearReadEvent::ReadRequest(wanted_bytes) => {
+                let n = wanted_bytes.min(unread.len());
+                reader.insert(n).copy_from_slice(&unread[..n]);
+                reader.notify_read(n);
+                unread = &unread[n..];
+                continue;
             }
+            LinearReadEvent::Record { opcode, data } => (opcode, data),
         };
-        if let Some(topic) = topic {
-            bag.topics[topic].messages += 1;
-            bag.messages.push(RawMessage {
-                topic,
-                log_time_ns: i64::try_from(message.header.log_time).unwrap_or(i64::MAX),
-                data: message.data.into_owned(),
-            });
+        match mcap::parse_record(opcode, data).map_err(malformed)? {
+            Record::Schema { header, .. } => {
+                schemas.insert(header.id, header.name);
+            }
+            Record::Channel(channel) => {
+                let message_type = schemas.get(&channel.schema_id).map_or("", String::as_str);
+                let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
+                channels.insert(channel.id, wanted(&bag.topics[index].message_type).then_some(index));
+            }
+            Record::Message { header, data } => {
+                let topic = *channels
+                    .get(&header.channel_id)
+                    .ok_or_else(|| format!("message on unknown channel {}", header.channel_id))?;
+                if let Some(topic) = topic {
+                    bag.topics[topic].messages += 1;
+                    bag.messages.push(RawMessage {
+                        topic,
+                        log_time_ns: i64::try_from(header.log_time).unwrap_or(i64::MAX),
+                        data: data.into_owned(),
+                    });
+                }
+            }
+            _ => {}
         }
     }
     Ok(())
