@@ -15,7 +15,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use mapmerge_assemble::{
-    load_kitti_folder, solve_group, Arrival, AssembleParams, Assembler, GroundSlice, GroupSolution,
+    load_kitti_folder, segment3_from_clouds, solve_group, Arrival, AssembleParams, Assembler, GroundSlice, GroupSolution,
     KittiFolderOptions, RingSpectrum3Params, RingSpectrumDescriptor3, Segment, Segment3,
     SubmapParams,
 };
@@ -29,7 +29,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::{bad_input, check_resolution, print_json, progress_bar};
+use crate::{bad_file, bad_input, check_resolution, print_json, progress_bar};
 
 /// Arrival order of the segments.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum, Serialize)]
@@ -97,8 +97,9 @@ pub enum LoadedSegment {
     Spatial(Segment3),
 }
 
-/// Reads the segments (in parallel): logs with their trajectories (one front-end each), or
-/// KITTI-style folders. Mixing the two is bad input.
+/// Reads the segments (in parallel): logs or laser bags with their trajectories (one
+/// front-end each), or 3D segments: KITTI-style folders, and bags of PointCloud2 with
+/// odometry. Mixing 2D and 3D is bad input.
 pub fn load_segments(
     paths: &[PathBuf],
     topics: &crate::BagTopics,
@@ -106,12 +107,15 @@ pub fn load_segments(
     progress: bool,
 ) -> anyhow::Result<Vec<LoadedSegment>> {
     let is_kitti_folder = |p: &Path| p.is_dir() && !mapmerge_rosbag::is_bag(p);
-    let folders: Vec<&PathBuf> = paths.iter().filter(|p| is_kitti_folder(p)).collect();
-    if let Some(folder) = folders.first().filter(|_| folders.len() < paths.len()) {
+    let mut spatial = Vec::with_capacity(paths.len());
+    for path in paths {
+        spatial.push(is_kitti_folder(path) || is_cloud_bag(path)?);
+    }
+    if let Some(k) = spatial.iter().position(|&s| s).filter(|_| spatial.contains(&false)) {
         return Err(bad_input(format!(
-            "{}: a folder (a 3D segment) among CARMEN logs; segments are either logs (2D) or \
-             KITTI-style folders (3D), not both",
-            folder.display()
+            "{}: a 3D segment among 2D ones; segments are either laser logs or bags (2D), or \
+             KITTI-style folders and PointCloud2 bags (3D), not both",
+            paths[k].display()
         )));
     }
     let mut names = BTreeMap::new();
@@ -128,10 +132,24 @@ pub fn load_segments(
     let bar = progress_bar(paths.len(), "segments", "trajectories", progress);
     let loaded: Vec<anyhow::Result<LoadedSegment>> = paths
         .par_iter()
-        .map(|path| {
-            if is_kitti_folder(path) {
-                let segment = load_kitti_folder(path, &KittiFolderOptions::default())
-                    .map_err(|e| bad_input(e.to_string()))?;
+        .zip(&spatial)
+        .map(|(path, &spatial)| {
+            if spatial {
+                let segment = if is_kitti_folder(path) {
+                    load_kitti_folder(path, &KittiFolderOptions::default())
+                } else {
+                    let session =
+                        mapmerge_rosbag::read_cloud_session(path, None, topics.odom_topic.as_deref())
+                            .map_err(bad_file)?;
+                    let clouds: Vec<_> = session.clouds.into_iter().map(|c| c.points).collect();
+                    segment3_from_clouds(
+                        segment_name(path),
+                        &session.odom_from_sensor,
+                        &clouds,
+                        &KittiFolderOptions::default(),
+                    )
+                }
+                .map_err(|e| bad_input(e.to_string()))?;
                 bar.inc(1);
                 return Ok(LoadedSegment::Spatial(segment));
             }
@@ -155,6 +173,16 @@ pub fn load_segments(
         .collect();
     bar.finish_and_clear();
     loaded.into_iter().collect()
+}
+
+/// True when `path` is a bag of PointCloud2 without LaserScan (a 3D segment).
+fn is_cloud_bag(path: &Path) -> anyhow::Result<bool> {
+    if !mapmerge_rosbag::is_bag(path) {
+        return Ok(false);
+    }
+    let topics = mapmerge_rosbag::list_topics(path).map_err(bad_file)?;
+    let has = |message_type: &str| topics.iter().any(|t| t.message_type == message_type);
+    Ok(has(mapmerge_rosbag::POINT_CLOUD2_TYPE) && !has(mapmerge_rosbag::LASER_SCAN_TYPE))
 }
 
 /// Reads `--config`; without one, 3D segments get the paper's outdoor submaps (5 m / 50 m).

@@ -13,11 +13,12 @@ use crate::{bad_file, bad_input, print_json};
 /// Arguments of `mapmerge convert`.
 #[derive(Args, Debug)]
 pub struct ConvertArgs {
-    /// CARMEN laser log (`.xz` accepted) or ROS 2 bag (`.mcap`, `.db3`, or a bag directory).
+    /// CARMEN laser log (`.xz` accepted), ROS 2 bag (`.mcap`, `.db3`, or a bag directory), or
+    /// a KITTI-style folder (a 3D segment of `mapmerge assemble`).
     pub log: PathBuf,
-    /// Output: a bag (`.mcap` or `.db3`) with `/scan`, `/odom` and `/tf_static`, or a CARMEN
-    /// log (`.log`, `.log.xz`). Logs whose stamps do not increase get a clock of
-    /// `--period` s per scan (reported).
+    /// Output: a bag (`.mcap` or `.db3`) with `/scan`, `/odom` and `/tf_static` (from a
+    /// folder: `/points` and `/odom`), or a CARMEN log (`.log`, `.log.xz`). Logs whose stamps
+    /// do not increase get a clock of `--period` s per scan (reported).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Topics of a ROS 2 bag.
@@ -61,10 +62,60 @@ fn input_bytes(path: &Path) -> u64 {
     }
 }
 
+/// A KITTI-style folder (a 3D segment: `velodyne/*.bin`, `poses.txt`) → a bag of PointCloud2
+/// and odometry, every point kept.
+fn convert_kitti_folder(args: &ConvertArgs) -> anyhow::Result<ExitCode> {
+    let every_point = mapmerge_assemble::KittiFolderOptions {
+        voxel_m: 0.0,
+        max_range_m: f64::MAX.sqrt(),
+        stride: 1,
+    };
+    let started = Instant::now();
+    let segment = mapmerge_assemble::load_kitti_folder(&args.log, &every_point).map_err(|e| bad_input(e.to_string()))?;
+    let read_secs = started.elapsed().as_secs_f64();
+    let started = Instant::now();
+    let params = mapmerge_rosbag::BagWriteParams {
+        rewritten_period_s: args.period,
+        ..Default::default()
+    };
+    let written = mapmerge_rosbag::write_cloud_bag(&args.output, &segment.poses, &segment.clouds, &params)
+        .map_err(bad_file)?;
+    let write_secs = started.elapsed().as_secs_f64();
+    let bytes = input_bytes(&args.log.join("velodyne"));
+    let report = ConvertReport {
+        log: &args.log,
+        output: &args.output,
+        scans: written.scans,
+        odometry_messages: written.odometry_messages,
+        input_bytes: bytes,
+        read_secs,
+        read_mb_per_s: bytes as f64 / 1e6 / read_secs.max(1e-9),
+        write_secs,
+        output_bytes: written.bytes,
+        stamps_rewritten: Some(format!("a KITTI folder's clouds are stamped {} s apart", args.period)),
+    };
+    if args.json {
+        print_json(&report)?;
+    } else {
+        println!(
+            "{} clouds: read {} in {:.3} s, wrote {} in {:.3} s",
+            report.scans,
+            args.log.display(),
+            read_secs,
+            args.output.display(),
+            write_secs
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
 /// Runs `mapmerge convert`.
 pub fn run(args: &ConvertArgs) -> anyhow::Result<ExitCode> {
     if !(args.period.is_finite() && args.period > 0.0) {
         return Err(bad_input(format!("--period must be positive, got {}", args.period)));
+    }
+    if args.log.is_dir() && !mapmerge_rosbag::is_bag(&args.log) {
+        return convert_kitti_folder(args);
     }
     let started = Instant::now();
     let log = crate::read_log(&args.log, &args.topics)?;

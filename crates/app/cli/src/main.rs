@@ -67,7 +67,7 @@ enum Command {
     /// Build an occupancy grid (ROS map_server YAML + PGM) from a laser log and poses.
     Grid(grid::GridArgs),
     /// Convert a laser log (CARMEN or ROS 2 bag) to a ROS 2 bag (`.mcap`, `.db3`) or a
-    /// CARMEN log.
+    /// CARMEN log; a KITTI-style folder to a bag of PointCloud2.
     Convert(convert::ConvertArgs),
     /// Merge two ROS map_server maps of any resolution without an initial guess (exit code 3:
     /// no acceptable hypothesis).

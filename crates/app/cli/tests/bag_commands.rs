@@ -111,3 +111,60 @@ fn bad_bags_exit_with_code_2_and_name_the_file_and_reason() {
     expect_bad(&["atlas", p(&bag_dir), "-o", out], &["gone.mcap"]);
     expect_bad(&["convert", p(&bag), "-o", p(&dir.join("x.bag"))], &["x.bag", ".mcap, .db3"]);
 }
+
+/// A KITTI-style folder of a drive along a street from `x0_m` to `x1_m`: building faces at
+/// y = ±8 m with gaps, poles, one cloud every 2 m.
+fn kitti_drive(dir: &Path, x0_m: i32, x1_m: i32) {
+    let mut world = Vec::new();
+    for x in -20i32..140 {
+        for z in [0.5f32, 1.5, 2.5, 3.5] {
+            let xf = x as f32 + 0.5;
+            if (x.div_euclid(7)) % 3 != 0 {
+                world.push([xf, 8.0 + 0.3 * (x as f32).sin(), z]);
+            }
+            if (x.div_euclid(5)) % 4 != 1 {
+                world.push([xf, -8.0 - 0.3 * (x as f32).cos(), z]);
+            }
+        }
+    }
+    std::fs::create_dir_all(dir.join("velodyne")).unwrap();
+    let mut poses = String::new();
+    for (k, x) in (x0_m..x1_m).step_by(2).enumerate() {
+        let mut bytes = Vec::new();
+        for p in world.iter().filter(|p| (p[0] - x as f32).abs() < 30.0) {
+            for v in [p[0] - x as f32, p[1], p[2] - 1.7, 0.5] {
+                bytes.extend_from_slice(&v.to_le_bytes());
+            }
+        }
+        std::fs::write(dir.join(format!("velodyne/{k:06}.bin")), bytes).unwrap();
+        poses.push_str(&format!("1 0 0 {x} 0 1 0 0 0 0 1 1.7\n"));
+    }
+    std::fs::write(dir.join("poses.txt"), poses).unwrap();
+}
+
+#[test]
+fn point_cloud_bags_assemble_as_the_kitti_folders_they_came_from() {
+    let dir = scratch("cloud-bags");
+    let (a, b) = (dir.join("drive_a"), dir.join("drive_b"));
+    kitti_drive(&a, 0, 80);
+    kitti_drive(&b, 40, 120);
+    let (bag_a, bag_b) = (dir.join("drive_a.mcap"), dir.join("drive_b.db3"));
+    let converted = ok_json(&["convert", p(&a), "-o", p(&bag_a), "--json"]);
+    assert_eq!(converted["scans"], 40);
+    ok_json(&["convert", p(&b), "-o", p(&bag_b), "--json"]);
+    let assemble = |x: &Path, y: &Path, out: &str| {
+        ok_json(&["assemble", p(x), p(y), "--no-pictures", "-o", p(&dir.join(out)), "--json"])
+    };
+    let (folders, bags) = (assemble(&a, &b, "folders"), assemble(&bag_a, &bag_b, "bags"));
+    for k in 0..2 {
+        assert_eq!(folders["arrivals"][k]["submaps"], bags["arrivals"][k]["submaps"]);
+        assert_eq!(folders["arrivals"][k]["segment"], bags["arrivals"][k]["segment"]);
+    }
+    assert_eq!(folders["groups"], bags["groups"]);
+    // A 3D bag among laser logs is refused.
+    let sim = dir.join("sim");
+    ok_json(&["sim", "--sessions", "1", "--duration", "20", "--no-pictures", "-o", p(&sim), "--json"]);
+    let out = run(&["assemble", p(&sim.join("session_0.log")), p(&bag_a), "-o", p(&dir.join("mixed"))]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("a 3D segment among 2D ones"));
+}

@@ -2,12 +2,13 @@
 
 use std::path::Path;
 
+use mapmerge_geometry::{LieGroup as _, Se3};
 use mapmerge_io::IoError;
 use nalgebra::Vector3;
 
-use crate::messages::{decode, PointCloud2Message, POINT_CLOUD2_TYPE};
-use crate::session::choose_topic;
-use crate::storage::read_raw_bag;
+use crate::messages::{decode, OdometryMessage, PointCloud2Message, TfMessage, ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE};
+use crate::session::{check_monotonic, choose_topic, pose_at, rotation_of, TfTree, ODOMETRY_HOLD_S};
+use crate::storage::{read_raw_bag, RawBag};
 
 /// One cloud: its stamp, frame and finite points (m, in `frame_id`).
 #[derive(Clone, Debug, PartialEq)]
@@ -79,25 +80,116 @@ pub fn cloud_points(cloud: &PointCloud2Message) -> Result<Vec<Vector3<f64>>, Str
     Ok(points)
 }
 
-/// The clouds of the PointCloud2 topic `topic` (or the only one) of the bag at `path`.
-pub fn read_point_clouds(path: &Path, topic: Option<&str>) -> Result<Vec<StampedCloud>, IoError> {
-    let invalid = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
-    let raw = read_raw_bag(path, &|t| t == POINT_CLOUD2_TYPE)?;
-    let index = choose_topic(&raw.topics, POINT_CLOUD2_TYPE, topic, "--cloud-topic")
-        .map_err(invalid)?
-        .ok_or_else(|| invalid(format!("no {POINT_CLOUD2_TYPE} topic")))?;
+/// The clouds of topic `index` of `raw`, decoded.
+fn decode_clouds(raw: &RawBag, index: usize) -> Result<Vec<StampedCloud>, String> {
     let mut clouds = Vec::new();
     for message in raw.messages.iter().filter(|m| m.topic == index) {
-        let context = |reason: String| invalid(format!("topic '{}', message {}: {reason}", raw.topics[index].name, clouds.len() + 1));
+        let context = |reason: String| format!("topic '{}', message {}: {reason}", raw.topics[index].name, clouds.len() + 1);
         let cloud: PointCloud2Message = decode(&message.data).map_err(context)?;
         let points = cloud_points(&cloud).map_err(context)?;
         clouds.push(StampedCloud {
             stamp_secs: cloud.header.stamp.seconds(),
-            frame_id: cloud.header.frame_id,
+            frame_id: cloud.header.frame_id.trim_start_matches('/').to_owned(),
             points,
         });
     }
     Ok(clouds)
+}
+
+fn cloud_topic(raw: &RawBag, topic: Option<&str>) -> Result<usize, String> {
+    choose_topic(&raw.topics, POINT_CLOUD2_TYPE, topic, "--cloud-topic")?
+        .ok_or_else(|| format!("no {POINT_CLOUD2_TYPE} topic"))
+}
+
+/// The clouds of the PointCloud2 topic `topic` (or the only one) of the bag at `path`.
+pub fn read_point_clouds(path: &Path, topic: Option<&str>) -> Result<Vec<StampedCloud>, IoError> {
+    let invalid = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let raw = read_raw_bag(path, &|t| t == POINT_CLOUD2_TYPE)?;
+    let index = cloud_topic(&raw, topic).map_err(invalid)?;
+    decode_clouds(&raw, index).map_err(invalid)
+}
+
+/// A bag's clouds, each with the sensor's pose in the odometry frame at its stamp.
+#[derive(Clone, Debug)]
+pub struct CloudSession {
+    /// `odom_from_sensor` of each cloud: the odometry interpolated on SE(3) at the cloud's
+    /// stamp, composed with the sensor's mount from tf.
+    pub odom_from_sensor: Vec<Se3>,
+    /// The clouds, in the sensor's frame.
+    pub clouds: Vec<StampedCloud>,
+    /// Clouds left out: no odometry within [`ODOMETRY_HOLD_S`] of their stamp.
+    pub clouds_without_odometry: usize,
+}
+
+/// Reads a 3D session from the bag at `path`: the PointCloud2 topic `cloud_topic` (or the
+/// only one) and the odometry topic `odom_topic` (or the only one), which it needs.
+pub fn read_cloud_session(
+    path: &Path,
+    cloud_topic_name: Option<&str>,
+    odom_topic_name: Option<&str>,
+) -> Result<CloudSession, IoError> {
+    let invalid = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let wanted = |t: &str| t == POINT_CLOUD2_TYPE || t == ODOMETRY_TYPE || t == TF_TYPE;
+    let raw = read_raw_bag(path, &wanted)?;
+    cloud_session_of(&raw, cloud_topic_name, odom_topic_name).map_err(invalid)
+}
+
+fn cloud_session_of(raw: &RawBag, cloud_name: Option<&str>, odom_name: Option<&str>) -> Result<CloudSession, String> {
+    let cloud_index = cloud_topic(raw, cloud_name)?;
+    let odom_index = choose_topic(&raw.topics, ODOMETRY_TYPE, odom_name, "--odom-topic")?
+        .ok_or_else(|| format!("no {ODOMETRY_TYPE} topic: a 3D session takes its clouds' poses from odometry"))?;
+    let clouds = decode_clouds(raw, cloud_index)?;
+    let first = clouds.first().ok_or_else(|| format!("topic '{}' has no messages", raw.topics[cloud_index].name))?;
+    let (mut stamps, mut odom_from_base, mut base_frame) = (Vec::new(), Vec::new(), None);
+    let (mut static_tf, mut dynamic_tf, mut any_tf) = (TfTree::default(), TfTree::default(), false);
+    for message in &raw.messages {
+        let topic = &raw.topics[message.topic];
+        let context = |reason: String| format!("topic '{}': {reason}", topic.name);
+        if message.topic == odom_index {
+            let odometry: OdometryMessage = decode(&message.data).map_err(context)?;
+            let position = &odometry.pose.pose.position;
+            let rotation = rotation_of(&odometry.pose.pose.orientation)
+                .ok_or_else(|| context("an odometry quaternion is zero or not finite".to_owned()))?;
+            stamps.push(odometry.header.stamp.seconds());
+            odom_from_base.push(Se3::new(rotation, Vector3::new(position.x, position.y, position.z)));
+            base_frame.get_or_insert(odometry.child_frame_id);
+        } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
+            any_tf = true;
+            let tf: TfMessage = decode(&message.data).map_err(context)?;
+            let tree = if topic.name.ends_with("tf_static") { &mut static_tf } else { &mut dynamic_tf };
+            tree.insert_first(&tf).map_err(context)?;
+        }
+    }
+    check_monotonic(&stamps, &raw.topics[odom_index].name)?;
+    let cloud_stamps: Vec<f64> = clouds.iter().map(|c| c.stamp_secs).collect();
+    check_monotonic(&cloud_stamps, &raw.topics[cloud_index].name)?;
+    let base_frame = base_frame
+        .map(|f| f.trim_start_matches('/').to_owned())
+        .filter(|f| !f.is_empty())
+        .unwrap_or_else(|| "base_link".to_owned());
+    let sensor_frame = &first.frame_id;
+    let base_from_sensor = if *sensor_frame == base_frame || sensor_frame.is_empty() || !any_tf {
+        Se3::identity()
+    } else {
+        static_tf
+            .lookup(&base_frame, sensor_frame)
+            .or_else(|| dynamic_tf.lookup(&base_frame, sensor_frame))
+            .ok_or_else(|| format!("tf has no transform between the robot's frame '{base_frame}' and the sensor's frame '{sensor_frame}'"))?
+    };
+    let mut session = CloudSession { odom_from_sensor: Vec::new(), clouds: Vec::new(), clouds_without_odometry: 0 };
+    for cloud in clouds {
+        match pose_at(&stamps, &odom_from_base, cloud.stamp_secs) {
+            Some(pose) => {
+                session.odom_from_sensor.push(pose.compose(&base_from_sensor));
+                session.clouds.push(cloud);
+            }
+            None => session.clouds_without_odometry += 1,
+        }
+    }
+    if session.clouds.is_empty() {
+        return Err(format!("none of the clouds has odometry within {ODOMETRY_HOLD_S} s of its stamp"));
+    }
+    Ok(session)
 }
 
 #[cfg(test)]

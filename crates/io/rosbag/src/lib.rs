@@ -9,7 +9,10 @@
 //!   laser's mount, scans left out); scans are paired with the odometry at their stamp,
 //!   interpolated on SE(2), and the laser's mount comes from tf (`/tf_static`, else `/tf`);
 //! - [`read_point_clouds`]: `sensor_msgs/msg/PointCloud2` messages → points;
-//! - [`write_bag`]: a [`LaserLog`] → `.mcap` or `.db3`.
+//!   [`read_cloud_session`]: with the sensor's pose from odometry (interpolated on SE(3)) and
+//!   tf, for the 3D path;
+//! - [`write_bag`]: a [`LaserLog`] → `.mcap` or `.db3`; [`write_cloud_bag`]: clouds and poses;
+//! - [`list_topics`]: what a bag holds.
 //!
 //! Nothing here panics on input; every problem is an [`IoError`] naming the file and, for a
 //! message, its topic and index.
@@ -26,7 +29,7 @@ use std::path::Path;
 use mapmerge_io::IoError;
 use mapmerge_scan::LaserLog;
 
-pub use clouds::{cloud_points, read_point_clouds, StampedCloud};
+pub use clouds::{cloud_points, read_cloud_session, read_point_clouds, CloudSession, StampedCloud};
 pub use messages::{
     decode, encode, Header, LaserScanMessage, OdometryMessage, PointCloud2Message, PointField,
     Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3, LASER_SCAN_TYPE,
@@ -37,7 +40,12 @@ pub use session::{
     read_bag, BagInfo, BagSession, MountSource, TopicChoice, MAX_LASER_TILT_DEG, ODOMETRY_HOLD_S,
 };
 pub use storage::{is_bag, Storage, Topic};
-pub use write::{write_bag, BagWriteParams, BagWriteReport, MOUNT_TOLERANCE};
+pub use write::{write_bag, write_cloud_bag, BagWriteParams, BagWriteReport, MOUNT_TOLERANCE};
+
+/// The topics of the bag at `path`, with their message counts.
+pub fn list_topics(path: &Path) -> Result<Vec<Topic>, IoError> {
+    Ok(storage::read_raw_bag(path, &|_| false)?.topics)
+}
 
 /// Reads a laser session from `path`: a rosbag2 bag (see [`is_bag`]) through [`read_bag`],
 /// anything else as a CARMEN log (plain or xz).

@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use mapmerge_geometry::{LieGroup as _, Se2, Se3};
+use mapmerge_geometry::{LieGroup, Se2, Se3};
 use mapmerge_io::IoError;
 use mapmerge_scan::{LaserLog, LaserScan, OdometryReading, ScanRecord};
 use nalgebra::{UnitQuaternion, Vector3};
@@ -153,7 +153,7 @@ pub(crate) fn choose_topic(
     Ok(Some(index))
 }
 
-fn rotation_of(quaternion: &Quaternion) -> Option<UnitQuaternion<f64>> {
+pub(crate) fn rotation_of(quaternion: &Quaternion) -> Option<UnitQuaternion<f64>> {
     let q = nalgebra::Quaternion::new(quaternion.w, quaternion.x, quaternion.y, quaternion.z);
     let norm = q.norm();
     (norm.is_finite() && norm > 1e-9).then(|| UnitQuaternion::from_quaternion(q))
@@ -178,12 +178,12 @@ fn yaw_of(rotation: &UnitQuaternion<f64>) -> f64 {
 
 /// Transforms by child frame: `(parent, parent_from_child)`.
 #[derive(Default)]
-struct TfTree {
+pub(crate) struct TfTree {
     edges: HashMap<String, (String, Se3)>,
 }
 
 impl TfTree {
-    fn insert_first(&mut self, tf: &TfMessage) -> Result<(), String> {
+    pub(crate) fn insert_first(&mut self, tf: &TfMessage) -> Result<(), String> {
         for stamped in &tf.transforms {
             let child = stamped.child_frame_id.trim_start_matches('/').to_owned();
             let parent = stamped.header.frame_id.trim_start_matches('/').to_owned();
@@ -215,7 +215,7 @@ impl TfTree {
     }
 
     /// `base_from_laser` through the frames' first common ancestor.
-    fn lookup(&self, base: &str, laser: &str) -> Option<Se3> {
+    pub(crate) fn lookup(&self, base: &str, laser: &str) -> Option<Se3> {
         let base_chain = self.chain(base);
         self.chain(laser).into_iter().find_map(|(frame, frame_from_laser)| {
             base_chain
@@ -242,7 +242,11 @@ fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
 
 /// The pose at `stamp_secs` among stamped poses in non-decreasing stamp order: interpolated on
 /// SE(2) between the two around it, held for [`ODOMETRY_HOLD_S`] past either end.
-pub(crate) fn pose_at(stamps_secs: &[f64], poses: &[Se2], stamp_secs: f64) -> Option<Se2> {
+pub(crate) fn pose_at<const D: usize, G: LieGroup<D>>(
+    stamps_secs: &[f64],
+    poses: &[G],
+    stamp_secs: f64,
+) -> Option<G> {
     let after = stamps_secs.partition_point(|&t| t <= stamp_secs);
     let (first, last) = (stamps_secs.first()?, stamps_secs.last()?);
     if after == 0 {
@@ -259,8 +263,42 @@ pub(crate) fn pose_at(stamps_secs: &[f64], poses: &[Se2], stamp_secs: f64) -> Op
     Some(poses[before].interpolate(&poses[after], fraction))
 }
 
+/// Largest denominator tried by [`angle_rad_of`]: π/2880 is 1/16 of a degree.
+const MAX_ANGLE_DENOMINATOR: i64 = 2880;
+
+/// Significant digits up to which a float32's shortest decimal is taken as the value it was
+/// written from (laser logs print angles with six).
+const DECIMAL_ANGLE_DIGITS: usize = 6;
+
+/// The angle (rad) a LaserScan's float32 field most likely held before it was rounded to
+/// float32: its shortest decimal when that has at most six significant digits (the angle was
+/// printed, as in CARMEN's ROBOTLASER1), else the simplest multiple `p·π/q` (q ≤ 2880; scanners
+/// step in fractions of a degree, drivers compute them in double) that rounds to the same
+/// float32, else its shortest decimal. Whatever is chosen rounds back to `stored`, so nothing a
+/// bag says is changed; scan matching is spared the float32 error (up to 6e-8 rad at ±π),
+/// which is enough to flip a loop decision and move a trajectory by centimetres.
+pub(crate) fn angle_rad_of(stored: f32) -> f64 {
+    let decimal_text = format!("{stored:e}");
+    let decimal: f64 = decimal_text.parse().unwrap_or(f64::from(stored));
+    let digits = decimal_text
+        .split('e')
+        .next()
+        .map_or(0, |mantissa| mantissa.chars().filter(char::is_ascii_digit).count());
+    if !stored.is_finite() || digits <= DECIMAL_ANGLE_DIGITS {
+        return decimal;
+    }
+    let turns = f64::from(stored) / std::f64::consts::PI;
+    (1..=MAX_ANGLE_DENOMINATOR)
+        .find_map(|q| {
+            let p = (turns * q as f64).round();
+            let candidate = p * std::f64::consts::PI / q as f64;
+            (candidate as f32 == stored).then_some(candidate)
+        })
+        .unwrap_or(decimal)
+}
+
 /// Checks that `stamps` never decrease.
-fn check_monotonic(stamps_secs: &[f64], topic: &str) -> Result<(), String> {
+pub(crate) fn check_monotonic(stamps_secs: &[f64], topic: &str) -> Result<(), String> {
     match stamps_secs.windows(2).position(|w| !(w[1] >= w[0])) {
         Some(i) => Err(format!(
             "{topic}: header stamps are not monotonic: message {} is stamped {} s, after {} s",
@@ -372,6 +410,9 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     };
     let mut scans_without_odometry = 0;
     let mirror = if upside_down { -1.0 } else { 1.0 };
+    // Scans of one laser share their angles: recover each distinct value once.
+    let mut angles: HashMap<u32, f64> = HashMap::new();
+    let mut angle_of = |stored: f32| *angles.entry(stored.to_bits()).or_insert_with(|| angle_rad_of(stored));
     for (message, stamp_secs) in scans.into_iter().zip(scan_stamps) {
         let odom_from_robot = match odom_topic {
             Some(_) => match pose_at(&odom_stamps, &odom_poses, stamp_secs) {
@@ -386,8 +427,8 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         log.scans.push(ScanRecord {
             stamp_secs,
             scan: LaserScan {
-                angle_min_rad: mirror * f64::from(message.angle_min),
-                angle_increment_rad: mirror * f64::from(message.angle_increment),
+                angle_min_rad: mirror * angle_of(message.angle_min),
+                angle_increment_rad: mirror * angle_of(message.angle_increment),
                 range_min_m: message.range_min,
                 range_max_m: message.range_max,
                 ranges_m: message.ranges,
@@ -549,6 +590,25 @@ mod tests {
         corrupt.messages[1].data.truncate(20);
         let err = session_of(corrupt, &TopicChoice::default()).unwrap_err();
         assert!(err.contains("topic '/scan', message 2: malformed CDR"), "{err}");
+    }
+
+    #[test]
+    fn float32_angles_recover_the_value_they_were_rounded_from() {
+        use std::f64::consts::PI;
+        // Multiples of π, as drivers and CARMEN's FLASER compute them.
+        for angle in [-PI / 2.0, PI / 180.0, PI / 179.0, PI / 720.0, -3.0 * PI / 4.0, 2.0 * PI / 1440.0, PI / 360.0] {
+            assert_eq!(angle_rad_of(angle as f32), angle, "{angle}");
+        }
+        // Printed decimals, as in ROBOTLASER1.
+        for angle in [-1.5708, 0.0174533, 0.00436332, 0.5, 0.0] {
+            assert_eq!(angle_rad_of(angle as f32), angle, "{angle}");
+        }
+        // Anything else stays the float32 value, and the choice always rounds back to it.
+        for stored in [0.123_456_78f32, -2.987_654_3, 1e-7, f32::MAX] {
+            let recovered = angle_rad_of(stored);
+            assert_eq!(recovered as f32, stored);
+        }
+        assert!(angle_rad_of(f32::NAN).is_nan());
     }
 
     #[test]

@@ -178,9 +178,9 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
     );
     let malformed = |e: mcap::McapError| format!("malformed MCAP: {e}");
     let mut unread = bytes;
-    // Schema id → message type; channel id → topic index, or None when its type is unwanted.
+    // Schema id → message type; channel id → (topic index, whether its messages are kept).
     let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    let mut channels: BTreeMap<u16, Option<usize>> = BTreeMap::new();
+    let mut channels: BTreeMap<u16, (usize, bool)> = BTreeMap::new();
     while let Some(event) = reader.next_event() {
         let (opcode, data) = match event.map_err(malformed)? {
             LinearReadEvent::ReadRequest(wanted_bytes) => {
@@ -199,14 +199,14 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
             Record::Channel(channel) => {
                 let message_type = schemas.get(&channel.schema_id).map_or("", String::as_str);
                 let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
-                channels.insert(channel.id, wanted(&bag.topics[index].message_type).then_some(index));
+                channels.insert(channel.id, (index, wanted(&bag.topics[index].message_type)));
             }
             Record::Message { header, data } => {
-                let topic = *channels
+                let (topic, kept) = *channels
                     .get(&header.channel_id)
                     .ok_or_else(|| format!("message on unknown channel {}", header.channel_id))?;
-                if let Some(topic) = topic {
-                    bag.topics[topic].messages += 1;
+                bag.topics[topic].messages += 1;
+                if kept {
                     bag.messages.push(RawMessage {
                         topic,
                         log_time_ns: i64::try_from(header.log_time).unwrap_or(i64::MAX),
@@ -228,7 +228,8 @@ fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Res
         OpenFlags::SQLITE_OPEN_READ_ONLY | OpenFlags::SQLITE_OPEN_NO_MUTEX,
     )
     .map_err(sql)?;
-    let mut ids: BTreeMap<i64, Option<usize>> = BTreeMap::new();
+    // Topic id → (topic index, whether its messages are kept).
+    let mut ids: BTreeMap<i64, (usize, bool)> = BTreeMap::new();
     {
         let mut statement = connection
             .prepare("SELECT id, name, type, serialization_format FROM topics")
@@ -241,7 +242,7 @@ fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Res
         for row in rows {
             let (id, name, message_type, encoding) = row.map_err(sql)?;
             let index = bag.topic_index(&name, &message_type, &encoding);
-            ids.insert(id, wanted(&bag.topics[index].message_type).then_some(index));
+            ids.insert(id, (index, wanted(&bag.topics[index].message_type)));
         }
     }
     let mut statement = connection
@@ -250,12 +251,13 @@ fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Res
     let mut rows = statement.query([]).map_err(sql)?;
     while let Some(row) = rows.next().map_err(sql)? {
         let topic_id: i64 = row.get(0).map_err(sql)?;
-        let topic = match ids.get(&topic_id) {
-            Some(Some(topic)) => *topic,
-            Some(None) => continue,
-            None => return Err(format!("a message names topic id {topic_id}, which the topics table lacks")),
-        };
+        let (topic, kept) = *ids
+            .get(&topic_id)
+            .ok_or_else(|| format!("a message names topic id {topic_id}, which the topics table lacks"))?;
         bag.topics[topic].messages += 1;
+        if !kept {
+            continue;
+        }
         bag.messages.push(RawMessage {
             topic,
             log_time_ns: row.get(1).map_err(sql)?,

@@ -5,13 +5,14 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use mapmerge_geometry::{LieGroup as _, Se2};
+use mapmerge_geometry::{LieGroup as _, Se2, Se3};
 use mapmerge_io::IoError;
 use mapmerge_scan::LaserLog;
 
 use crate::messages::{
-    encode, Header, LaserScanMessage, OdometryMessage, Quaternion, TfMessage, Time, Transform,
-    TransformStamped, Vector3, LASER_SCAN_TYPE, ODOMETRY_TYPE, TF_TYPE,
+    encode, Header, LaserScanMessage, OdometryMessage, PointCloud2Message, PointField, Quaternion,
+    TfMessage, Time, Transform, TransformStamped, Vector3, LASER_SCAN_TYPE, ODOMETRY_TYPE,
+    POINT_CLOUD2_TYPE, TF_TYPE,
 };
 use crate::storage::Storage;
 
@@ -207,6 +208,70 @@ pub fn write_bag(path: &Path, log: &LaserLog, params: &BagWriteParams) -> Result
         .map_err(|source| IoError::Io { file: path.display().to_string(), source })?
         .len();
     Ok(report)
+}
+
+/// Writes a 3D session as a bag at `path` (`.mcap` or `.db3`): `/points` (PointCloud2, `x y z`
+/// float32, in the robot's frame `params.base_frame`) and `/odom` (the sensor's pose
+/// `world_from_sensor` as the robot's), one each per cloud, `params.rewritten_period_s` apart
+/// from 0 s.
+pub fn write_cloud_bag(
+    path: &Path,
+    world_from_sensor: &[Se3],
+    clouds: &[Vec<nalgebra::Vector3<f64>>],
+    params: &BagWriteParams,
+) -> Result<BagWriteReport, IoError> {
+    let unwritable = |reason: String| IoError::Unwritable { format: "rosbag2", reason };
+    let storage = Storage::of_file(path)
+        .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))?;
+    if clouds.len() != world_from_sensor.len() || clouds.is_empty() {
+        return Err(unwritable(format!("{} clouds and {} poses", clouds.len(), world_from_sensor.len())));
+    }
+    let mut messages = Vec::with_capacity(2 * clouds.len());
+    for (k, (cloud, pose)) in clouds.iter().zip(world_from_sensor).enumerate() {
+        let stamp = stamp_of(k as f64 * params.rewritten_period_s);
+        let header = Header { stamp, frame_id: params.base_frame.clone() };
+        let field = |name: &str, offset| PointField { name: name.into(), offset, datatype: 7, count: 1 };
+        let mut data = Vec::with_capacity(12 * cloud.len());
+        for point in cloud {
+            for v in [point.x, point.y, point.z] {
+                data.extend_from_slice(&(v as f32).to_le_bytes());
+            }
+        }
+        let message = PointCloud2Message {
+            header: header.clone(),
+            height: 1,
+            width: cloud.len() as u32,
+            fields: vec![field("x", 0), field("y", 4), field("z", 8)],
+            is_bigendian: false,
+            point_step: 12,
+            row_step: 12 * cloud.len() as u32,
+            data: serde_bytes::ByteBuf::from(data),
+            is_dense: true,
+        };
+        messages.push(Outgoing { topic: 0, stamp, data: encode(&message).map_err(unwritable)? });
+        let mut odometry = OdometryMessage {
+            header: Header { stamp, frame_id: params.odom_frame.clone() },
+            child_frame_id: params.base_frame.clone(),
+            ..Default::default()
+        };
+        let (t, q) = (&pose.translation_m, pose.rotation.quaternion());
+        odometry.pose.pose.position = Vector3 { x: t.x, y: t.y, z: t.z };
+        odometry.pose.pose.orientation = Quaternion { x: q.i, y: q.j, z: q.k, w: q.w };
+        messages.push(Outgoing { topic: 1, stamp, data: encode(&odometry).map_err(unwritable)? });
+    }
+    let topics = [("/points", POINT_CLOUD2_TYPE), (params.odom_topic.as_str(), ODOMETRY_TYPE)];
+    let file_error = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    match storage {
+        Storage::Mcap => write_mcap(path, &topics, &messages).map_err(file_error)?,
+        Storage::Sqlite3 => write_db3(path, &topics, &messages).map_err(file_error)?,
+    }
+    Ok(BagWriteReport {
+        storage,
+        scans: clouds.len(),
+        odometry_messages: clouds.len(),
+        stamps_rewritten: None,
+        bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
+    })
 }
 
 fn write_mcap(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Result<(), String> {

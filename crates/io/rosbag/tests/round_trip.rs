@@ -104,3 +104,31 @@ fn bags_with_missing_topics_or_bad_files_are_errors_naming_the_file() {
     let err = read_bag(&out.path().join("absent.db3"), &TopicChoice::default()).unwrap_err().to_string();
     assert!(err.contains("absent.db3"), "{err}");
 }
+
+#[test]
+fn clouds_and_their_poses_round_trip_through_both_storages() {
+    use mapmerge_geometry::{LieGroup as _, Se3};
+    use nalgebra::{UnitQuaternion, Vector3};
+    let poses: Vec<Se3> = (0..4)
+        .map(|k| Se3::new(UnitQuaternion::from_euler_angles(0.01 * k as f64, -0.02, 0.3 * k as f64), Vector3::new(k as f64, 0.5, 1.7)))
+        .collect();
+    let clouds: Vec<Vec<Vector3<f64>>> = (0..4)
+        .map(|k| (0..50).map(|i| Vector3::new(i as f64 * 0.25, k as f64 - 2.0, 0.125 * i as f64)).collect())
+        .collect();
+    let out = tempfile::tempdir().unwrap();
+    for extension in ["mcap", "db3"] {
+        let path = out.path().join(format!("clouds.{extension}"));
+        mapmerge_rosbag::write_cloud_bag(&path, &poses, &clouds, &BagWriteParams::default()).unwrap();
+        let topics = mapmerge_rosbag::list_topics(&path).unwrap();
+        assert!(topics.iter().any(|t| t.name == "/points" && t.messages == 4), "{topics:?}");
+        let session = mapmerge_rosbag::read_cloud_session(&path, None, None).unwrap();
+        assert_eq!(session.clouds.len(), 4);
+        for (k, (pose, cloud)) in session.odom_from_sensor.iter().zip(&session.clouds).enumerate() {
+            assert!(pose.between(&poses[k]).log().norm() < 1e-9, "pose {k}");
+            assert_eq!(cloud.points, clouds[k], "cloud {k}: its values are float32-exact");
+        }
+        // A laser reader refuses it, naming what is missing.
+        let err = read_bag(&path, &TopicChoice::default()).unwrap_err().to_string();
+        assert!(err.contains("no sensor_msgs/msg/LaserScan topic"), "{err}");
+    }
+}

@@ -29,4 +29,7 @@ pub use submap::{
     build_submaps, submap_centres, voxel_downsample, Submap, Submap2, Submap3, SubmapParams,
     SubmapPoint, SubmapsOf,
 };
-pub use three_d::{load_kitti_folder, prepare_3d, project_pose, GroundSlice, KittiFolderOptions};
+pub use three_d::{
+    load_kitti_folder, prepare_3d, project_pose, segment3_from_clouds, GroundSlice,
+    KittiFolderOptions,
+};

@@ -323,18 +323,7 @@ pub fn load_kitti_folder(
         segment: name.clone(),
         reason,
     };
-    if !(options.voxel_m.is_finite() && options.voxel_m >= 0.0) {
-        return Err(AssembleError::InvalidParams {
-            field: "voxel_m",
-            reason: format!("{} must be finite and non-negative", options.voxel_m),
-        });
-    }
-    if !(options.max_range_m.is_finite() && options.max_range_m > 0.0) {
-        return Err(AssembleError::InvalidParams {
-            field: "max_range_m",
-            reason: format!("{} must be finite and positive", options.max_range_m),
-        });
-    }
+    options.check()?;
     let velodyne = dir.join("velodyne");
     let entries =
         std::fs::read_dir(&velodyne).map_err(|e| bad(format!("{}: {e}", velodyne.display())))?;
@@ -374,14 +363,43 @@ pub fn load_kitti_folder(
             }
         }
     }
-    let stride = options.stride.max(1);
-    let kept: Vec<usize> = (0..files.len()).step_by(stride).collect();
+    kept_clouds(name.clone(), &world_from_sensor, options, |k| {
+        mapmerge_io::read_kitti_cloud(&files[k]).map_err(|e| bad(e.to_string()))
+    })
+}
+
+impl KittiFolderOptions {
+    fn check(&self) -> Result<(), AssembleError> {
+        if !(self.voxel_m.is_finite() && self.voxel_m >= 0.0) {
+            return Err(AssembleError::InvalidParams {
+                field: "voxel_m",
+                reason: format!("{} must be finite and non-negative", self.voxel_m),
+            });
+        }
+        if !(self.max_range_m.is_finite() && self.max_range_m > 0.0) {
+            return Err(AssembleError::InvalidParams {
+                field: "max_range_m",
+                reason: format!("{} must be finite and positive", self.max_range_m),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A [`Segment3`] of every `options.stride`-th cloud of `world_from_sensor.len()`, each read by
+/// `cloud(k)` (in parallel), cut to `options.max_range_m` and voxel-downsampled.
+fn kept_clouds(
+    name: String,
+    world_from_sensor: &[Se3],
+    options: &KittiFolderOptions,
+    cloud: impl Fn(usize) -> Result<Vec<Point3>, AssembleError> + Sync,
+) -> Result<Segment3, AssembleError> {
+    let kept: Vec<usize> = (0..world_from_sensor.len()).step_by(options.stride.max(1)).collect();
     let radius_sq = options.max_range_m * options.max_range_m;
     let clouds: Vec<Result<Vec<Point3>, AssembleError>> = kept
         .par_iter()
         .map(|&k| {
-            let cloud = mapmerge_io::read_kitti_cloud(&files[k]).map_err(|e| bad(e.to_string()))?;
-            let near: Vec<Point3> = cloud
+            let near: Vec<Point3> = cloud(k)?
                 .into_iter()
                 .filter(|p| p.x * p.x + p.y * p.y < radius_sq)
                 .collect();
@@ -390,7 +408,26 @@ pub fn load_kitti_folder(
         .collect();
     let clouds = clouds.into_iter().collect::<Result<Vec<_>, _>>()?;
     let poses = kept.iter().map(|&k| world_from_sensor[k]).collect();
-    Segment3::new(name.clone(), poses, clouds)
+    Segment3::new(name, poses, clouds)
+}
+
+/// A [`Segment3`] from clouds in memory (e.g. a ROS 2 bag's PointCloud2 messages) and the
+/// sensor's pose of each (`world_from_sensor`), kept, cut and downsampled as
+/// [`load_kitti_folder`] does with a folder's.
+pub fn segment3_from_clouds(
+    name: String,
+    world_from_sensor: &[Se3],
+    clouds: &[Vec<Point3>],
+    options: &KittiFolderOptions,
+) -> Result<Segment3, AssembleError> {
+    options.check()?;
+    if clouds.len() != world_from_sensor.len() {
+        return Err(AssembleError::InvalidSegment {
+            segment: name,
+            reason: format!("{} clouds but {} poses", clouds.len(), world_from_sensor.len()),
+        });
+    }
+    kept_clouds(name, world_from_sensor, options, |k| Ok(clouds[k].clone()))
 }
 
 /// `camera_from_velodyne` from a KITTI `calib.txt` (`Tr: ` + 12 numbers), `None` when the file
