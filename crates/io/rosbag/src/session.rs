@@ -384,7 +384,7 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         .iter()
         .map(|o| {
             let p = &o.pose.pose;
-            let yaw = rotation_of(&p.orientation).map_or(f64::NAN, |r| yaw_of(&r));
+            let yaw = rotation_of(&p.orientation).map_or(f64::NAN, |_| p.orientation.yaw());
             Se2::new(p.position.x, p.position.y, yaw)
         })
         .collect();
@@ -476,7 +476,7 @@ mod tests {
         assert_eq!(pose_at(&stamps, &poses, 2.04), Some(poses[1]));
         assert_eq!(pose_at(&stamps, &poses, 0.9), None);
         assert_eq!(pose_at(&stamps, &poses, 2.1), None);
-        assert_eq!(pose_at(&[], &[], 2.1), None);
+        assert_eq!(pose_at::<3, Se2>(&[], &[], 2.1), None);
     }
 
     #[test]
