@@ -31,8 +31,8 @@ for name in "${logs[@]}"; do
   "$bin" slam "$log" -o "$dir/slam-carmen" --json > "$dir/slam-carmen.json"
   for source in "$dir/$name.log" "${bags[@]}"; do
     label="$(basename "$source")"
-    # Reading alone, best of 5 (convert to a CARMEN log in /dev/shm reports the read time).
-    read_secs=$(for _ in 1 2 3 4 5; do "$bin" convert "$source" -o "/dev/shm/mapmerge-bench-$$.log" --json; done \
+    # Reading alone, best of 15 (convert to a CARMEN log in /dev/shm reports the read time).
+    read_secs=$(for _ in $(seq 15); do "$bin" convert "$source" -o "/dev/shm/mapmerge-bench-$$.log" --json; done \
       | python3 -c "import json,sys; r=[json.loads(l) for l in sys.stdin]; print(min(x['read_secs'] for x in r), r[0]['input_bytes'])")
     "$bin" slam "$source" -o "$dir/slam-$label" --json > /dev/null
     python3 - "$name" "$label" "$dir/slam-carmen/trajectory.tum" "$dir/slam-$label/trajectory.tum" $read_secs "$dir/convert.json" >> "$out/runs.jsonl" <<'PY'

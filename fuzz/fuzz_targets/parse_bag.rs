@@ -4,6 +4,7 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
+use mapmerge_geometry::LieGroup as _;
 use mapmerge_rosbag::{parse_mcap_session, TopicChoice};
 
 fuzz_target!(|data: &[u8]| {

@@ -38,7 +38,7 @@ pub struct SlamArgs {
     pub output: PathBuf,
     /// Replace the log's odometry by seeded noisy odometry first (`default` or `harsh`; for
     /// the public *corrected* logs, whose odometry is the corrected path). The result is
-    /// then scored against the log's own poses.
+    /// then scored against the log's own poses, which are written as `reference.tum`.
     #[arg(long)]
     pub odometry_noise: Option<String>,
     /// Seed of `--odometry-noise`.
@@ -57,8 +57,12 @@ pub struct SlamArgs {
     pub json: bool,
 }
 
+/// Seconds per scan of the clock a TUM file gets when the log's stamps do not increase.
+pub(crate) const TUM_CLOCK_PERIOD_S: f64 = 0.1;
+
 /// Writes a SLAM run's outputs into `dir` (created if missing): `trajectory.tum` (one pose per
-/// scan, with the scan's stamp), `graph.g2o`, the map from every scan at its final pose
+/// scan, with the scan's stamp, or [`TUM_CLOCK_PERIOD_S`] apart when the log's stamps do not
+/// increase: TUM readers such as evo pair poses by stamp), `graph.g2o`, the map from every scan at its final pose
 /// (`map.yaml` + `map.pgm`) and `map.png` with the trajectory and graph over it. Returns the
 /// map.
 pub(crate) fn write_map_outputs(
@@ -70,12 +74,8 @@ pub(crate) fn write_map_outputs(
     progress: bool,
 ) -> anyhow::Result<OccupancyGrid> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    let stamped: Vec<(f64, Se2)> = log
-        .scans
-        .iter()
-        .zip(trajectory)
-        .map(|(record, pose)| (record.stamp_secs, *pose))
-        .collect();
+    let (stamps, _) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
+    let stamped: Vec<(f64, Se2)> = stamps.into_iter().zip(trajectory.iter().copied()).collect();
     mapmerge_io::write_tum_planar(&dir.join("trajectory.tum"), &stamped)?;
     let any = AnyGraph::Planar(graph.clone());
     mapmerge_io::write_graph(&dir.join("graph.g2o"), &any, GraphFormat::G2o)?;
@@ -114,6 +114,9 @@ struct SlamReport<'a> {
     odometry_score: Option<TrajectoryReport>,
     /// With `--odometry-noise`: the accepted loop edges judged against the log's poses.
     loops: Option<LoopPrecision>,
+    /// Why `trajectory.tum` (and `reference.tum`) are stamped by a clock of
+    /// `TUM_CLOCK_PERIOD_S` per scan instead of the log's stamps, if they are.
+    tum_stamps_rewritten: Option<String>,
     output: &'a Path,
     params: &'a EngineParams,
 }
@@ -235,6 +238,12 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
     bar.finish_and_clear();
+    let (stamps, tum_stamps_rewritten) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
+    if let Some((corrected, _)) = &reference {
+        std::fs::create_dir_all(&args.output)?;
+        let stamped: Vec<(f64, Se2)> = stamps.iter().copied().zip(corrected.iter().copied()).collect();
+        mapmerge_io::write_tum_planar(&args.output.join("reference.tum"), &stamped)?;
+    }
     write_map_outputs(
         &args.output,
         log,
@@ -275,6 +284,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
         score,
         odometry_score,
         loops,
+        tum_stamps_rewritten,
         output: &args.output,
         params: &params,
     };

@@ -74,16 +74,8 @@ struct Outgoing {
     data: Vec<u8>,
 }
 
-/// Why the scans' stamps cannot be written as they are, if so.
-fn unusable_stamps(stamps_secs: &[f64]) -> Option<String> {
-    if let Some(i) = stamps_secs.iter().position(|t| Time::from_nanoseconds((t * 1e9).round() as i64).is_none() || !t.is_finite()) {
-        return Some(format!("scan {} is stamped {} s, outside a ROS time", i + 1, stamps_secs[i]));
-    }
-    stamps_secs
-        .windows(2)
-        .position(|w| w[1] <= w[0])
-        .map(|i| format!("the stamps do not increase at scan {} ({} s after {} s)", i + 2, stamps_secs[i + 1], stamps_secs[i]))
-}
+/// Largest stamp (s) a ROS `Time` holds (its `sec` is an i32).
+const MAX_ROS_TIME_S: f64 = i32::MAX as f64;
 
 fn stamp_of(seconds: f64) -> Time {
     Time::from_nanoseconds((seconds * 1e9).round() as i64).unwrap_or_default()
@@ -109,15 +101,14 @@ fn messages_of(
     }) {
         return Err(format!("scan {} has another laser mount than the first; one /tf_static cannot hold both", i + 1));
     }
-    let log_stamps: Vec<f64> = log.scans.iter().map(|r| r.stamp_secs).collect();
-    let rewritten = unusable_stamps(&log_stamps);
-    let start_secs = if first.stamp_secs.is_finite() && first.stamp_secs >= 0.0 && first.stamp_secs < 2e9 { first.stamp_secs } else { 0.0 };
-    let stamps: Vec<Time> = match &rewritten {
-        None => log_stamps.iter().map(|&t| stamp_of(t)).collect(),
-        Some(_) => (0..log.scans.len())
-            .map(|i| stamp_of(start_secs + i as f64 * params.rewritten_period_s))
-            .collect(),
-    };
+    let (mut seconds, mut rewritten) = log.increasing_scan_stamps(params.rewritten_period_s);
+    if rewritten.is_none() {
+        if let Some(i) = seconds.iter().position(|t| !(0.0..MAX_ROS_TIME_S).contains(t)) {
+            rewritten = Some(format!("scan {} is stamped {} s, outside a ROS time", i + 1, seconds[i]));
+            seconds = (0..seconds.len()).map(|k| k as f64 * params.rewritten_period_s).collect();
+        }
+    }
+    let stamps: Vec<Time> = seconds.iter().map(|&t| stamp_of(t)).collect();
     let header = |stamp: Time, frame: &str| Header { stamp, frame_id: frame.to_owned() };
     let mut outgoing = Vec::with_capacity(2 * log.scans.len() + 1);
     let tf = TfMessage {
@@ -351,10 +342,30 @@ mod tests {
     use super::*;
 
     #[test]
-    fn broken_stamps_are_named() {
-        assert_eq!(unusable_stamps(&[0.0, 0.1, 0.2]), None);
-        assert!(unusable_stamps(&[0.0, 0.0]).unwrap().contains("do not increase at scan 2"));
-        assert!(unusable_stamps(&[-0.4, 0.0]).unwrap().contains("outside a ROS time"));
-        assert!(unusable_stamps(&[1.0, f64::NAN]).is_some());
+    fn broken_stamps_are_replaced_by_a_clock_and_named() {
+        use mapmerge_scan::{LaserScan, ScanRecord};
+        let log_with = |stamps: &[f64]| LaserLog {
+            scans: stamps
+                .iter()
+                .map(|&stamp_secs| ScanRecord {
+                    stamp_secs,
+                    scan: LaserScan::new(-1.0, 1.0, 10.0, vec![1.0; 3]),
+                    odom_from_robot: Some(Se2::identity()),
+                    source_tag: "FLASER".into(),
+                })
+                .collect(),
+            ..Default::default()
+        };
+        let params = BagWriteParams::default();
+        let stamps = |log: &LaserLog| {
+            let (messages, report) = messages_of(log, &params).unwrap();
+            let scans: Vec<f64> = messages.iter().filter(|m| m.topic == 0).map(|m| m.stamp.seconds()).collect();
+            (scans, report.stamps_rewritten)
+        };
+        assert_eq!(stamps(&log_with(&[5.0, 5.5])), (vec![5.0, 5.5], None));
+        let (clock, why) = stamps(&log_with(&[3.0, 3.0, 3.0]));
+        assert!((clock[2] - 3.2).abs() < 1e-9 && why.unwrap().contains("do not increase at scan 2"));
+        let (clock, why) = stamps(&log_with(&[-0.4, 0.0]));
+        assert!((clock[1] - 0.1).abs() < 1e-9 && why.unwrap().contains("outside a ROS time"));
     }
 }

@@ -52,6 +52,32 @@ pub struct LaserLog {
 }
 
 impl LaserLog {
+    /// Stamps (s) for the scans that strictly increase, as TUM files and bags need: the log's
+    /// own when they do, else a clock of `period_secs` per scan from the first stamp (0 when
+    /// that is not finite and non-negative), with the reason the log's own were replaced.
+    pub fn increasing_scan_stamps(&self, period_secs: f64) -> (Vec<f64>, Option<String>) {
+        let stamps: Vec<f64> = self.scans.iter().map(|record| record.stamp_secs).collect();
+        let why = match stamps.iter().position(|t| !t.is_finite()) {
+            Some(i) => Some(format!("scan {} is stamped {} s", i + 1, stamps[i])),
+            None => stamps.windows(2).position(|w| w[1] <= w[0]).map(|i| {
+                format!(
+                    "the stamps do not increase at scan {} ({} s after {} s)",
+                    i + 2,
+                    stamps[i + 1],
+                    stamps[i]
+                )
+            }),
+        };
+        match why {
+            None => (stamps, None),
+            Some(why) => {
+                let start = stamps.first().copied().filter(|t| t.is_finite() && *t >= 0.0).unwrap_or(0.0);
+                let clock = (0..stamps.len()).map(|k| start + k as f64 * period_secs).collect();
+                (clock, Some(why))
+            }
+        }
+    }
+
     /// Poses attached to the scans (`None` for scans without one), in scan order.
     pub fn scan_poses(&self) -> Vec<Option<Se2>> {
         self.scans
