@@ -160,13 +160,16 @@ fn read_file(
     }
 }
 
-/// Largest decompressed record (bytes) per byte of an MCAP file: far above real compression
-/// ratios, and a bound on what a corrupt length can make the reader allocate (the `mcap`
-/// crate's chunk flattener has no such bound and aborts on a huge length).
+/// Largest decompressed record or chunk (bytes) per byte of an MCAP file: far above real
+/// compression ratios, and a bound on what a corrupt length can make the reader allocate.
 const MAX_RECORD_BYTES_PER_FILE_BYTE: usize = 64;
 
-/// Reads the messages of one MCAP file's bytes into `bag`, through the `mcap` crate's sans-io
-/// reader (chunks decompressed, records length-limited); schemas and channels are linked here.
+/// Reads the messages of one MCAP file's bytes into `bag`. The `mcap` crate's sans-io reader
+/// walks the file's records (length-limited); chunks come out whole and are opened here
+/// ([`chunk_records`]), because the crate's own chunk readers panic on some corrupt chunks
+/// (an unbounded allocation for a huge record length, a subtraction overflow for a record
+/// longer than its uncompressed chunk; both found by the fuzz target `parse_bag`). Schemas and
+/// channels are linked here.
 pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
     use mcap::records::Record;
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -174,13 +177,11 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_record_length_limit(limit)
-            .with_emit_chunks(false),
+            .with_emit_chunks(true),
     );
     let malformed = |e: mcap::McapError| format!("malformed MCAP: {e}");
+    let mut links = Links::default();
     let mut unread = bytes;
-    // Schema id → message type; channel id → (topic index, whether its messages are kept).
-    let mut schemas: BTreeMap<u16, String> = BTreeMap::new();
-    let mut channels: BTreeMap<u16, (usize, bool)> = BTreeMap::new();
     while let Some(event) = reader.next_event() {
         let (opcode, data) = match event.map_err(malformed)? {
             LinearReadEvent::ReadRequest(wanted_bytes) => {
@@ -193,16 +194,43 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
             LinearReadEvent::Record { opcode, data } => (opcode, data),
         };
         match mcap::parse_record(opcode, data).map_err(malformed)? {
+            Record::Chunk { header, data } => {
+                let records = chunk_records(&header, &data, limit)?;
+                let mut rest = records.as_slice();
+                while !rest.is_empty() {
+                    let (opcode, body, after) = split_record(rest)?;
+                    links.take(bag, mcap::parse_record(opcode, body).map_err(malformed)?, wanted)?;
+                    rest = after;
+                }
+            }
+            record => links.take(bag, record, wanted)?,
+        }
+    }
+    Ok(())
+}
+
+/// Schema ids → message types; channel ids → (topic index, whether its messages are kept).
+#[derive(Default)]
+struct Links {
+    schemas: BTreeMap<u16, String>,
+    channels: BTreeMap<u16, (usize, bool)>,
+}
+
+impl Links {
+    fn take(&mut self, bag: &mut RawBag, record: mcap::records::Record<'_>, wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
+        use mcap::records::Record;
+        match record {
             Record::Schema { header, .. } => {
-                schemas.insert(header.id, header.name);
+                self.schemas.insert(header.id, header.name);
             }
             Record::Channel(channel) => {
-                let message_type = schemas.get(&channel.schema_id).map_or("", String::as_str);
+                let message_type = self.schemas.get(&channel.schema_id).map_or("", String::as_str);
                 let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
-                channels.insert(channel.id, (index, wanted(&bag.topics[index].message_type)));
+                self.channels.insert(channel.id, (index, wanted(&bag.topics[index].message_type)));
             }
             Record::Message { header, data } => {
-                let (topic, kept) = *channels
+                let (topic, kept) = *self
+                    .channels
                     .get(&header.channel_id)
                     .ok_or_else(|| format!("message on unknown channel {}", header.channel_id))?;
                 bag.topics[topic].messages += 1;
@@ -216,8 +244,50 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
             }
             _ => {}
         }
+        Ok(())
     }
-    Ok(())
+}
+
+/// The records of a chunk, decompressed (`""`, `zstd`, `lz4`), at most `limit` bytes, checked
+/// against the chunk's size and CRC.
+fn chunk_records(header: &mcap::records::ChunkHeader, data: &[u8], limit: usize) -> Result<Vec<u8>, String> {
+    use std::io::Read as _;
+    let size = usize::try_from(header.uncompressed_size)
+        .ok()
+        .filter(|&size| size <= limit)
+        .ok_or_else(|| format!("a chunk claims {} bytes uncompressed, more than the file can hold", header.uncompressed_size))?;
+    let records = match header.compression.as_str() {
+        "" => data.to_vec(),
+        "zstd" => zstd::bulk::decompress(data, size).map_err(|e| format!("a zstd chunk does not decompress: {e}"))?,
+        "lz4" => {
+            let mut out = Vec::with_capacity(size);
+            lz4::Decoder::new(data)
+                .and_then(|decoder| decoder.take(size as u64 + 1).read_to_end(&mut out))
+                .map_err(|e| format!("an lz4 chunk does not decompress: {e}"))?;
+            out
+        }
+        other => return Err(format!("chunk compression '{other}' is not supported (zstd, lz4)")),
+    };
+    if records.len() != size {
+        return Err(format!("a chunk holds {} bytes, its header says {size}", records.len()));
+    }
+    if header.uncompressed_crc != 0 && crc32fast::hash(&records) != header.uncompressed_crc {
+        return Err("a chunk's CRC does not match its records".to_owned());
+    }
+    Ok(records)
+}
+
+/// The first record of `bytes` (opcode u8, length u64 LE, body) and the rest.
+fn split_record(bytes: &[u8]) -> Result<(u8, &[u8], &[u8]), String> {
+    let truncated = || "a chunk ends inside a record".to_owned();
+    let (&opcode, rest) = bytes.split_first().ok_or_else(truncated)?;
+    let (length, rest) = rest.split_first_chunk::<8>().ok_or_else(truncated)?;
+    let length = usize::try_from(u64::from_le_bytes(*length)).map_err(|_| truncated())?;
+    if length > rest.len() {
+        return Err(truncated());
+    }
+    let (body, after) = rest.split_at(length);
+    Ok((opcode, body, after))
 }
 
 fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {

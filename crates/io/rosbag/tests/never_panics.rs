@@ -82,3 +82,12 @@ fn mutated_cdr_messages_never_panic() {
         }
     }
 }
+
+/// Found by the fuzz target `parse_bag`: an uncompressed chunk whose record is longer than the
+/// chunk made the `mcap` crate's chunk reader subtract past zero (a panic with overflow checks).
+/// Chunks are now opened by `storage::chunk_records`; the bag is an error.
+#[test]
+fn a_record_longer_than_its_chunk_is_an_error() {
+    let bytes = include_bytes!("data/chunk_record_longer_than_chunk.mcap");
+    assert!(parse_mcap_session(bytes, &TopicChoice::default()).is_err());
+}
