@@ -5,17 +5,15 @@
 # Usage: scripts/bench_evo.sh [LOG_NAME ...]. Writes bench-out/evo.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source scripts/log_split.sh
+source scripts/bench_common.sh
 logs=("$@")
-if [[ ${#logs[@]} -eq 0 ]]; then
-  logs=(acapulco aces belgioioso csail edmonton fhw freiburg-079 freiburg-101 freiburg-campus
-        infinite-corridor intel orebro seattle)
-fi
+[[ ${#logs[@]} -eq 0 ]] && logs=("${ALL_LOGS[@]}")
 data="${MAPMERGE_DATA:-../shared/data}"
 evo="${EVO_APE:-evo_ape}"
 out="$(realpath -m "${OUT_DIR:-bench-out}")/evo"
 mkdir -p "$out"
-if [[ -z "${MAPMERGE_BIN:-}" ]]; then cargo build --release -q -p mapmerge-cli; fi
-bin="$(realpath "${MAPMERGE_BIN:-target/release/mapmerge}")"
+bin="$(realpath "$(mapmerge_bin)")"
 {
   echo "| log | scans | TUM stamps | mapmerge eval ate RMS (m) | evo_ape RMSE (m) | difference (m) |"
   echo "|---|---|---|---|---|---|"

@@ -19,19 +19,6 @@ const LOGS: [&str; 13] = [
     "freiburg-campus", "infinite-corridor", "intel", "orebro", "seattle",
 ];
 
-fn evo_ape() -> Option<PathBuf> {
-    match std::env::var_os("MAPMERGE_EVO_APE") {
-        Some(path) => Some(PathBuf::from(path)),
-        None if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("MAPMERGE_EVO_APE is unset; under CI=true it must name evo_ape (.ci/run installs evo)")
-        }
-        None => {
-            eprintln!("skipping: MAPMERGE_EVO_APE is unset (the evo_ape of a Python with evo)");
-            None
-        }
-    }
-}
-
 /// The `rmse` line of `evo_ape`'s statistics (printed with six decimals).
 fn evo_rmse_m(reference: &Path, estimate: &Path, evo: &Path) -> f64 {
     let out = Command::new(evo)
@@ -47,7 +34,9 @@ fn evo_rmse_m(reference: &Path, estimate: &Path, evo: &Path) -> f64 {
 
 #[test]
 fn evo_reports_the_ate_mapmerge_reports_on_every_public_log() {
-    let Some(evo) = evo_ape() else { return };
+    let Some(evo) = mapmerge_testkit::tool_from_env("MAPMERGE_EVO_APE", "the evo_ape of a Python with evo") else {
+        return;
+    };
     let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
     let dir = scratch("evo");
     for name in LOGS {

@@ -52,3 +52,22 @@ pub fn shared_data(relative: &str) -> Option<PathBuf> {
     }
     Some(path)
 }
+
+/// The program (or interpreter) an environment variable names, for tests that run a tool of
+/// the field (evo, a Python with rosbags): `None` (after printing why) when the variable is
+/// unset outside CI.
+///
+/// # Panics
+/// Under `CI=true` when the variable is unset: `.ci/run` installs the tools and sets it.
+pub fn tool_from_env(variable: &str, what: &str) -> Option<PathBuf> {
+    if let Some(path) = std::env::var_os(variable) {
+        return Some(PathBuf::from(path));
+    }
+    let why = format!("{variable} is unset ({what})");
+    #[allow(clippy::panic)]
+    if std::env::var("CI").as_deref() == Ok("true") {
+        panic!("{why}; under CI=true it must be set (.ci/run installs the tool)");
+    }
+    eprintln!("skipping: {why}");
+    None
+}

@@ -169,7 +169,7 @@ const MAX_RECORD_BYTES_PER_FILE_BYTE: usize = 64;
 /// ([`chunk_records`]), because the crate's own chunk readers panic on some corrupt chunks
 /// (an unbounded allocation for a huge record length, a subtraction overflow for a record
 /// longer than its uncompressed chunk; both found by the fuzz target `parse_bag`). Schemas and
-/// channels are linked here.
+/// channels are linked here; other records are not parsed ([`NEEDED_RECORDS`]).
 pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
     use mcap::records::Record;
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
@@ -193,13 +193,18 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
             }
             LinearReadEvent::Record { opcode, data } => (opcode, data),
         };
+        if !NEEDED_RECORDS.contains(&opcode) {
+            continue;
+        }
         match mcap::parse_record(opcode, data).map_err(malformed)? {
             Record::Chunk { header, data } => {
                 let records = chunk_records(&header, &data, limit)?;
                 let mut rest = records.as_slice();
                 while !rest.is_empty() {
                     let (opcode, body, after) = split_record(rest)?;
-                    links.take(bag, mcap::parse_record(opcode, body).map_err(malformed)?, wanted)?;
+                    if NEEDED_RECORDS.contains(&opcode) {
+                        links.take(bag, mcap::parse_record(opcode, body).map_err(malformed)?, wanted)?;
+                    }
                     rest = after;
                 }
             }
@@ -208,6 +213,15 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
     }
     Ok(())
 }
+
+/// The only MCAP records parsed: the others (attachments, metadata, indexes, statistics) are
+/// skipped unread; `mcap::parse_record` panics on a short attachment (found by `parse_bag`).
+const NEEDED_RECORDS: [u8; 4] = [
+    mcap::records::op::SCHEMA,
+    mcap::records::op::CHANNEL,
+    mcap::records::op::MESSAGE,
+    mcap::records::op::CHUNK,
+];
 
 /// Schema ids → message types; channel ids → (topic index, whether its messages are kept).
 #[derive(Default)]

@@ -11,22 +11,12 @@ use std::process::Command;
 use common::{assert_same_session, LOGS};
 use mapmerge_rosbag::{read_bag, write_bag, BagWriteParams, Storage, TopicChoice};
 
-fn bag_python() -> Option<PathBuf> {
-    match std::env::var_os("MAPMERGE_BAG_PYTHON") {
-        Some(python) => Some(PathBuf::from(python)),
-        None if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("MAPMERGE_BAG_PYTHON is unset; under CI=true it must name a Python with rosbags, mcap and mcap-ros2-support (.ci/run makes one)")
-        }
-        None => {
-            eprintln!("skipping: MAPMERGE_BAG_PYTHON is unset (a Python with rosbags, mcap, mcap-ros2-support)");
-            None
-        }
-    }
-}
-
 #[test]
 fn bags_written_by_rosbags_and_mcap_ros2_read_back_as_the_carmen_logs() {
-    let Some(python) = bag_python() else { return };
+    let what = "a Python with rosbags, mcap and mcap-ros2-support";
+    let Some(python) = mapmerge_testkit::tool_from_env("MAPMERGE_BAG_PYTHON", what) else {
+        return;
+    };
     let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
     let script = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../scripts/bag_interop.py"));
     let out = tempfile::tempdir().unwrap();

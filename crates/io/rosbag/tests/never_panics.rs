@@ -91,3 +91,11 @@ fn a_record_longer_than_its_chunk_is_an_error() {
     let bytes = include_bytes!("data/chunk_record_longer_than_chunk.mcap");
     assert!(parse_mcap_session(bytes, &TopicChoice::default()).is_err());
 }
+
+/// Found by the fuzz target `parse_bag`: an attachment record shorter than its own fields made
+/// `mcap::parse_record` slice out of bounds. Records the reader does not need are skipped.
+#[test]
+fn a_short_attachment_is_skipped() {
+    let bytes = include_bytes!("data/short_attachment.mcap");
+    let _ = parse_mcap_session(bytes, &TopicChoice::default());
+}
