@@ -172,12 +172,38 @@ pub struct BagTopics {
 }
 
 /// Reads a laser session from a CARMEN log or a ROS 2 bag; failures are bad input (exit 2).
+/// For a bag, one line on stderr says which topics and frames were used, where the laser's
+/// mount came from and how many scans had no odometry.
 pub fn read_log(path: &std::path::Path, topics: &BagTopics) -> anyhow::Result<mapmerge_scan::LaserLog> {
+    if !mapmerge_rosbag::is_bag(path) {
+        return mapmerge_io::read_carmen(path).map_err(bad_file);
+    }
     let choice = mapmerge_rosbag::TopicChoice {
         scan_topic: topics.scan_topic.clone(),
         odom_topic: topics.odom_topic.clone(),
     };
-    mapmerge_rosbag::read_log(path, &choice).map_err(bad_file)
+    let session = mapmerge_rosbag::read_bag(path, &choice).map_err(bad_file)?;
+    let info = &session.info;
+    let mount = &info.robot_from_sensor;
+    eprintln!(
+        "{}: {} scans on {} ({}), odometry {}; laser at ({:.3} m, {:.3} m, {:.2}°) on {} {}{}{}",
+        path.display(),
+        info.scans,
+        info.scan_topic,
+        info.laser_frame,
+        info.odom_topic.as_deref().unwrap_or("none"),
+        mount.x_m,
+        mount.y_m,
+        mount.theta_rad.to_degrees(),
+        info.base_frame,
+        info.mount_from.describe(),
+        if info.laser_upside_down { ", upside down" } else { "" },
+        match info.scans_without_odometry {
+            0 => String::new(),
+            n => format!("; {n} scans without odometry left out"),
+        }
+    );
+    Ok(session.log)
 }
 
 /// A public log's short name: its stem without `-corrected` (`…/intel-corrected.log.xz` →

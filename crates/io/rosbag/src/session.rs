@@ -46,6 +46,18 @@ pub enum MountSource {
     NoTf,
 }
 
+impl MountSource {
+    /// Where the mount came from, in words.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Self::TfStatic => "from /tf_static",
+            Self::Tf => "from /tf",
+            Self::SameFrame => "(the scans are in the robot's frame)",
+            Self::NoTf => "(no tf in the bag: taken at the robot's origin)",
+        }
+    }
+}
+
 /// What was read, and how the session was put together.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct BagInfo {
