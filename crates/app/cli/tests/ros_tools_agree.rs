@@ -7,6 +7,8 @@
 //!   `mapmerge grid` writes as mapmerge does, and classifies a ROS map (and its `negate`, path
 //!   variants) as mapmerge's reader does.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::path::{Path, PathBuf};

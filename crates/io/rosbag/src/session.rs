@@ -311,7 +311,9 @@ pub(crate) fn angle_rad_of(stored: f32) -> f64 {
 
 /// Checks that `stamps` never decrease.
 pub(crate) fn check_monotonic(stamps_secs: &[f64], topic: &str) -> Result<(), String> {
-    match stamps_secs.windows(2).position(|w| !(w[1] >= w[0])) {
+    // NaN counts as going back: `partial_cmp` gives no order.
+    let goes_back = |w: &[f64]| !matches!(w[1].partial_cmp(&w[0]), Some(std::cmp::Ordering::Greater | std::cmp::Ordering::Equal));
+    match stamps_secs.windows(2).position(goes_back) {
         Some(i) => Err(format!(
             "{topic}: header stamps are not monotonic: message {} is stamped {} s, after {} s",
             i + 2,
@@ -605,6 +607,7 @@ mod tests {
     }
 
     #[test]
+    #[allow(clippy::approx_constant)] // printed angles such as −1.5708 are the point
     fn float32_angles_recover_the_value_they_were_rounded_from() {
         use std::f64::consts::PI;
         // Multiples of π, as drivers and CARMEN's FLASER compute them.

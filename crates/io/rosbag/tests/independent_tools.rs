@@ -3,6 +3,8 @@
 //! public log. `MAPMERGE_BAG_PYTHON` names a Python with those packages (`.ci/run` makes
 //! one); without it the test skips, except under `CI=true`.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::path::PathBuf;

@@ -1,6 +1,8 @@
 //! The stable-Rust companion of the fuzz targets `parse_bag` and `decode_cdr`: mutated and
 //! truncated bags and messages give errors or sessions, never a panic.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use mapmerge_geometry::Se2;
 use mapmerge_rosbag::{decode, encode, parse_mcap_session, write_bag, BagWriteParams, LaserScanMessage, OdometryMessage, TfMessage, TopicChoice};
 use mapmerge_scan::{LaserLog, LaserScan, ScanRecord};

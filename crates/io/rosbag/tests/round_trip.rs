@@ -1,5 +1,7 @@
 //! Laser logs written as bags and read back: the same session, scan for scan.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 mod common;
 
 use std::path::Path;

@@ -1,5 +1,7 @@
 //! What the bag tests share: the public logs, and "the same session" as a bag can hold it.
 
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
 use mapmerge_geometry::{LieGroup as _, Se2};
 use mapmerge_scan::LaserLog;
 
