@@ -1,0 +1,178 @@
+//! Laser sessions: reading a CARMEN log or a ROS 2 bag, SLAM on it (`mapmerge slam`), the
+//! map of a posed session (`mapmerge grid`).
+
+use std::path::Path;
+
+use mapmerge_engine::{run_slam, EngineParams, SlamInfo, SlamRun};
+use mapmerge_geometry::Se2;
+use mapmerge_grid::{InsertInfo, InsertParams, OccupancyGrid};
+use mapmerge_rosbag::TopicChoice;
+use mapmerge_scan::LaserLog;
+use serde::Serialize;
+
+use crate::JobError;
+
+/// Default cell side of a session's map (m).
+pub const DEFAULT_RESOLUTION_M: f64 = 0.05;
+
+/// Reads a laser session: a ROS 2 bag (MCAP or SQLite, file or bag folder, the topics found
+/// by type) or a CARMEN log (plain or xz). Unreadable, malformed or scan-less input is bad
+/// input naming the file.
+pub fn read_session_log(path: &Path) -> Result<LaserLog, JobError> {
+    read_session_log_with(path, &TopicChoice::default())
+}
+
+/// [`read_session_log`] with the bag's scan and odometry topics chosen.
+pub fn read_session_log_with(path: &Path, topics: &TopicChoice) -> Result<LaserLog, JobError> {
+    let log = mapmerge_rosbag::read_log(path, topics).map_err(|e| JobError::bad_file(&e))?;
+    if log.scans.is_empty() {
+        return Err(JobError::bad_input(format!(
+            "{}: no laser scans",
+            path.display()
+        )));
+    }
+    Ok(log)
+}
+
+/// Rejects a resolution that is not a positive, finite number of metres.
+pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
+    if resolution_m.is_finite() && resolution_m > 0.0 {
+        Ok(())
+    } else {
+        Err(JobError::bad_input(format!(
+            "--resolution must be a positive number of metres, got {resolution_m}"
+        )))
+    }
+}
+
+/// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
+/// (`…/intel_03.log.xz` → `intel_03`).
+pub fn log_file_stem(path: &Path) -> String {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string());
+    let name = name
+        .strip_suffix(".xz")
+        .or_else(|| name.strip_suffix(".gz"))
+        .unwrap_or(&name);
+    name.strip_suffix(".log").unwrap_or(name).to_owned()
+}
+
+/// SLAM on `log` (read from `path`, which names it in errors): [`run_slam`] with `params`,
+/// calling `progress(scans_done)` after every scan.
+pub fn slam_log(
+    path: &Path,
+    log: &LaserLog,
+    params: EngineParams,
+    progress: impl FnMut(usize),
+) -> Result<SlamRun, JobError> {
+    run_slam(log, params, progress)
+        .map_err(|e| JobError::bad_input(format!("{}: {e}", path.display())))
+}
+
+/// The map of a posed session: every scan inserted at its pose (`map_from_robot`, one per
+/// scan in order), calling `progress()` after each.
+pub fn build_grid(
+    log: &LaserLog,
+    poses: &[Se2],
+    resolution_m: f64,
+    params: &InsertParams,
+    mut progress: impl FnMut(),
+) -> Result<(OccupancyGrid, InsertInfo), JobError> {
+    let scans = poses.iter().zip(&log.scans).map(|(pose, record)| {
+        progress();
+        (*pose, &record.scan)
+    });
+    OccupancyGrid::from_scans(resolution_m, scans, params)
+        .map_err(|e| JobError::context("building the grid", &e))
+}
+
+/// A SLAM run's figures (the part of `mapmerge slam --json` that does not score against a
+/// reference).
+#[derive(Clone, Debug, Serialize)]
+pub struct SlamSummary {
+    /// Scans (one pose each).
+    pub scans: usize,
+    /// Wall time of the loop (s) and per scan (ms).
+    pub seconds: f64,
+    /// See `seconds`.
+    pub ms_per_scan: f64,
+    /// The tracker's and the constraint builder's counters.
+    pub front_end: SlamInfo,
+    /// The final graph's size.
+    pub graph_vertices: usize,
+    /// See `graph_vertices`.
+    pub graph_edges: usize,
+}
+
+impl SlamSummary {
+    /// The figures of `run`.
+    pub fn of(run: &SlamRun) -> Self {
+        Self {
+            scans: run.trajectory.len(),
+            seconds: run.seconds,
+            ms_per_scan: 1e3 * run.seconds / run.trajectory.len().max(1) as f64,
+            front_end: run.info,
+            graph_vertices: run.graph.num_vertices(),
+            graph_edges: run.graph.num_edges(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+
+    #[test]
+    fn a_log_without_scans_is_bad_input_naming_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("odometry-only.log");
+        std::fs::write(&path, "ODOM 1 2 0.5 0 0 0 10.0 host 10.0\n").unwrap();
+        let err = read_session_log(&path).unwrap_err();
+        assert_eq!(
+            err,
+            JobError::BadInput(format!("{}: no laser scans", path.display()))
+        );
+        let missing = read_session_log(&dir.path().join("missing.log")).unwrap_err();
+        assert_eq!(missing.exit_code(), 2);
+        assert!(missing.to_string().contains("missing.log"), "{missing}");
+    }
+
+    #[test]
+    fn stems_drop_compression_and_log_suffixes() {
+        assert_eq!(log_file_stem(Path::new("a/intel_03.log.xz")), "intel_03");
+        assert_eq!(log_file_stem(Path::new("b.gz")), "b");
+        assert_eq!(log_file_stem(Path::new("c.txt")), "c.txt");
+        assert!(check_resolution(0.05).is_ok());
+        assert_eq!(
+            check_resolution(0.0).unwrap_err().to_string(),
+            "--resolution must be a positive number of metres, got 0"
+        );
+    }
+
+    #[test]
+    fn slam_on_a_simulated_session_maps_every_scan() {
+        let path = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../testdata/sim/office-aliased/session_0.log.xz"
+        ));
+        let mut log = read_session_log(path).unwrap();
+        log.scans.truncate(200);
+        let run = slam_log(path, &log, EngineParams::default(), |_| {}).unwrap();
+        let summary = SlamSummary::of(&run);
+        assert_eq!(summary.scans, 200);
+        assert!(summary.graph_vertices > 1, "{summary:?}");
+        let (grid, info) = build_grid(
+            &log,
+            &run.trajectory,
+            DEFAULT_RESOLUTION_M,
+            &InsertParams::default(),
+            || {},
+        )
+        .unwrap();
+        assert!(info.hits > 0 && grid.geometry().width > 10);
+    }
+}

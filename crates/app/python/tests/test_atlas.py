@@ -1,0 +1,93 @@
+"""Atlas: two simulated sessions of the look-alike office fed scan by scan merge as the CLI's
+`atlas` merges them, with the same events."""
+
+import json
+
+import numpy as np
+import pytest
+
+import mapmerge
+from common import in_testdata, run_cli, truncated_log
+
+# Session 2 re-enters session 0's map early: the CLI merges it conditionally at scan 1424 and
+# fully at 1484 (scans 223 and 283 of session 2); its kidnap comes at scan 519.
+SCANS_OF_SESSION_2 = 350
+
+
+def feed(atlas, log):
+    """Feeds a session as `mapmerge atlas` does (a scan without odometry reuses the last)."""
+    previous = np.zeros(3)
+    for k in range(len(log["stamps"])):
+        odometry = log["odometry"][k]
+        odometry = previous if np.isnan(odometry).any() else odometry
+        previous = odometry
+        atlas.add_scan(
+            odometry,
+            log["ranges"][k],
+            angle_min=log["angle_min"][k],
+            angle_increment=log["angle_increment"][k],
+            range_min=log["range_min"][k],
+            range_max=log["range_max"][k],
+            robot_from_sensor=log["robot_from_sensor"][k],
+            stamp=log["stamps"][k],
+        )
+
+
+def test_two_sessions_merge_as_the_cli_merges_them(tmp_path):
+    first = in_testdata("sim/office-aliased/session_0.log.xz")
+    second = truncated_log(
+        in_testdata("sim/office-aliased/session_2.log.xz"), tmp_path / "s2.log", SCANS_OF_SESSION_2
+    )
+    atlas = mapmerge.Atlas()
+    assert atlas.robot_pose is None and atlas.epoch == 0
+    feed(atlas, mapmerge.read_log(first))
+    assert atlas.epoch == 0 and atlas.merges == [] and atlas.scans == 1201
+    ended = atlas.end_epoch("restart")
+    assert [(e["event"], e["epoch"], e["scan"]) for e in ended] == [
+        ("epoch_ended", 0, 1201),
+        ("epoch_started", 1, 1201),
+    ]
+    assert ended[0]["reason"] == "restart" and atlas.epoch == 1
+    feed(atlas, mapmerge.read_log(second))
+    merges = atlas.merges
+    assert [m["state"] for m in merges] == ["full"]
+    merge = merges[0]
+    assert (merge["epoch"], merge["map"]) == (1, 0)
+    assert merge["conditional_at_scan"] < merge["full_at_scan"] <= atlas.scans
+    # Merged: the robot's graph holds both epochs.
+    graph = atlas.graph
+    assert graph.num_vertices > 300 and atlas.travel_m > 50
+    graphs = atlas.graphs  # the active graph first: the one the robot is in, once merged fully
+    np.testing.assert_array_equal(graphs[0].ids, graph.ids)
+    assert sum(g.num_vertices for g in graphs) >= graph.num_vertices
+    assert atlas.robot_pose.shape == (3,)
+    assert atlas.hypotheses["full"] == 1
+
+    code, out, err = run_cli("atlas", first, second, "-o", tmp_path / "cli", "--no-pictures", "--json")
+    assert code == 0, err
+    expected = json.loads(out)
+    assert [(m["state"], m["epoch"], m["map"], m["conditional_at_scan"], m["full_at_scan"])
+            for m in expected["merges"]] == [
+        (m["state"], m["epoch"], m["map"], m["conditional_at_scan"], m["full_at_scan"])
+        for m in merges
+    ]
+    assert expected["hypotheses"] == atlas.hypotheses
+    # Every event is the CLI's line of events.jsonl.
+    lines = [json.loads(l) for l in open(tmp_path / "cli" / "events.jsonl")]
+    assert atlas.events == lines
+    assert [e["scan"] for e in lines if e["event"] == "merged"] == [merge["full_at_scan"]]
+    atlas.finish()
+
+
+def test_bad_scans_and_reasons_are_bad_input():
+    atlas = mapmerge.Atlas()
+    with pytest.raises(mapmerge.BadInputError, match="odometry must be three finite numbers"):
+        atlas.add_scan([0.0, 0.0], np.ones(10), angle_min=-1.0, angle_increment=0.2, range_max=30)
+    with pytest.raises(mapmerge.BadInputError, match="invalid value 'lost' for reason"):
+        atlas.end_epoch("lost")
+    report = atlas.add_scan(
+        [0.0, 0.0, 0.0], np.full(360, 3.0), angle_min=-np.pi, angle_increment=np.pi / 180,
+        range_max=30.0,
+    )
+    assert report["keyframe"] == 0 and report["anchor"] == 0 and atlas.scans == 1
+    np.testing.assert_array_equal(atlas.robot_pose, [0.0, 0.0, 0.0])
