@@ -138,17 +138,9 @@ pub fn build_grid(
     progress: bool,
 ) -> anyhow::Result<(OccupancyGrid, mapmerge_grid::InsertInfo)> {
     let bar = crate::progress_bar(posed.poses.len(), "scans", "grid", progress);
-    let scans = posed
-        .poses
-        .iter()
-        .zip(&posed.log.scans)
-        .map(|(pose, record)| {
-            bar.inc(1);
-            (*pose, &record.scan)
-        });
-    let built = OccupancyGrid::from_scans(resolution_m, scans, params).context("building the grid");
+    let built = mapmerge_jobs::build_grid(&posed.log, &posed.poses, resolution_m, params, || bar.inc(1));
     bar.finish_and_clear();
-    built
+    built.map_err(crate::job_error)
 }
 
 /// Runs `mapmerge grid`.

@@ -13,7 +13,7 @@ use clap::Args;
 use mapmerge_gridmatch::GridMatchParams;
 use mapmerge_jobs::{grid_merge, GridMergeReport, DEFAULT_HYPOTHESES};
 
-use crate::optimize::job_error;
+use crate::job_error;
 use crate::print_json;
 
 /// Exit code when no hypothesis is acceptable.

@@ -139,24 +139,7 @@ fn overlay(base: &mut serde_json::Value, given: serde_json::Value) {
     }
 }
 
-/// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
-/// (`…/intel_03.log.xz` → `intel_03`); a bag's without `.mcap` / `.db3` (a bag directory's
-/// name is its stem).
-pub fn log_file_stem(path: &std::path::Path) -> String {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| path.display().to_string());
-    let name = name
-        .strip_suffix(".xz")
-        .or_else(|| name.strip_suffix(".gz"))
-        .unwrap_or(&name);
-    [".log", ".mcap", ".db3"]
-        .iter()
-        .find_map(|suffix| name.strip_suffix(suffix))
-        .unwrap_or(name)
-        .to_owned()
-}
+pub use mapmerge_jobs::log_file_stem;
 
 /// `--scan-topic` / `--odom-topic`: which topics of a ROS 2 bag to read, for every command
 /// that takes a LOG (a CARMEN log or a bag: `.mcap`, `.db3` or a bag directory).
@@ -175,35 +158,33 @@ pub struct BagTopics {
 /// For a bag, one line on stderr says which topics and frames were used, where the laser's
 /// mount came from and how many scans had no odometry.
 pub fn read_log(path: &std::path::Path, topics: &BagTopics) -> anyhow::Result<mapmerge_scan::LaserLog> {
-    if !mapmerge_rosbag::is_bag(path) {
-        return mapmerge_io::read_carmen(path).map_err(bad_file);
-    }
     let choice = mapmerge_rosbag::TopicChoice {
         scan_topic: topics.scan_topic.clone(),
         odom_topic: topics.odom_topic.clone(),
     };
-    let session = mapmerge_rosbag::read_bag(path, &choice).map_err(bad_file)?;
-    let info = &session.info;
-    let mount = &info.robot_from_sensor;
-    eprintln!(
-        "{}: {} scans on {} ({}), odometry {}; laser at ({:.3} m, {:.3} m, {:.2}°) on {} {}{}{}",
-        path.display(),
-        info.scans,
-        info.scan_topic,
-        info.laser_frame,
-        info.odom_topic.as_deref().unwrap_or("none"),
-        mount.x_m,
-        mount.y_m,
-        mount.theta_rad.to_degrees(),
-        info.base_frame,
-        info.mount_from.describe(),
-        if info.laser_upside_down { ", upside down" } else { "" },
-        match info.scans_without_odometry {
-            0 => String::new(),
-            n => format!("; {n} scans without odometry left out"),
-        }
-    );
-    Ok(session.log)
+    let (log, info) = mapmerge_jobs::read_log_or_bag(path, &choice).map_err(job_error)?;
+    if let Some(info) = info {
+        let mount = &info.robot_from_sensor;
+        eprintln!(
+            "{}: {} scans on {} ({}), odometry {}; laser at ({:.3} m, {:.3} m, {:.2}°) on {} {}{}{}",
+            path.display(),
+            info.scans,
+            info.scan_topic,
+            info.laser_frame,
+            info.odom_topic.as_deref().unwrap_or("none"),
+            mount.x_m,
+            mount.y_m,
+            mount.theta_rad.to_degrees(),
+            info.base_frame,
+            info.mount_from.describe(),
+            if info.laser_upside_down { ", upside down" } else { "" },
+            match info.scans_without_odometry {
+                0 => String::new(),
+                n => format!("; {n} scans without odometry left out"),
+            }
+        );
+    }
+    Ok(log)
 }
 
 /// A public log's short name: its stem without `-corrected` (`…/intel-corrected.log.xz` →
@@ -262,12 +243,15 @@ pub fn load_graph_with(
 
 /// Rejects a `--resolution` that is not a positive, finite number of metres (exit code 2).
 pub fn check_resolution(resolution_m: f64) -> anyhow::Result<()> {
-    if resolution_m.is_finite() && resolution_m > 0.0 {
-        Ok(())
-    } else {
-        Err(bad_input(format!(
-            "--resolution must be a positive number of metres, got {resolution_m}"
-        )))
+    mapmerge_jobs::check_resolution(resolution_m).map_err(job_error)
+}
+
+/// A job's error as the binary's: bad input keeps exit code 2 ([`BadInput`]), anything else
+/// exit code 1; the text is the job's.
+pub fn job_error(err: mapmerge_jobs::JobError) -> anyhow::Error {
+    match err {
+        mapmerge_jobs::JobError::BadInput(message) => bad_input(message),
+        other => anyhow::anyhow!("{other}"),
     }
 }
 
@@ -278,13 +262,7 @@ pub fn bad_input(reason: impl std::fmt::Display) -> anyhow::Error {
 
 /// A bad-input error (exit code 2) from a reader's error, its cause chain kept in the text.
 pub fn bad_file(err: impl std::error::Error) -> anyhow::Error {
-    let mut message = err.to_string();
-    let mut source = err.source();
-    while let Some(cause) = source {
-        message.push_str(&format!(": {cause}"));
-        source = cause.source();
-    }
-    bad_input(message)
+    bad_input(mapmerge_jobs::error_chain(&err))
 }
 
 fn main() -> ExitCode {

@@ -91,7 +91,7 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
             ),
         }
     })
-    .map_err(job_error)?;
+    .map_err(crate::job_error)?;
     let report = &done.report;
     if args.json {
         crate::print_json(report)?;
@@ -120,12 +120,3 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// A job's error as the binary's: bad input keeps exit code 2 (`crate::BadInput`), anything
-/// else exit code 1; the text is the job's, printed as is. (Shared with `grid_merge.rs`; it
-/// belongs in `main.rs` beside `bad_input`.)
-pub(crate) fn job_error(err: mapmerge_jobs::JobError) -> anyhow::Error {
-    match err {
-        mapmerge_jobs::JobError::BadInput(message) => crate::bad_input(message),
-        other => anyhow::anyhow!("{other}"),
-    }
-}

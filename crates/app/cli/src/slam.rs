@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use anyhow::Context;
 use clap::Args;
 use mapmerge_atlas::LoopSource;
-use mapmerge_engine::{run_slam, EngineParams, SlamInfo, SlamRun};
+use mapmerge_engine::{EngineParams, SlamRun};
 use mapmerge_eval::{
     add_odometry_noise, make_relations, scan_poses, trajectory_report, OdometryNoiseProfile,
     RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
@@ -102,12 +102,8 @@ pub(crate) fn write_map_outputs(
 #[derive(Serialize)]
 struct SlamReport<'a> {
     log: &'a Path,
-    scans: usize,
-    seconds: f64,
-    ms_per_scan: f64,
-    front_end: SlamInfo,
-    graph_vertices: usize,
-    graph_edges: usize,
+    #[serde(flatten)]
+    run: mapmerge_jobs::SlamSummary,
     /// With `--odometry-noise`: the SLAM trajectory and the noisy odometry scored against
     /// the log's own (corrected) poses.
     score: Option<TrajectoryReport>,
@@ -233,10 +229,10 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     }
     let bar = crate::progress_bar(log.scans.len(), "scans", "slam", !args.json);
     let params: EngineParams = crate::read_config(args.config.as_deref())?;
-    let run = run_slam(&log, params.clone(), |done| {
+    let run = mapmerge_jobs::slam_log(&args.log, &log, params.clone(), |done| {
         bar.set_position(done as u64);
     })
-    .map_err(|e| bad_input(format!("{}: {e}", args.log.display())))?;
+    .map_err(crate::job_error)?;
     bar.finish_and_clear();
     let (stamps, tum_stamps_rewritten) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     if let Some((corrected, _)) = &reference {
@@ -275,12 +271,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     };
     let report = SlamReport {
         log: &args.log,
-        scans: run.trajectory.len(),
-        seconds: run.seconds,
-        ms_per_scan: 1e3 * run.seconds / run.trajectory.len().max(1) as f64,
-        front_end: run.info,
-        graph_vertices: run.graph.num_vertices(),
-        graph_edges: run.graph.num_edges(),
+        run: mapmerge_jobs::SlamSummary::of(&run),
         score,
         odometry_score,
         loops,
@@ -291,12 +282,12 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         print_json(&report)?;
     } else {
-        let (tracker, info) = (&report.front_end.tracker, &report.front_end.constraints);
+        let (tracker, info) = (&report.run.front_end.tracker, &report.run.front_end.constraints);
         println!(
             "{} scans in {:.2} s ({:.1} ms/scan): {} keyframes, {} submaps, {} loops ({} local, {} by place recognition), {} optimisations; wrote {}",
-            report.scans,
-            report.seconds,
-            report.ms_per_scan,
+            report.run.scans,
+            report.run.seconds,
+            report.run.ms_per_scan,
             tracker.keyframes,
             tracker.submaps,
             info.local_loops + info.place_loops,

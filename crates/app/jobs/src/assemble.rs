@@ -7,18 +7,19 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use mapmerge_assemble::{
-    load_kitti_folder, solve_group, Arrival, AssembleParams, Assembler, GroundSlice, GroupSolution,
+    load_kitti_folder, segment3_from_clouds, solve_group, Arrival, AssembleParams, Assembler, GroundSlice, GroupSolution,
     KittiFolderOptions, RingSpectrum3Params, RingSpectrumDescriptor3, Segment, Segment3,
     SegmentLoop, SubmapParams,
 };
 use mapmerge_engine::EngineParams;
+use mapmerge_rosbag::TopicChoice;
 use rand::seq::SliceRandom;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use crate::session::{log_file_stem, read_session_log, slam_log};
+use crate::session::{log_file_stem, read_session_log_with, slam_log};
 use crate::JobError;
 
 /// Arrival order of the segments.
@@ -60,28 +61,34 @@ pub fn segment_name(path: &Path) -> String {
     log_file_stem(path)
 }
 
-/// A segment as read: 2D (a log with its trajectory) or 3D (a KITTI-style folder).
+/// A segment as read: 2D (a log or laser bag with its trajectory) or 3D (a KITTI-style folder,
+/// a bag of PointCloud2 with odometry).
 pub enum LoadedSegment {
     /// A log or bag with its trajectory.
     Planar(Segment),
-    /// A KITTI-style folder.
+    /// A KITTI-style folder or a PointCloud2 bag.
     Spatial(Segment3),
 }
 
-/// Reads the segments (in parallel): logs or bags with their trajectories (one front-end
-/// each), or KITTI-style folders, calling `loaded()` after each. Mixing the two, two
-/// segments of one name, an unreadable segment are bad input.
+/// Reads the segments (in parallel): logs or laser bags with their trajectories (one
+/// front-end each), or 3D segments (KITTI-style folders, PointCloud2 bags), calling
+/// `loaded()` after each. Mixing 2D and 3D, two segments of one name, an unreadable segment
+/// are bad input.
 pub fn load_segments(
     paths: &[PathBuf],
+    topics: &TopicChoice,
     source: TrajectorySource,
     loaded: impl Fn() + Sync,
 ) -> Result<Vec<LoadedSegment>, JobError> {
-    let folders: Vec<&PathBuf> = paths.iter().filter(|p| is_folder_segment(p)).collect();
-    if let Some(folder) = folders.first().filter(|_| folders.len() < paths.len()) {
+    let mut spatial = Vec::with_capacity(paths.len());
+    for path in paths {
+        spatial.push(is_folder_segment(path) || is_cloud_bag(path)?);
+    }
+    if let Some(k) = spatial.iter().position(|&s| s).filter(|_| spatial.contains(&false)) {
         return Err(JobError::bad_input(format!(
-            "{}: a folder (a 3D segment) among CARMEN logs; segments are either logs (2D) or \
-             KITTI-style folders (3D), not both",
-            folder.display()
+            "{}: a 3D segment among 2D ones; segments are either laser logs or bags (2D), or \
+             KITTI-style folders and PointCloud2 bags (3D), not both",
+            paths[k].display()
         )));
     }
     let mut names = BTreeMap::new();
@@ -97,8 +104,13 @@ pub fn load_segments(
     }
     let segments: Vec<Result<LoadedSegment, JobError>> = paths
         .par_iter()
-        .map(|path| {
-            let segment = load_segment(path, source)?;
+        .zip(&spatial)
+        .map(|(path, &spatial)| {
+            let segment = if spatial {
+                load_segment_3d(path, topics)?
+            } else {
+                load_segment(path, topics, source)?
+            };
             loaded();
             Ok(segment)
         })
@@ -111,13 +123,32 @@ fn is_folder_segment(path: &Path) -> bool {
     path.is_dir() && !mapmerge_rosbag::is_bag(path)
 }
 
-fn load_segment(path: &Path, source: TrajectorySource) -> Result<LoadedSegment, JobError> {
-    if is_folder_segment(path) {
-        let segment =
-            load_kitti_folder(path, &KittiFolderOptions::default()).map_err(JobError::bad_input)?;
-        return Ok(LoadedSegment::Spatial(segment));
+/// True when `path` is a bag of PointCloud2 without LaserScan (a 3D segment).
+fn is_cloud_bag(path: &Path) -> Result<bool, JobError> {
+    if !mapmerge_rosbag::is_bag(path) {
+        return Ok(false);
     }
-    let log = read_session_log(path)?;
+    let topics = mapmerge_rosbag::list_topics(path).map_err(|e| JobError::bad_file(&e))?;
+    let has = |message_type: &str| topics.iter().any(|t| t.message_type == message_type);
+    Ok(has(mapmerge_rosbag::POINT_CLOUD2_TYPE) && !has(mapmerge_rosbag::LASER_SCAN_TYPE))
+}
+
+/// A 3D segment: a KITTI-style folder, or a PointCloud2 bag with odometry.
+fn load_segment_3d(path: &Path, topics: &TopicChoice) -> Result<LoadedSegment, JobError> {
+    let segment = if is_folder_segment(path) {
+        load_kitti_folder(path, &KittiFolderOptions::default())
+    } else {
+        let session = mapmerge_rosbag::read_cloud_session(path, None, topics.odom_topic.as_deref())
+            .map_err(|e| JobError::bad_file(&e))?;
+        let clouds: Vec<_> = session.clouds.into_iter().map(|c| c.points).collect();
+        segment3_from_clouds(segment_name(path), &session.odom_from_sensor, &clouds, &KittiFolderOptions::default())
+    }
+    .map_err(JobError::bad_input)?;
+    Ok(LoadedSegment::Spatial(segment))
+}
+
+fn load_segment(path: &Path, topics: &TopicChoice, source: TrajectorySource) -> Result<LoadedSegment, JobError> {
+    let log = read_session_log_with(path, topics)?;
     let name = segment_name(path);
     let segment = match source {
         TrajectorySource::Odometry => Segment::from_log_odometry(name, &log),
@@ -290,7 +321,7 @@ mod tests {
     #[test]
     fn two_segments_of_one_name_are_bad_input() {
         let paths = [PathBuf::from("a/x.log"), PathBuf::from("b/x.log.xz")];
-        let err = load_segments(&paths, TrajectorySource::Odometry, || {})
+        let err = load_segments(&paths, &TopicChoice::default(), TrajectorySource::Odometry, || {})
             .err()
             .unwrap();
         assert_eq!(

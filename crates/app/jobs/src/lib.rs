@@ -46,6 +46,7 @@ pub use optimize::{
     OptimizeReport, Optimized, RejectedEdge, RobustChoice,
 };
 pub use session::{
-    build_grid, check_resolution, log_file_stem, read_session_log, read_session_log_with, slam_log,
+    build_grid, check_resolution, log_file_stem, read_log_or_bag, read_session_log,
+    read_session_log_with, slam_log,
     SlamSummary, DEFAULT_RESOLUTION_M,
 };

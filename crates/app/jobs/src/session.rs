@@ -6,7 +6,7 @@ use std::path::Path;
 use mapmerge_engine::{run_slam, EngineParams, SlamInfo, SlamRun};
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{InsertInfo, InsertParams, OccupancyGrid};
-use mapmerge_rosbag::TopicChoice;
+use mapmerge_rosbag::{BagInfo, TopicChoice};
 use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
@@ -22,9 +22,25 @@ pub fn read_session_log(path: &Path) -> Result<LaserLog, JobError> {
     read_session_log_with(path, &TopicChoice::default())
 }
 
+/// A CARMEN log, or a ROS 2 bag with what [`mapmerge_rosbag::read_bag`] says of it (topics,
+/// frames, the laser's mount, scans without odometry). A log without scans is returned as
+/// it is; unreadable or malformed input is bad input naming the file.
+pub fn read_log_or_bag(
+    path: &Path,
+    topics: &TopicChoice,
+) -> Result<(LaserLog, Option<BagInfo>), JobError> {
+    if mapmerge_rosbag::is_bag(path) {
+        let session = mapmerge_rosbag::read_bag(path, topics).map_err(|e| JobError::bad_file(&e))?;
+        Ok((session.log, Some(session.info)))
+    } else {
+        let log = mapmerge_io::read_carmen(path).map_err(|e| JobError::bad_file(&e))?;
+        Ok((log, None))
+    }
+}
+
 /// [`read_session_log`] with the bag's scan and odometry topics chosen.
 pub fn read_session_log_with(path: &Path, topics: &TopicChoice) -> Result<LaserLog, JobError> {
-    let log = mapmerge_rosbag::read_log(path, topics).map_err(|e| JobError::bad_file(&e))?;
+    let (log, _) = read_log_or_bag(path, topics)?;
     if log.scans.is_empty() {
         return Err(JobError::bad_input(format!(
             "{}: no laser scans",
@@ -46,7 +62,8 @@ pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
 }
 
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
-/// (`…/intel_03.log.xz` → `intel_03`).
+/// (`…/intel_03.log.xz` → `intel_03`); a bag's without `.mcap` / `.db3` (a bag directory's
+/// name is its stem).
 pub fn log_file_stem(path: &Path) -> String {
     let name = path
         .file_name()
@@ -56,7 +73,11 @@ pub fn log_file_stem(path: &Path) -> String {
         .strip_suffix(".xz")
         .or_else(|| name.strip_suffix(".gz"))
         .unwrap_or(&name);
-    name.strip_suffix(".log").unwrap_or(name).to_owned()
+    [".log", ".mcap", ".db3"]
+        .iter()
+        .find_map(|suffix| name.strip_suffix(suffix))
+        .unwrap_or(name)
+        .to_owned()
 }
 
 /// SLAM on `log` (read from `path`, which names it in errors): [`run_slam`] with `params`,
@@ -146,6 +167,8 @@ mod tests {
         assert_eq!(log_file_stem(Path::new("a/intel_03.log.xz")), "intel_03");
         assert_eq!(log_file_stem(Path::new("b.gz")), "b");
         assert_eq!(log_file_stem(Path::new("c.txt")), "c.txt");
+        assert_eq!(log_file_stem(Path::new("d/run_2.mcap")), "run_2");
+        assert_eq!(log_file_stem(Path::new("run_3.db3")), "run_3");
         assert!(check_resolution(0.05).is_ok());
         assert_eq!(
             check_resolution(0.0).unwrap_err().to_string(),

@@ -191,7 +191,7 @@ pub fn assemble<'py>(
     let (assembled, trajectory_secs) = py
         .detach(|| {
             let started = Instant::now();
-            let segments = load_segments(&paths, source, || {})?;
+            let segments = load_segments(&paths, &Default::default(), source, || {})?;
             let spatial = segments
                 .iter()
                 .any(|s| matches!(s, LoadedSegment::Spatial(_)));
