@@ -4,7 +4,9 @@
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use mapmerge_rosbag::{decode, encode, LaserScanMessage, OdometryMessage, PointCloud2Message, TfMessage};
+use mapmerge_rosbag::{
+    decode, encode, LaserScanMessage, OdometryMessage, PointCloud2Message, TfMessage,
+};
 
 fn round_trip<T>(data: &[u8])
 where

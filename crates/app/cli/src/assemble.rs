@@ -64,12 +64,8 @@ pub fn load_segments(
     source: TrajectorySource,
     progress: bool,
 ) -> anyhow::Result<Vec<LoadedSegment>> {
-    let choice = mapmerge_rosbag::TopicChoice {
-        scan_topic: topics.scan_topic.clone(),
-        odom_topic: topics.odom_topic.clone(),
-    };
     let bar = progress_bar(paths.len(), "segments", "trajectories", progress);
-    let loaded = mapmerge_jobs::load_segments(paths, &choice, source, || bar.inc(1));
+    let loaded = mapmerge_jobs::load_segments(paths, &topics.choice(), source, || bar.inc(1));
     bar.finish_and_clear();
     loaded.map_err(crate::job_error)
 }
@@ -144,7 +140,11 @@ pub fn run(args: &AssembleArgs) -> anyhow::Result<()> {
     std::fs::create_dir_all(out.join("poses"))
         .with_context(|| format!("creating {}", out.display()))?;
     // groups.json and loops.jsonl.
-    let group_lines: Vec<GroupLine> = assembled.groups.iter().map(|g| GroupLine { segments: g }).collect();
+    let group_lines: Vec<GroupLine> = assembled
+        .groups
+        .iter()
+        .map(|g| GroupLine { segments: g })
+        .collect();
     std::fs::write(
         out.join("groups.json"),
         serde_json::to_string_pretty(&group_lines)? + "\n",

@@ -291,7 +291,12 @@ pub fn evaluate(args: &AssembleEvalArgs) -> anyhow::Result<AssembleScore> {
     let same_split = |a: &str, b: &str| split_of.get(a).is_some_and(|i| split_of.get(b) == Some(i));
     let params = load_params(args.config.as_deref(), false)?;
     let started = Instant::now();
-    let loaded = load_segments(&paths, &crate::BagTopics::default(), args.trajectory, !args.json)?;
+    let loaded = load_segments(
+        &paths,
+        &crate::BagTopics::default(),
+        args.trajectory,
+        !args.json,
+    )?;
     let trajectory_secs = started.elapsed().as_secs_f64();
     for segment in loaded.iter().filter_map(|s| match s {
         LoadedSegment::Planar(segment) => Some(segment),

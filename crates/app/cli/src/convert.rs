@@ -52,7 +52,10 @@ struct ConvertReport<'a> {
 fn bytes_on_disk(path: &Path) -> u64 {
     match std::fs::symlink_metadata(path) {
         Ok(meta) if meta.is_dir() => std::fs::read_dir(path).map_or(0, |entries| {
-            entries.filter_map(|e| e.ok()).map(|e| bytes_on_disk(&e.path())).sum()
+            entries
+                .filter_map(|e| e.ok())
+                .map(|e| bytes_on_disk(&e.path()))
+                .sum()
         }),
         Ok(meta) => meta.len(),
         Err(_) => 0,
@@ -69,17 +72,22 @@ struct Written {
 
 /// A KITTI-style folder (a 3D segment: `velodyne/*.bin`, `poses.txt`) → a bag of PointCloud2
 /// and odometry, every point kept. Returns the read time and what was written.
-fn convert_kitti_folder(args: &ConvertArgs, params: &mapmerge_rosbag::BagWriteParams) -> anyhow::Result<(f64, Written)> {
+fn convert_kitti_folder(
+    args: &ConvertArgs,
+    params: &mapmerge_rosbag::BagWriteParams,
+) -> anyhow::Result<(f64, Written)> {
     let every_point = mapmerge_assemble::KittiFolderOptions {
         voxel_m: 0.0,
         max_range_m: f64::MAX.sqrt(),
         stride: 1,
     };
     let started = Instant::now();
-    let segment = mapmerge_assemble::load_kitti_folder(&args.log, &every_point).map_err(|e| bad_input(e.to_string()))?;
+    let segment = mapmerge_assemble::load_kitti_folder(&args.log, &every_point)
+        .map_err(|e| bad_input(e.to_string()))?;
     let read_secs = started.elapsed().as_secs_f64();
-    let written = mapmerge_rosbag::write_cloud_bag(&args.output, &segment.poses, &segment.clouds, params)
-        .map_err(bad_file)?;
+    let written =
+        mapmerge_rosbag::write_cloud_bag(&args.output, &segment.poses, &segment.clouds, params)
+            .map_err(bad_file)?;
     Ok((
         read_secs,
         Written {
@@ -91,7 +99,10 @@ fn convert_kitti_folder(args: &ConvertArgs, params: &mapmerge_rosbag::BagWritePa
 }
 
 /// A laser log or bag → a bag or a CARMEN log. Returns the read time and what was written.
-fn convert_log(args: &ConvertArgs, params: &mapmerge_rosbag::BagWriteParams) -> anyhow::Result<(f64, Written)> {
+fn convert_log(
+    args: &ConvertArgs,
+    params: &mapmerge_rosbag::BagWriteParams,
+) -> anyhow::Result<(f64, Written)> {
     let started = Instant::now();
     let log = crate::read_log(&args.log, &args.topics)?;
     let read_secs = started.elapsed().as_secs_f64();
@@ -126,7 +137,10 @@ fn convert_log(args: &ConvertArgs, params: &mapmerge_rosbag::BagWriteParams) -> 
 /// Runs `mapmerge convert`.
 pub fn run(args: &ConvertArgs) -> anyhow::Result<ExitCode> {
     if !(args.period.is_finite() && args.period > 0.0) {
-        return Err(bad_input(format!("--period must be positive, got {}", args.period)));
+        return Err(bad_input(format!(
+            "--period must be positive, got {}",
+            args.period
+        )));
     }
     let params = mapmerge_rosbag::BagWriteParams {
         rewritten_period_s: args.period,
@@ -168,7 +182,10 @@ pub fn run(args: &ConvertArgs) -> anyhow::Result<ExitCode> {
             write_secs
         );
         if let Some(reason) = &report.stamps_rewritten {
-            println!("stamps rewritten at {} s per message: {reason}", args.period);
+            println!(
+                "stamps rewritten at {} s per message: {reason}",
+                args.period
+            );
         }
     }
     Ok(ExitCode::SUCCESS)

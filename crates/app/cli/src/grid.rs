@@ -138,7 +138,9 @@ pub fn build_grid(
     progress: bool,
 ) -> anyhow::Result<(OccupancyGrid, mapmerge_grid::InsertInfo)> {
     let bar = crate::progress_bar(posed.poses.len(), "scans", "grid", progress);
-    let built = mapmerge_jobs::build_grid(&posed.log, &posed.poses, resolution_m, params, || bar.inc(1));
+    let built = mapmerge_jobs::build_grid(&posed.log, &posed.poses, resolution_m, params, || {
+        bar.inc(1)
+    });
     bar.finish_and_clear();
     built.map_err(crate::job_error)
 }

@@ -154,15 +154,24 @@ pub struct BagTopics {
     pub odom_topic: Option<String>,
 }
 
+impl BagTopics {
+    /// The reader's form of the choice.
+    pub fn choice(&self) -> mapmerge_rosbag::TopicChoice {
+        mapmerge_rosbag::TopicChoice {
+            scan_topic: self.scan_topic.clone(),
+            odom_topic: self.odom_topic.clone(),
+        }
+    }
+}
+
 /// Reads a laser session from a CARMEN log or a ROS 2 bag; failures are bad input (exit 2).
 /// For a bag, one line on stderr says which topics and frames were used, where the laser's
 /// mount came from and how many scans had no odometry.
-pub fn read_log(path: &std::path::Path, topics: &BagTopics) -> anyhow::Result<mapmerge_scan::LaserLog> {
-    let choice = mapmerge_rosbag::TopicChoice {
-        scan_topic: topics.scan_topic.clone(),
-        odom_topic: topics.odom_topic.clone(),
-    };
-    let (log, info) = mapmerge_jobs::read_log_or_bag(path, &choice).map_err(job_error)?;
+pub fn read_log(
+    path: &std::path::Path,
+    topics: &BagTopics,
+) -> anyhow::Result<mapmerge_scan::LaserLog> {
+    let (log, info) = mapmerge_jobs::read_log_or_bag(path, &topics.choice()).map_err(job_error)?;
     if let Some(info) = info {
         let mount = &info.robot_from_sensor;
         eprintln!(

@@ -119,4 +119,3 @@ pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
     }
     Ok(ExitCode::SUCCESS)
 }
-

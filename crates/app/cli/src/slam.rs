@@ -237,7 +237,11 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     let (stamps, tum_stamps_rewritten) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     if let Some((corrected, _)) = &reference {
         std::fs::create_dir_all(&args.output)?;
-        let stamped: Vec<(f64, Se2)> = stamps.iter().copied().zip(corrected.iter().copied()).collect();
+        let stamped: Vec<(f64, Se2)> = stamps
+            .iter()
+            .copied()
+            .zip(corrected.iter().copied())
+            .collect();
         mapmerge_io::write_tum_planar(&args.output.join("reference.tum"), &stamped)?;
     }
     write_map_outputs(
@@ -282,7 +286,10 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     if args.json {
         print_json(&report)?;
     } else {
-        let (tracker, info) = (&report.run.front_end.tracker, &report.run.front_end.constraints);
+        let (tracker, info) = (
+            &report.run.front_end.tracker,
+            &report.run.front_end.constraints,
+        );
         println!(
             "{} scans in {:.2} s ({:.1} ms/scan): {} keyframes, {} submaps, {} loops ({} local, {} by place recognition), {} optimisations; wrote {}",
             report.run.scans,

@@ -34,7 +34,23 @@ fn largest_gap_m(a: &[(f64, f64)], b: &[(f64, f64)]) -> f64 {
 fn every_log_command_reads_bags_as_it_reads_the_logs() {
     let dir = scratch("bags");
     let sim = dir.join("sim");
-    ok_json(&["sim", "--world", "office", "--sessions", "2", "--duration", "60", "--seed", "3", "--bag", "mcap", "--no-pictures", "-o", p(&sim), "--json"]);
+    ok_json(&[
+        "sim",
+        "--world",
+        "office",
+        "--sessions",
+        "2",
+        "--duration",
+        "60",
+        "--seed",
+        "3",
+        "--bag",
+        "mcap",
+        "--no-pictures",
+        "-o",
+        p(&sim),
+        "--json",
+    ]);
     let (log0, log1) = (sim.join("session_0.log"), sim.join("session_1.log"));
     let bag0 = sim.join("session_0.mcap");
     let bag1 = dir.join("session_1.db3");
@@ -46,18 +62,43 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
     let from_log = ok_json(&["slam", p(&log0), "-o", p(&dir.join("slam-log")), "--json"]);
     let from_bag = ok_json(&["slam", p(&bag0), "-o", p(&dir.join("slam-bag")), "--json"]);
     assert_eq!(from_log["scans"], from_bag["scans"]);
-    let gap = largest_gap_m(&tum_xy(&dir.join("slam-log/trajectory.tum")), &tum_xy(&dir.join("slam-bag/trajectory.tum")));
+    let gap = largest_gap_m(
+        &tum_xy(&dir.join("slam-log/trajectory.tum")),
+        &tum_xy(&dir.join("slam-bag/trajectory.tum")),
+    );
     assert!(gap < 0.05, "slam trajectories {gap} m apart");
 
     // grid: the same map from the same poses.
-    let grid_log = ok_json(&["grid", "--log", p(&log1), "-o", p(&dir.join("g-log.yaml")), "--json"]);
-    let grid_bag = ok_json(&["grid", "--log", p(&bag1), "-o", p(&dir.join("g-bag.yaml")), "--json"]);
+    let grid_log = ok_json(&[
+        "grid",
+        "--log",
+        p(&log1),
+        "-o",
+        p(&dir.join("g-log.yaml")),
+        "--json",
+    ]);
+    let grid_bag = ok_json(&[
+        "grid",
+        "--log",
+        p(&bag1),
+        "-o",
+        p(&dir.join("g-bag.yaml")),
+        "--json",
+    ]);
     assert_eq!(grid_log["scans"], grid_bag["scans"]);
     assert_eq!(grid_log["width"], grid_bag["width"]);
 
     // split: the bag's poses are the truth, to the nanometre.
     for (source, out) in [(&log0, "split-log"), (&bag0, "split-bag")] {
-        ok_json(&["split", p(source), "--segments", "2", "-o", p(&dir.join(out)), "--json"]);
+        ok_json(&[
+            "split",
+            p(source),
+            "--segments",
+            "2",
+            "-o",
+            p(&dir.join(out)),
+            "--json",
+        ]);
     }
     for k in ["00", "01"] {
         let truth = |out: &str| tum_xy(&dir.join(format!("{out}/truth/session_0_{k}.tum")));
@@ -65,15 +106,45 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
     }
 
     // atlas and assemble: a bag per session, the two storages mixed.
-    let atlas_log = ok_json(&["atlas", p(&log0), p(&log1), "-o", p(&dir.join("atlas-log")), "--json"]);
-    let atlas_bag = ok_json(&["atlas", p(&bag0), p(&bag1), "-o", p(&dir.join("atlas-bag")), "--json"]);
+    let atlas_log = ok_json(&[
+        "atlas",
+        p(&log0),
+        p(&log1),
+        "-o",
+        p(&dir.join("atlas-log")),
+        "--json",
+    ]);
+    let atlas_bag = ok_json(&[
+        "atlas",
+        p(&bag0),
+        p(&bag1),
+        "-o",
+        p(&dir.join("atlas-bag")),
+        "--json",
+    ]);
     assert_eq!(atlas_log["scans"], atlas_bag["scans"]);
     assert_eq!(atlas_log["epochs"], atlas_bag["epochs"]);
     let assemble = |a: &Path, b: &Path, out: &str| {
-        ok_json(&["assemble", p(a), p(b), "--trajectory", "odometry", "--no-pictures", "-o", p(&dir.join(out)), "--json"])
+        ok_json(&[
+            "assemble",
+            p(a),
+            p(b),
+            "--trajectory",
+            "odometry",
+            "--no-pictures",
+            "-o",
+            p(&dir.join(out)),
+            "--json",
+        ])
     };
-    let (assembled_log, assembled_bag) = (assemble(&log0, &log1, "asm-log"), assemble(&bag0, &bag1, "asm-bag"));
-    assert_eq!(assembled_log["groups"].as_array().map(Vec::len), assembled_bag["groups"].as_array().map(Vec::len));
+    let (assembled_log, assembled_bag) = (
+        assemble(&log0, &log1, "asm-log"),
+        assemble(&bag0, &bag1, "asm-bag"),
+    );
+    assert_eq!(
+        assembled_log["groups"].as_array().map(Vec::len),
+        assembled_bag["groups"].as_array().map(Vec::len)
+    );
     assert_eq!(assembled_bag["arrivals"][0]["segment"], "session_0");
 
     // And back: a bag converts to a CARMEN log with the same scans.
@@ -86,7 +157,19 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
 fn bad_bags_exit_with_code_2_and_name_the_file_and_reason() {
     let dir = scratch("bad-bags");
     let sim = dir.join("sim");
-    ok_json(&["sim", "--sessions", "1", "--duration", "20", "--bag", "mcap", "--no-pictures", "-o", p(&sim), "--json"]);
+    ok_json(&[
+        "sim",
+        "--sessions",
+        "1",
+        "--duration",
+        "20",
+        "--bag",
+        "mcap",
+        "--no-pictures",
+        "-o",
+        p(&sim),
+        "--json",
+    ]);
     let bag = sim.join("session_0.mcap");
     let expect_bad = |args: &[&str], needles: &[&str]| {
         let out = run(args);
@@ -98,20 +181,35 @@ fn bad_bags_exit_with_code_2_and_name_the_file_and_reason() {
     };
     let out_dir = dir.join("out");
     let out = p(&out_dir);
-    expect_bad(&["slam", p(&bag), "--scan-topic", "/front_scan", "-o", out], &["session_0.mcap", "no topic '/front_scan'"]);
-    expect_bad(&["slam", p(&bag), "--odom-topic", "/scan", "-o", out], &["topic '/scan' carries sensor_msgs/msg/LaserScan"]);
+    expect_bad(
+        &["slam", p(&bag), "--scan-topic", "/front_scan", "-o", out],
+        &["session_0.mcap", "no topic '/front_scan'"],
+    );
+    expect_bad(
+        &["slam", p(&bag), "--odom-topic", "/scan", "-o", out],
+        &["topic '/scan' carries sensor_msgs/msg/LaserScan"],
+    );
     let bytes = std::fs::read(&bag).unwrap();
     let truncated = dir.join("truncated.mcap");
     std::fs::write(&truncated, &bytes[..bytes.len() / 2]).unwrap();
-    expect_bad(&["slam", p(&truncated), "-o", out], &["truncated.mcap", "MCAP"]);
+    expect_bad(
+        &["slam", p(&truncated), "-o", out],
+        &["truncated.mcap", "MCAP"],
+    );
     let garbage = dir.join("garbage.db3");
     std::fs::write(&garbage, b"not a database").unwrap();
-    expect_bad(&["grid", "--log", p(&garbage), "-o", p(&dir.join("m.yaml"))], &["garbage.db3", "SQLite"]);
+    expect_bad(
+        &["grid", "--log", p(&garbage), "-o", p(&dir.join("m.yaml"))],
+        &["garbage.db3", "SQLite"],
+    );
     let bag_dir = dir.join("bag_dir");
     std::fs::create_dir_all(&bag_dir).unwrap();
     std::fs::write(bag_dir.join("metadata.yaml"), "rosbag2_bagfile_information:\n  storage_identifier: mcap\n  relative_file_paths: [gone.mcap]\n").unwrap();
     expect_bad(&["atlas", p(&bag_dir), "-o", out], &["gone.mcap"]);
-    expect_bad(&["convert", p(&bag), "-o", p(&dir.join("x.bag"))], &["x.bag", ".mcap, .db3"]);
+    expect_bad(
+        &["convert", p(&bag), "-o", p(&dir.join("x.bag"))],
+        &["x.bag", ".mcap, .db3"],
+    );
 }
 
 /// A KITTI-style folder of a drive along a street from `x0_m` to `x1_m`: building faces at
@@ -155,18 +253,51 @@ fn point_cloud_bags_assemble_as_the_kitti_folders_they_came_from() {
     assert_eq!(converted["scans"], 40);
     ok_json(&["convert", p(&b), "-o", p(&bag_b), "--json"]);
     let assemble = |x: &Path, y: &Path, out: &str| {
-        ok_json(&["assemble", p(x), p(y), "--no-pictures", "-o", p(&dir.join(out)), "--json"])
+        ok_json(&[
+            "assemble",
+            p(x),
+            p(y),
+            "--no-pictures",
+            "-o",
+            p(&dir.join(out)),
+            "--json",
+        ])
     };
-    let (folders, bags) = (assemble(&a, &b, "folders"), assemble(&bag_a, &bag_b, "bags"));
+    let (folders, bags) = (
+        assemble(&a, &b, "folders"),
+        assemble(&bag_a, &bag_b, "bags"),
+    );
     for k in 0..2 {
-        assert_eq!(folders["arrivals"][k]["submaps"], bags["arrivals"][k]["submaps"]);
-        assert_eq!(folders["arrivals"][k]["segment"], bags["arrivals"][k]["segment"]);
+        assert_eq!(
+            folders["arrivals"][k]["submaps"],
+            bags["arrivals"][k]["submaps"]
+        );
+        assert_eq!(
+            folders["arrivals"][k]["segment"],
+            bags["arrivals"][k]["segment"]
+        );
     }
     assert_eq!(folders["groups"], bags["groups"]);
     // A 3D bag among laser logs is refused.
     let sim = dir.join("sim");
-    ok_json(&["sim", "--sessions", "1", "--duration", "20", "--no-pictures", "-o", p(&sim), "--json"]);
-    let out = run(&["assemble", p(&sim.join("session_0.log")), p(&bag_a), "-o", p(&dir.join("mixed"))]);
+    ok_json(&[
+        "sim",
+        "--sessions",
+        "1",
+        "--duration",
+        "20",
+        "--no-pictures",
+        "-o",
+        p(&sim),
+        "--json",
+    ]);
+    let out = run(&[
+        "assemble",
+        p(&sim.join("session_0.log")),
+        p(&bag_a),
+        "-o",
+        p(&dir.join("mixed")),
+    ]);
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("a 3D segment among 2D ones"));
 }

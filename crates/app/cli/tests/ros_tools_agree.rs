@@ -17,8 +17,19 @@ use std::process::Command;
 use common::{ok_json, p, scratch};
 
 const LOGS: [&str; 13] = [
-    "acapulco", "aces", "belgioioso", "csail", "edmonton", "fhw", "freiburg-079", "freiburg-101",
-    "freiburg-campus", "infinite-corridor", "intel", "orebro", "seattle",
+    "acapulco",
+    "aces",
+    "belgioioso",
+    "csail",
+    "edmonton",
+    "fhw",
+    "freiburg-079",
+    "freiburg-101",
+    "freiburg-campus",
+    "infinite-corridor",
+    "intel",
+    "orebro",
+    "seattle",
 ];
 
 /// The `rmse` line of `evo_ape`'s statistics (printed with six decimals).
@@ -28,43 +39,92 @@ fn evo_rmse_m(reference: &Path, estimate: &Path, evo: &Path) -> f64 {
         .output()
         .unwrap();
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "evo_ape failed: {text}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "evo_ape failed: {text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     text.lines()
-        .find_map(|line| line.trim().strip_prefix("rmse").map(|v| v.trim().parse().unwrap()))
+        .find_map(|line| {
+            line.trim()
+                .strip_prefix("rmse")
+                .map(|v| v.trim().parse().unwrap())
+        })
         .unwrap_or_else(|| panic!("no rmse in evo's output:\n{text}"))
 }
 
 #[test]
 fn evo_reports_the_ate_mapmerge_reports_on_every_public_log() {
-    let Some(evo) = mapmerge_testkit::tool_from_env("MAPMERGE_EVO_APE", "the evo_ape of a Python with evo") else {
+    let Some(evo) =
+        mapmerge_testkit::tool_from_env("MAPMERGE_EVO_APE", "the evo_ape of a Python with evo")
+    else {
         return;
     };
-    let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
+    let Some(data) = mapmerge_testkit::shared_data_dir() else {
+        return;
+    };
     let dir = scratch("evo");
     for name in LOGS {
         let log = data.join(format!("carmen/{name}-corrected.log.xz"));
         let out = dir.join(name);
-        let slam = ok_json(&["slam", p(&log), "--odometry-noise", "default", "--seed", "1", "-o", p(&out), "--json"]);
+        let slam = ok_json(&[
+            "slam",
+            p(&log),
+            "--odometry-noise",
+            "default",
+            "--seed",
+            "1",
+            "-o",
+            p(&out),
+            "--json",
+        ]);
         let (estimate, reference) = (out.join("trajectory.tum"), out.join("reference.tum"));
-        let ours = ok_json(&["eval", "ate", "--trajectory", p(&estimate), "--reference", p(&reference), "--json"]);
+        let ours = ok_json(&[
+            "eval",
+            "ate",
+            "--trajectory",
+            p(&estimate),
+            "--reference",
+            p(&reference),
+            "--json",
+        ]);
         let ours_m = ours["ate"]["rms_m"].as_f64().unwrap();
-        assert!((ours_m - slam["score"]["ate"]["rms_m"].as_f64().unwrap()).abs() < 1e-12, "{name}");
+        assert!(
+            (ours_m - slam["score"]["ate"]["rms_m"].as_f64().unwrap()).abs() < 1e-12,
+            "{name}"
+        );
         let theirs_m = evo_rmse_m(&reference, &estimate, &evo);
-        assert!((ours_m - theirs_m).abs() < 1e-3, "{name}: mapmerge {ours_m} m, evo {theirs_m} m");
+        assert!(
+            (ours_m - theirs_m).abs() < 1e-3,
+            "{name}: mapmerge {ours_m} m, evo {theirs_m} m"
+        );
     }
 }
 
 /// `scripts/map_server_load.py MAP.yaml` → its JSON.
 fn map_server_load(yaml: &Path) -> serde_json::Value {
-    let script = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../scripts/map_server_load.py"));
-    let out = Command::new("python3").arg(script).arg(yaml).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let script = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../scripts/map_server_load.py"
+    ));
+    let out = Command::new("python3")
+        .arg(script)
+        .arg(yaml)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     serde_json::from_slice(&out.stdout).unwrap()
 }
 
 #[test]
 fn maps_mapmerge_writes_load_as_map_server_loads_them() {
-    let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
+    let Some(data) = mapmerge_testkit::shared_data_dir() else {
+        return;
+    };
     let dir = scratch("map-server-write");
     for (name, extra) in [("intel", None), ("aces", Some("12")), ("fhw", None)] {
         let yaml = dir.join(format!("{name}.yaml"));
@@ -75,7 +135,13 @@ fn maps_mapmerge_writes_load_as_map_server_loads_them() {
         }
         let ours = ok_json(&args);
         let ros = map_server_load(&yaml);
-        for (a, b) in [("occupied_cells", "occupied"), ("free_cells", "free"), ("unknown_cells", "unknown"), ("width", "width"), ("height", "height")] {
+        for (a, b) in [
+            ("occupied_cells", "occupied"),
+            ("free_cells", "free"),
+            ("unknown_cells", "unknown"),
+            ("width", "width"),
+            ("height", "height"),
+        ] {
             assert_eq!(ours[a], ros[b], "{name}: {a}");
         }
         assert_eq!(ros["other"], 0);
@@ -97,7 +163,9 @@ fn mapmerge_classes(yaml: &Path) -> (usize, usize, usize) {
 
 #[test]
 fn ros_maps_read_as_map_server_reads_them_with_negate_and_image_paths() {
-    let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
+    let Some(data) = mapmerge_testkit::shared_data_dir() else {
+        return;
+    };
     let original = data.join("gridmaps/intel-bwi/intel.yaml");
     let image = data.join("gridmaps/intel-bwi/intel.pgm");
     let text = std::fs::read_to_string(&original).unwrap();
@@ -106,13 +174,28 @@ fn ros_maps_read_as_map_server_reads_them_with_negate_and_image_paths() {
     std::fs::copy(&image, dir.join("images/intel.pgm")).unwrap();
     let variants = [
         // As published (thresholds 0.2 / 0.05, image beside the YAML).
-        ("as-published.yaml", text.replace("image: intel.pgm", &format!("image: {}", image.display()))),
+        (
+            "as-published.yaml",
+            text.replace("image: intel.pgm", &format!("image: {}", image.display())),
+        ),
         // Relative to the YAML's folder, in a subfolder.
-        ("relative.yaml", text.replace("image: intel.pgm", "image: images/intel.pgm")),
+        (
+            "relative.yaml",
+            text.replace("image: intel.pgm", "image: images/intel.pgm"),
+        ),
         // negate: white is occupied.
-        ("negated.yaml", text.replace("image: intel.pgm", "image: images/intel.pgm").replace("negate: 0", "negate: 1")),
+        (
+            "negated.yaml",
+            text.replace("image: intel.pgm", "image: images/intel.pgm")
+                .replace("negate: 0", "negate: 1"),
+        ),
         // map_saver's thresholds.
-        ("saver.yaml", text.replace("image: intel.pgm", "image: images/intel.pgm").replace("occupied_thresh: 0.2", "occupied_thresh: 0.65").replace("free_thresh: 0.05", "free_thresh: 0.196")),
+        (
+            "saver.yaml",
+            text.replace("image: intel.pgm", "image: images/intel.pgm")
+                .replace("occupied_thresh: 0.2", "occupied_thresh: 0.65")
+                .replace("free_thresh: 0.05", "free_thresh: 0.196"),
+        ),
     ];
     let mut seen = Vec::new();
     for (name, yaml_text) in variants {

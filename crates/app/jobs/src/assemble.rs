@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use mapmerge_assemble::{
-    load_kitti_folder, segment3_from_clouds, solve_group, Arrival, AssembleParams, Assembler, GroundSlice, GroupSolution,
-    KittiFolderOptions, RingSpectrum3Params, RingSpectrumDescriptor3, Segment, Segment3,
-    SegmentLoop, SubmapParams,
+    load_kitti_folder, segment3_from_clouds, solve_group, Arrival, AssembleParams, Assembler,
+    GroundSlice, GroupSolution, KittiFolderOptions, RingSpectrum3Params, RingSpectrumDescriptor3,
+    Segment, Segment3, SegmentLoop, SubmapParams,
 };
 use mapmerge_engine::EngineParams;
 use mapmerge_rosbag::TopicChoice;
@@ -84,7 +84,11 @@ pub fn load_segments(
     for path in paths {
         spatial.push(is_folder_segment(path) || is_cloud_bag(path)?);
     }
-    if let Some(k) = spatial.iter().position(|&s| s).filter(|_| spatial.contains(&false)) {
+    if let Some(k) = spatial
+        .iter()
+        .position(|&s| s)
+        .filter(|_| spatial.contains(&false))
+    {
         return Err(JobError::bad_input(format!(
             "{}: a 3D segment among 2D ones; segments are either laser logs or bags (2D), or \
              KITTI-style folders and PointCloud2 bags (3D), not both",
@@ -141,13 +145,22 @@ fn load_segment_3d(path: &Path, topics: &TopicChoice) -> Result<LoadedSegment, J
         let session = mapmerge_rosbag::read_cloud_session(path, None, topics.odom_topic.as_deref())
             .map_err(|e| JobError::bad_file(&e))?;
         let clouds: Vec<_> = session.clouds.into_iter().map(|c| c.points).collect();
-        segment3_from_clouds(segment_name(path), &session.odom_from_sensor, &clouds, &KittiFolderOptions::default())
+        segment3_from_clouds(
+            segment_name(path),
+            &session.odom_from_sensor,
+            &clouds,
+            &KittiFolderOptions::default(),
+        )
     }
     .map_err(JobError::bad_input)?;
     Ok(LoadedSegment::Spatial(segment))
 }
 
-fn load_segment(path: &Path, topics: &TopicChoice, source: TrajectorySource) -> Result<LoadedSegment, JobError> {
+fn load_segment(
+    path: &Path,
+    topics: &TopicChoice,
+    source: TrajectorySource,
+) -> Result<LoadedSegment, JobError> {
     let log = read_session_log_with(path, topics)?;
     let name = segment_name(path);
     let segment = match source {
@@ -321,9 +334,14 @@ mod tests {
     #[test]
     fn two_segments_of_one_name_are_bad_input() {
         let paths = [PathBuf::from("a/x.log"), PathBuf::from("b/x.log.xz")];
-        let err = load_segments(&paths, &TopicChoice::default(), TrajectorySource::Odometry, || {})
-            .err()
-            .unwrap();
+        let err = load_segments(
+            &paths,
+            &TopicChoice::default(),
+            TrajectorySource::Odometry,
+            || {},
+        )
+        .err()
+        .unwrap();
         assert_eq!(
             err,
             JobError::BadInput("a/x.log and b/x.log.xz have the same name `x`".into())

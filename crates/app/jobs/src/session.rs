@@ -30,7 +30,8 @@ pub fn read_log_or_bag(
     topics: &TopicChoice,
 ) -> Result<(LaserLog, Option<BagInfo>), JobError> {
     if mapmerge_rosbag::is_bag(path) {
-        let session = mapmerge_rosbag::read_bag(path, topics).map_err(|e| JobError::bad_file(&e))?;
+        let session =
+            mapmerge_rosbag::read_bag(path, topics).map_err(|e| JobError::bad_file(&e))?;
         Ok((session.log, Some(session.info)))
     } else {
         let log = mapmerge_io::read_carmen(path).map_err(|e| JobError::bad_file(&e))?;

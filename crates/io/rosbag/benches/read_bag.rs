@@ -12,8 +12,19 @@ use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use mapmerge_rosbag::{read_log, write_bag, BagWriteParams, TopicChoice};
 
 const LOGS: [&str; 13] = [
-    "acapulco", "aces", "belgioioso", "csail", "edmonton", "fhw", "freiburg-079", "freiburg-101",
-    "freiburg-campus", "infinite-corridor", "intel", "orebro", "seattle",
+    "acapulco",
+    "aces",
+    "belgioioso",
+    "csail",
+    "edmonton",
+    "fhw",
+    "freiburg-079",
+    "freiburg-101",
+    "freiburg-campus",
+    "infinite-corridor",
+    "intel",
+    "orebro",
+    "seattle",
 ];
 
 fn read_bag(c: &mut Criterion) {
@@ -33,23 +44,40 @@ fn read_bag(c: &mut Criterion) {
         // The log as published, decompressed: the CARMEN reader's own input.
         let mut text = Vec::new();
         let decompressed = std::fs::File::open(&source)
-            .and_then(|file| std::io::Read::read_to_end(&mut xz2::read::XzDecoder::new(file), &mut text))
+            .and_then(|file| {
+                std::io::Read::read_to_end(&mut xz2::read::XzDecoder::new(file), &mut text)
+            })
             .and_then(|_| std::fs::write(dir.path().join(format!("{name}.log")), &text));
         if let Err(err) = decompressed {
             panic!("{err}");
         }
-        let written = write_bag(&dir.path().join(format!("{name}.mcap")), &log, &BagWriteParams::default())
-            .and_then(|_| write_bag(&dir.path().join(format!("{name}.db3")), &log, &BagWriteParams::default()));
+        let written = write_bag(
+            &dir.path().join(format!("{name}.mcap")),
+            &log,
+            &BagWriteParams::default(),
+        )
+        .and_then(|_| {
+            write_bag(
+                &dir.path().join(format!("{name}.db3")),
+                &log,
+                &BagWriteParams::default(),
+            )
+        });
         if let Err(err) = written {
             panic!("{err}");
         }
         let mut group = c.benchmark_group(name);
-        group.sample_size(20).warm_up_time(Duration::from_millis(300)).measurement_time(Duration::from_secs(1));
+        group
+            .sample_size(20)
+            .warm_up_time(Duration::from_millis(300))
+            .measurement_time(Duration::from_secs(1));
         for extension in ["log", "mcap", "db3"] {
             let path = dir.path().join(format!("{name}.{extension}"));
             let bytes = std::fs::metadata(&path).map_or(0, |m| m.len());
             group.throughput(Throughput::Bytes(bytes));
-            group.bench_function(extension, |b| b.iter(|| read_log(black_box(&path), &TopicChoice::default())));
+            group.bench_function(extension, |b| {
+                b.iter(|| read_log(black_box(&path), &TopicChoice::default()))
+            });
         }
         group.finish();
     }

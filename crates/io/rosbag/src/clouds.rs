@@ -6,8 +6,13 @@ use mapmerge_geometry::{LieGroup as _, Se3};
 use mapmerge_io::IoError;
 use nalgebra::Vector3;
 
-use crate::messages::{decode, OdometryMessage, PointCloud2Message, TfMessage, ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE};
-use crate::session::{check_monotonic, choose_topic, pose_at, rotation_of, TfTree, ODOMETRY_HOLD_S};
+use crate::messages::{
+    decode, OdometryMessage, PointCloud2Message, TfMessage, ODOMETRY_TYPE, POINT_CLOUD2_TYPE,
+    TF_TYPE,
+};
+use crate::session::{
+    check_monotonic, choose_topic, pose_at, rotation_of, TfTree, ODOMETRY_HOLD_S,
+};
 use crate::storage::{read_raw_bag, RawBag};
 
 /// One cloud: its stamp, frame and finite points (m, in `frame_id`).
@@ -36,18 +41,28 @@ pub fn cloud_points(cloud: &PointCloud2Message) -> Result<Vec<Vector3<f64>>, Str
             .and_then(|f| match f.datatype {
                 FLOAT32 => Ok((f.offset as usize, 4usize)),
                 FLOAT64 => Ok((f.offset as usize, 8usize)),
-                other => Err(format!("field '{name}' has datatype {other}; FLOAT32 or FLOAT64 is read")),
+                other => Err(format!(
+                    "field '{name}' has datatype {other}; FLOAT32 or FLOAT64 is read"
+                )),
             })
     };
     let fields = [field("x")?, field("y")?, field("z")?];
     let step = cloud.point_step as usize;
     if fields.iter().any(|(offset, size)| offset + size > step) {
-        return Err(format!("a coordinate field lies outside the point step of {step} bytes"));
+        return Err(format!(
+            "a coordinate field lies outside the point step of {step} bytes"
+        ));
     }
-    let (rows, columns, row_step) = (cloud.height as usize, cloud.width as usize, cloud.row_step as usize);
-    let needed = rows
-        .checked_mul(row_step)
-        .filter(|_| columns.checked_mul(step).is_some_and(|row| row <= row_step || rows == 0));
+    let (rows, columns, row_step) = (
+        cloud.height as usize,
+        cloud.width as usize,
+        cloud.row_step as usize,
+    );
+    let needed = rows.checked_mul(row_step).filter(|_| {
+        columns
+            .checked_mul(step)
+            .is_some_and(|row| row <= row_step || rows == 0)
+    });
     match needed {
         Some(needed) if needed <= cloud.data.len() => {}
         _ => {
@@ -71,7 +86,11 @@ pub fn cloud_points(cloud: &PointCloud2Message) -> Result<Vec<Vector3<f64>>, Str
         for column in 0..columns {
             let start = row * row_step + column * step;
             let bytes = &cloud.data[start..start + step];
-            let point = Vector3::new(read(bytes, fields[0]), read(bytes, fields[1]), read(bytes, fields[2]));
+            let point = Vector3::new(
+                read(bytes, fields[0]),
+                read(bytes, fields[1]),
+                read(bytes, fields[2]),
+            );
             if point.iter().all(|v| v.is_finite()) {
                 points.push(point);
             }
@@ -84,7 +103,13 @@ pub fn cloud_points(cloud: &PointCloud2Message) -> Result<Vec<Vector3<f64>>, Str
 fn decode_clouds(raw: &RawBag, index: usize) -> Result<Vec<StampedCloud>, String> {
     let mut clouds = Vec::new();
     for message in raw.messages.iter().filter(|m| m.topic == index) {
-        let context = |reason: String| format!("topic '{}', message {}: {reason}", raw.topics[index].name, clouds.len() + 1);
+        let context = |reason: String| {
+            format!(
+                "topic '{}', message {}: {reason}",
+                raw.topics[index].name,
+                clouds.len() + 1
+            )
+        };
         let cloud: PointCloud2Message = decode(&message.data).map_err(context)?;
         let points = cloud_points(&cloud).map_err(context)?;
         clouds.push(StampedCloud {
@@ -103,7 +128,10 @@ fn cloud_topic(raw: &RawBag, topic: Option<&str>) -> Result<usize, String> {
 
 /// The clouds of the PointCloud2 topic `topic` (or the only one) of the bag at `path`.
 pub fn read_point_clouds(path: &Path, topic: Option<&str>) -> Result<Vec<StampedCloud>, IoError> {
-    let invalid = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let invalid = |reason: String| IoError::Invalid {
+        file: path.display().to_string(),
+        reason,
+    };
     let raw = read_raw_bag(path, &|t| t == POINT_CLOUD2_TYPE)?;
     let index = cloud_topic(&raw, topic).map_err(invalid)?;
     decode_clouds(&raw, index).map_err(invalid)
@@ -128,18 +156,29 @@ pub fn read_cloud_session(
     cloud_topic_name: Option<&str>,
     odom_topic_name: Option<&str>,
 ) -> Result<CloudSession, IoError> {
-    let invalid = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let invalid = |reason: String| IoError::Invalid {
+        file: path.display().to_string(),
+        reason,
+    };
     let wanted = |t: &str| t == POINT_CLOUD2_TYPE || t == ODOMETRY_TYPE || t == TF_TYPE;
     let raw = read_raw_bag(path, &wanted)?;
     cloud_session_of(&raw, cloud_topic_name, odom_topic_name).map_err(invalid)
 }
 
-fn cloud_session_of(raw: &RawBag, cloud_name: Option<&str>, odom_name: Option<&str>) -> Result<CloudSession, String> {
+fn cloud_session_of(
+    raw: &RawBag,
+    cloud_name: Option<&str>,
+    odom_name: Option<&str>,
+) -> Result<CloudSession, String> {
     let cloud_index = cloud_topic(raw, cloud_name)?;
     let odom_index = choose_topic(&raw.topics, ODOMETRY_TYPE, odom_name, "--odom-topic")?
-        .ok_or_else(|| format!("no {ODOMETRY_TYPE} topic: a 3D session takes its clouds' poses from odometry"))?;
+        .ok_or_else(|| {
+            format!("no {ODOMETRY_TYPE} topic: a 3D session takes its clouds' poses from odometry")
+        })?;
     let clouds = decode_clouds(raw, cloud_index)?;
-    let first = clouds.first().ok_or_else(|| format!("topic '{}' has no messages", raw.topics[cloud_index].name))?;
+    let first = clouds
+        .first()
+        .ok_or_else(|| format!("topic '{}' has no messages", raw.topics[cloud_index].name))?;
     let (mut stamps, mut odom_from_base, mut base_frame) = (Vec::new(), Vec::new(), None);
     let (mut static_tf, mut dynamic_tf, mut any_tf) = (TfTree::default(), TfTree::default(), false);
     for message in &raw.messages {
@@ -148,15 +187,23 @@ fn cloud_session_of(raw: &RawBag, cloud_name: Option<&str>, odom_name: Option<&s
         if message.topic == odom_index {
             let odometry: OdometryMessage = decode(&message.data).map_err(context)?;
             let position = &odometry.pose.pose.position;
-            let rotation = rotation_of(&odometry.pose.pose.orientation)
-                .ok_or_else(|| context("an odometry quaternion is zero or not finite".to_owned()))?;
+            let rotation = rotation_of(&odometry.pose.pose.orientation).ok_or_else(|| {
+                context("an odometry quaternion is zero or not finite".to_owned())
+            })?;
             stamps.push(odometry.header.stamp.seconds());
-            odom_from_base.push(Se3::new(rotation, Vector3::new(position.x, position.y, position.z)));
+            odom_from_base.push(Se3::new(
+                rotation,
+                Vector3::new(position.x, position.y, position.z),
+            ));
             base_frame.get_or_insert(odometry.child_frame_id);
         } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
             any_tf = true;
             let tf: TfMessage = decode(&message.data).map_err(context)?;
-            let tree = if topic.name.ends_with("tf_static") { &mut static_tf } else { &mut dynamic_tf };
+            let tree = if topic.name.ends_with("tf_static") {
+                &mut static_tf
+            } else {
+                &mut dynamic_tf
+            };
             tree.insert_first(&tf).map_err(context)?;
         }
     }
@@ -176,18 +223,26 @@ fn cloud_session_of(raw: &RawBag, cloud_name: Option<&str>, odom_name: Option<&s
             .or_else(|| dynamic_tf.lookup(&base_frame, sensor_frame))
             .ok_or_else(|| format!("tf has no transform between the robot's frame '{base_frame}' and the sensor's frame '{sensor_frame}'"))?
     };
-    let mut session = CloudSession { odom_from_sensor: Vec::new(), clouds: Vec::new(), clouds_without_odometry: 0 };
+    let mut session = CloudSession {
+        odom_from_sensor: Vec::new(),
+        clouds: Vec::new(),
+        clouds_without_odometry: 0,
+    };
     for cloud in clouds {
         match pose_at(&stamps, &odom_from_base, cloud.stamp_secs) {
             Some(pose) => {
-                session.odom_from_sensor.push(pose.compose(&base_from_sensor));
+                session
+                    .odom_from_sensor
+                    .push(pose.compose(&base_from_sensor));
                 session.clouds.push(cloud);
             }
             None => session.clouds_without_odometry += 1,
         }
     }
     if session.clouds.is_empty() {
-        return Err(format!("none of the clouds has odometry within {ODOMETRY_HOLD_S} s of its stamp"));
+        return Err(format!(
+            "none of the clouds has odometry within {ODOMETRY_HOLD_S} s of its stamp"
+        ));
     }
     Ok(session)
 }
@@ -206,7 +261,12 @@ mod tests {
             }
             data.extend(vec![0u8; extra]);
         }
-        let field = |name: &str, offset| PointField { name: name.into(), offset, datatype: FLOAT32, count: 1 };
+        let field = |name: &str, offset| PointField {
+            name: name.into(),
+            offset,
+            datatype: FLOAT32,
+            count: 1,
+        };
         PointCloud2Message {
             height: 1,
             width: points.len() as u32,
@@ -220,11 +280,17 @@ mod tests {
 
     #[test]
     fn points_are_read_and_non_finite_ones_dropped() {
-        let message = cloud(&[[1.0, 2.0, 3.0], [f32::NAN, 0.0, 0.0], [-1.0, 0.5, 0.25]], 4);
+        let message = cloud(
+            &[[1.0, 2.0, 3.0], [f32::NAN, 0.0, 0.0], [-1.0, 0.5, 0.25]],
+            4,
+        );
         let bytes = crate::messages::encode(&message).unwrap();
         let decoded: PointCloud2Message = decode(&bytes).unwrap();
         let points = cloud_points(&decoded).unwrap();
-        assert_eq!(points, vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(-1.0, 0.5, 0.25)]);
+        assert_eq!(
+            points,
+            vec![Vector3::new(1.0, 2.0, 3.0), Vector3::new(-1.0, 0.5, 0.25)]
+        );
     }
 
     #[test]

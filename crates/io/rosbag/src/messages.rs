@@ -118,7 +118,11 @@ const YAW_SEARCH_ULPS: i64 = 8;
 /// `value` moved by `steps` float64 steps (ulps).
 fn ulp_step(value: f64, steps: i64) -> f64 {
     let bits = value.to_bits() as i64;
-    let moved = if value >= 0.0 { bits + steps } else { bits - steps };
+    let moved = if value >= 0.0 {
+        bits + steps
+    } else {
+        bits - steps
+    };
     f64::from_bits(moved as u64)
 }
 
@@ -130,7 +134,12 @@ impl Quaternion {
     /// which loops close (up to 14 m on infinite-corridor).
     pub fn from_yaw(yaw_rad: f64) -> Self {
         let (s, c) = (0.5 * yaw_rad).sin_cos();
-        let quaternion = |z: f64, w: f64| Self { x: 0.0, y: 0.0, z, w };
+        let quaternion = |z: f64, w: f64| Self {
+            x: 0.0,
+            y: 0.0,
+            z,
+            w,
+        };
         let plain = quaternion(s, c);
         if !yaw_rad.is_finite() || plain.yaw() == yaw_rad {
             return plain;
@@ -138,7 +147,11 @@ impl Quaternion {
         let steps = (0..=YAW_SEARCH_ULPS).flat_map(|n| [n, -n]);
         steps
             .clone()
-            .flat_map(|dz| steps.clone().map(move |dw| quaternion(ulp_step(s, dz), ulp_step(c, dw))))
+            .flat_map(|dz| {
+                steps
+                    .clone()
+                    .map(move |dw| quaternion(ulp_step(s, dz), ulp_step(c, dw)))
+            })
             .find(|candidate| candidate.yaw() == yaw_rad)
             .unwrap_or(plain)
     }
@@ -189,7 +202,10 @@ impl<'de> Deserialize<'de> for Covariance6 {
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
                 f.write_str("36 float64")
             }
-            fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Covariance6, A::Error> {
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> Result<Covariance6, A::Error> {
                 let mut values = [0.0; 36];
                 for (i, value) in values.iter_mut().enumerate() {
                     *value = seq
@@ -314,7 +330,10 @@ const CDR_LITTLE_ENDIAN: [u8; 2] = [0x00, 0x01];
 /// wrong; the caller adds file and topic.
 pub fn decode<T: DeserializeOwned>(data: &[u8]) -> Result<T, String> {
     let (Some(kind), Some(payload)) = (data.get(..2), data.get(4..)) else {
-        return Err(format!("message of {} bytes: too short for a CDR header", data.len()));
+        return Err(format!(
+            "message of {} bytes: too short for a CDR header",
+            data.len()
+        ));
     };
     let decoded = if kind == CDR_LITTLE_ENDIAN {
         cdr_encoding::from_bytes::<T, LittleEndian>(payload)
@@ -363,7 +382,13 @@ mod tests {
         bytes.extend(0u32.to_le_bytes());
         let scan: LaserScanMessage = decode(&bytes).unwrap();
         assert_eq!(scan.header.frame_id, "laser");
-        assert_eq!(scan.header.stamp, Time { sec: 7, nanosec: 500 });
+        assert_eq!(
+            scan.header.stamp,
+            Time {
+                sec: 7,
+                nanosec: 500
+            }
+        );
         assert_eq!(scan.ranges, vec![1.0, 2.0, f32::INFINITY]);
         assert_eq!((scan.angle_min, scan.range_max), (-1.5, 30.0));
         assert_eq!(encode(&scan).unwrap(), bytes);
@@ -381,14 +406,21 @@ mod tests {
             child_frame_id: "base".into(),
             ..Default::default()
         };
-        message.pose.pose.position = Vector3 { x: 1.25, y: -2.5, z: 0.0 };
+        message.pose.pose.position = Vector3 {
+            x: 1.25,
+            y: -2.5,
+            z: 0.0,
+        };
         message.pose.pose.orientation = Quaternion::from_yaw(0.3);
         message.pose.covariance.0[35] = 0.01;
         message.twist.twist.angular.z = 0.5;
         let bytes = encode(&message).unwrap();
         // Payload: stamp 8, "odom\0" (4 + 5) → 17, pad to 20, "base\0" (4 + 5) → 29, pad to
         // 32 for the first f64; the encapsulation header's 4 bytes come before.
-        assert_eq!(f64::from_le_bytes(bytes[4 + 32..4 + 40].try_into().unwrap()), 1.25);
+        assert_eq!(
+            f64::from_le_bytes(bytes[4 + 32..4 + 40].try_into().unwrap()),
+            1.25
+        );
         assert_eq!(decode::<OdometryMessage>(&bytes).unwrap(), message);
     }
 
@@ -416,7 +448,10 @@ mod tests {
         })
         .unwrap();
         for cut in 4..bytes.len() {
-            assert!(decode::<LaserScanMessage>(&bytes[..cut]).is_err(), "cut at {cut}");
+            assert!(
+                decode::<LaserScanMessage>(&bytes[..cut]).is_err(),
+                "cut at {cut}"
+            );
         }
     }
 
@@ -433,14 +468,28 @@ mod tests {
             exact += usize::from(q.yaw() == yaw);
         }
         assert!(exact > 19_900, "{exact} of 20000 exact");
-        let turned = Quaternion { x: 0.0, y: 0.0, z: 2.0, w: 0.0 };
-        assert!((turned.yaw() - std::f64::consts::PI).abs() < 1e-15, "scale cancels");
+        let turned = Quaternion {
+            x: 0.0,
+            y: 0.0,
+            z: 2.0,
+            w: 0.0,
+        };
+        assert!(
+            (turned.yaw() - std::f64::consts::PI).abs() < 1e-15,
+            "scale cancels"
+        );
     }
 
     #[test]
     fn time_conversions() {
         let time = Time::from_nanoseconds(1_500_000_001).unwrap();
-        assert_eq!(time, Time { sec: 1, nanosec: 500_000_001 });
+        assert_eq!(
+            time,
+            Time {
+                sec: 1,
+                nanosec: 500_000_001
+            }
+        );
         assert_eq!(time.nanoseconds(), 1_500_000_001);
         assert!((time.seconds() - 1.500_000_001).abs() < 1e-12);
         assert_eq!(Time::from_nanoseconds(-1), None);

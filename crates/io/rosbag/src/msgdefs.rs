@@ -6,7 +6,10 @@
 use crate::messages::{LASER_SCAN_TYPE, ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE};
 
 const TIME: (&str, &str) = ("builtin_interfaces/Time", "int32 sec\nuint32 nanosec\n");
-const HEADER: (&str, &str) = ("std_msgs/Header", "builtin_interfaces/Time stamp\nstring frame_id\n");
+const HEADER: (&str, &str) = (
+    "std_msgs/Header",
+    "builtin_interfaces/Time stamp\nstring frame_id\n",
+);
 const VECTOR3: (&str, &str) = ("geometry_msgs/Vector3", "float64 x\nfloat64 y\nfloat64 z\n");
 const POINT: (&str, &str) = ("geometry_msgs/Point", "float64 x\nfloat64 y\nfloat64 z\n");
 const QUATERNION: (&str, &str) = (

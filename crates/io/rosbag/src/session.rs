@@ -229,12 +229,16 @@ impl TfTree {
     /// `base_from_laser` through the frames' first common ancestor.
     pub(crate) fn lookup(&self, base: &str, laser: &str) -> Option<Se3> {
         let base_chain = self.chain(base);
-        self.chain(laser).into_iter().find_map(|(frame, frame_from_laser)| {
-            base_chain
-                .iter()
-                .find(|(f, _)| *f == frame)
-                .map(|(_, frame_from_base)| frame_from_base.inverse().compose(&frame_from_laser))
-        })
+        self.chain(laser)
+            .into_iter()
+            .find_map(|(frame, frame_from_laser)| {
+                base_chain
+                    .iter()
+                    .find(|(f, _)| *f == frame)
+                    .map(|(_, frame_from_base)| {
+                        frame_from_base.inverse().compose(&frame_from_laser)
+                    })
+            })
     }
 }
 
@@ -249,7 +253,10 @@ fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
         ));
     }
     let t = &base_from_laser.translation_m;
-    Ok((Se2::new(t.x, t.y, yaw_of(&base_from_laser.rotation)), up < 0.0))
+    Ok((
+        Se2::new(t.x, t.y, yaw_of(&base_from_laser.rotation)),
+        up < 0.0,
+    ))
 }
 
 /// The pose at `stamp_secs` among stamped poses in non-decreasing stamp order: interpolated on
@@ -292,10 +299,9 @@ const DECIMAL_ANGLE_DIGITS: usize = 6;
 pub(crate) fn angle_rad_of(stored: f32) -> f64 {
     let decimal_text = format!("{stored:e}");
     let decimal: f64 = decimal_text.parse().unwrap_or(f64::from(stored));
-    let digits = decimal_text
-        .split('e')
-        .next()
-        .map_or(0, |mantissa| mantissa.chars().filter(char::is_ascii_digit).count());
+    let digits = decimal_text.split('e').next().map_or(0, |mantissa| {
+        mantissa.chars().filter(char::is_ascii_digit).count()
+    });
     if !stored.is_finite() || digits <= DECIMAL_ANGLE_DIGITS {
         return decimal;
     }
@@ -312,7 +318,12 @@ pub(crate) fn angle_rad_of(stored: f32) -> f64 {
 /// Checks that `stamps` never decrease.
 pub(crate) fn check_monotonic(stamps_secs: &[f64], topic: &str) -> Result<(), String> {
     // NaN counts as going back: `partial_cmp` gives no order.
-    let goes_back = |w: &[f64]| !matches!(w[1].partial_cmp(&w[0]), Some(std::cmp::Ordering::Greater | std::cmp::Ordering::Equal));
+    let goes_back = |w: &[f64]| {
+        !matches!(
+            w[1].partial_cmp(&w[0]),
+            Some(std::cmp::Ordering::Greater | std::cmp::Ordering::Equal)
+        )
+    };
     match stamps_secs.windows(2).position(goes_back) {
         Some(i) => Err(format!(
             "{topic}: header stamps are not monotonic: message {} is stamped {} s, after {} s",
@@ -333,12 +344,22 @@ pub fn read_bag(path: &Path, choice: &TopicChoice) -> Result<BagSession, IoError
 
 pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession, String> {
     let topics = &raw.topics;
-    let scan_topic = choose_topic(topics, LASER_SCAN_TYPE, choice.scan_topic.as_deref(), "--scan-topic")?
-        .ok_or_else(|| {
-            let names: Vec<&str> = topics.iter().map(|t| t.name.as_str()).collect();
-            format!("no {LASER_SCAN_TYPE} topic (topics: {})", names.join(", "))
-        })?;
-    let odom_topic = choose_topic(topics, ODOMETRY_TYPE, choice.odom_topic.as_deref(), "--odom-topic")?;
+    let scan_topic = choose_topic(
+        topics,
+        LASER_SCAN_TYPE,
+        choice.scan_topic.as_deref(),
+        "--scan-topic",
+    )?
+    .ok_or_else(|| {
+        let names: Vec<&str> = topics.iter().map(|t| t.name.as_str()).collect();
+        format!("no {LASER_SCAN_TYPE} topic (topics: {})", names.join(", "))
+    })?;
+    let odom_topic = choose_topic(
+        topics,
+        ODOMETRY_TYPE,
+        choice.odom_topic.as_deref(),
+        "--odom-topic",
+    )?;
     let mut scans: Vec<LaserScanMessage> = Vec::new();
     let mut odometry: Vec<OdometryMessage> = Vec::new();
     let (mut static_tf, mut dynamic_tf) = (TfTree::default(), TfTree::default());
@@ -347,7 +368,12 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     for message in &raw.messages {
         let topic = &topics[message.topic];
         counts[message.topic] += 1;
-        let context = |reason: String| format!("topic '{}', message {}: {reason}", topic.name, counts[message.topic]);
+        let context = |reason: String| {
+            format!(
+                "topic '{}', message {}: {reason}",
+                topic.name, counts[message.topic]
+            )
+        };
         if message.topic == scan_topic {
             scans.push(decode(&message.data).map_err(context)?);
         } else if Some(message.topic) == odom_topic {
@@ -355,7 +381,11 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
             any_tf = true;
             let tf: TfMessage = decode(&message.data).map_err(context)?;
-            let tree = if topic.name.ends_with("tf_static") { &mut static_tf } else { &mut dynamic_tf };
+            let tree = if topic.name.ends_with("tf_static") {
+                &mut static_tf
+            } else {
+                &mut dynamic_tf
+            };
             tree.insert_first(&tf).map_err(context)?;
         }
     }
@@ -363,14 +393,20 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     let first_scan = scans
         .first()
         .ok_or_else(|| format!("topic '{scan_name}' has no messages"))?;
-    let laser_frame = first_scan.header.frame_id.trim_start_matches('/').to_owned();
+    let laser_frame = first_scan
+        .header
+        .frame_id
+        .trim_start_matches('/')
+        .to_owned();
     let base_frame = odometry
         .first()
         .map(|o| o.child_frame_id.trim_start_matches('/'))
         .filter(|f| !f.is_empty())
         .unwrap_or("base_link")
         .to_owned();
-    let (robot_from_sensor, upside_down, mount_from) = if laser_frame == base_frame || laser_frame.is_empty() {
+    let (robot_from_sensor, upside_down, mount_from) = if laser_frame == base_frame
+        || laser_frame.is_empty()
+    {
         (Se2::identity(), false, MountSource::SameFrame)
     } else if !any_tf {
         (Se2::identity(), false, MountSource::NoTf)
@@ -426,7 +462,11 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     let mirror = if upside_down { -1.0 } else { 1.0 };
     // Scans of one laser share their angles: recover each distinct value once.
     let mut angles: HashMap<u32, f64> = HashMap::new();
-    let mut angle_of = |stored: f32| *angles.entry(stored.to_bits()).or_insert_with(|| angle_rad_of(stored));
+    let mut angle_of = |stored: f32| {
+        *angles
+            .entry(stored.to_bits())
+            .or_insert_with(|| angle_rad_of(stored))
+    };
     for (message, stamp_secs) in scans.into_iter().zip(scan_stamps) {
         let odom_from_robot = match odom_topic {
             Some(_) => match pose_at(&odom_stamps, &odom_poses, stamp_secs) {
@@ -484,7 +524,10 @@ mod tests {
         let stamps = [1.0, 2.0];
         let poses = [Se2::new(0.0, 0.0, 0.0), Se2::new(2.0, 0.0, 0.2)];
         let mid = pose_at(&stamps, &poses, 1.5).unwrap();
-        assert!((mid.x_m - 1.0).abs() < 0.02 && (mid.theta_rad - 0.1).abs() < 1e-12, "{mid:?}");
+        assert!(
+            (mid.x_m - 1.0).abs() < 0.02 && (mid.theta_rad - 0.1).abs() < 1e-12,
+            "{mid:?}"
+        );
         assert_eq!(pose_at(&stamps, &poses, 2.0), Some(poses[1]));
         assert_eq!(pose_at(&stamps, &poses, 0.97), Some(poses[0]));
         assert_eq!(pose_at(&stamps, &poses, 2.04), Some(poses[1]));
@@ -495,17 +538,18 @@ mod tests {
 
     #[test]
     fn tf_chains_meet_at_a_common_ancestor() {
-        let edge = |parent: &str, child: &str, x: f64, yaw: f64| crate::messages::TransformStamped {
-            header: crate::messages::Header {
-                frame_id: parent.into(),
-                ..Default::default()
-            },
-            child_frame_id: child.into(),
-            transform: Transform {
-                translation: crate::messages::Vector3 { x, y: 0.0, z: 0.3 },
-                rotation: Quaternion::from_yaw(yaw),
-            },
-        };
+        let edge =
+            |parent: &str, child: &str, x: f64, yaw: f64| crate::messages::TransformStamped {
+                header: crate::messages::Header {
+                    frame_id: parent.into(),
+                    ..Default::default()
+                },
+                child_frame_id: child.into(),
+                transform: Transform {
+                    translation: crate::messages::Vector3 { x, y: 0.0, z: 0.3 },
+                    rotation: Quaternion::from_yaw(yaw),
+                },
+            };
         let mut tree = TfTree::default();
         tree.insert_first(&TfMessage {
             transforms: vec![
@@ -515,14 +559,17 @@ mod tests {
             ],
         })
         .unwrap();
-        let (mount, upside_down) = planar_mount(&tree.lookup("base_link", "laser").unwrap()).unwrap();
+        let (mount, upside_down) =
+            planar_mount(&tree.lookup("base_link", "laser").unwrap()).unwrap();
         assert!(!upside_down);
         assert!((mount.x_m - 0.2).abs() < 1e-12 && (mount.theta_rad - 0.75).abs() < 1e-12);
         // Seen from a sibling's child: through base_footprint.
         let back = tree.lookup("laser", "base_footprint").unwrap();
         let (planar, _) = planar_mount(&back).unwrap();
         let expected = Se2::new(0.3, 0.0, 0.75).inverse();
-        assert!((planar.x_m - expected.x_m).abs() < 1e-12 && (planar.y_m - expected.y_m).abs() < 1e-12);
+        assert!(
+            (planar.x_m - expected.x_m).abs() < 1e-12 && (planar.y_m - expected.y_m).abs() < 1e-12
+        );
         assert!(tree.lookup("base_link", "camera").is_none());
     }
 
@@ -533,8 +580,14 @@ mod tests {
             Vector3::new(0.1, 0.0, 0.0),
         );
         let (mount, upside_down) = planar_mount(&flipped).unwrap();
-        assert!(upside_down && (mount.theta_rad - 0.4).abs() < 1e-9, "{mount:?}");
-        let tilted = Se3::new(UnitQuaternion::from_euler_angles(0.0, 0.3, 0.0), Vector3::zeros());
+        assert!(
+            upside_down && (mount.theta_rad - 0.4).abs() < 1e-9,
+            "{mount:?}"
+        );
+        let tilted = Se3::new(
+            UnitQuaternion::from_euler_angles(0.0, 0.3, 0.0),
+            Vector3::zeros(),
+        );
         assert!(planar_mount(&tilted).unwrap_err().contains("tilted 17.2°"));
     }
 
@@ -551,15 +604,33 @@ mod tests {
             topic("/scan_rear", LASER_SCAN_TYPE),
             topic("/odom", ODOMETRY_TYPE),
         ];
-        assert_eq!(choose_topic(&topics, ODOMETRY_TYPE, None, "--odom-topic"), Ok(Some(2)));
+        assert_eq!(
+            choose_topic(&topics, ODOMETRY_TYPE, None, "--odom-topic"),
+            Ok(Some(2))
+        );
         let err = choose_topic(&topics, LASER_SCAN_TYPE, None, "--scan-topic").unwrap_err();
-        assert!(err.contains("several") && err.contains("/scan_rear") && err.contains("--scan-topic"), "{err}");
-        assert_eq!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/scan_rear"), "--scan-topic"), Ok(Some(1)));
-        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/odom"), "x").unwrap_err().contains("carries nav_msgs/msg/Odometry"));
-        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/nope"), "x").unwrap_err().contains("no topic '/nope'"));
+        assert!(
+            err.contains("several") && err.contains("/scan_rear") && err.contains("--scan-topic"),
+            "{err}"
+        );
+        assert_eq!(
+            choose_topic(&topics, LASER_SCAN_TYPE, Some("/scan_rear"), "--scan-topic"),
+            Ok(Some(1))
+        );
+        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/odom"), "x")
+            .unwrap_err()
+            .contains("carries nav_msgs/msg/Odometry"));
+        assert!(choose_topic(&topics, LASER_SCAN_TYPE, Some("/nope"), "x")
+            .unwrap_err()
+            .contains("no topic '/nope'"));
         assert_eq!(choose_topic(&topics, TF_TYPE, None, "x"), Ok(None));
-        let json = vec![Topic { encoding: "json".into(), ..topic("/odom", ODOMETRY_TYPE) }];
-        assert!(choose_topic(&json, ODOMETRY_TYPE, None, "x").unwrap_err().contains("only CDR"));
+        let json = vec![Topic {
+            encoding: "json".into(),
+            ..topic("/odom", ODOMETRY_TYPE)
+        }];
+        assert!(choose_topic(&json, ODOMETRY_TYPE, None, "x")
+            .unwrap_err()
+            .contains("only CDR"));
     }
 
     /// A bag in memory: scans at `scan_stamps`, odometry at `odom_stamps` (s).
@@ -571,39 +642,83 @@ mod tests {
             messages: 0,
         };
         let mut bag = RawBag {
-            topics: vec![topic("/scan", LASER_SCAN_TYPE, scan_encoding), topic("/odom", ODOMETRY_TYPE, "cdr")],
+            topics: vec![
+                topic("/scan", LASER_SCAN_TYPE, scan_encoding),
+                topic("/odom", ODOMETRY_TYPE, "cdr"),
+            ],
             ..Default::default()
         };
-        let stamp = |sec| crate::messages::Header { stamp: crate::messages::Time { sec, nanosec: 0 }, frame_id: String::new() };
+        let stamp = |sec| crate::messages::Header {
+            stamp: crate::messages::Time { sec, nanosec: 0 },
+            frame_id: String::new(),
+        };
         for &sec in scan_stamps {
-            let scan = LaserScanMessage { header: stamp(sec), ranges: vec![1.0; 4], ..Default::default() };
+            let scan = LaserScanMessage {
+                header: stamp(sec),
+                ranges: vec![1.0; 4],
+                ..Default::default()
+            };
             let data = crate::messages::encode(&scan).unwrap();
-            bag.messages.push(crate::storage::RawMessage { topic: 0, log_time_ns: 0, data });
+            bag.messages.push(crate::storage::RawMessage {
+                topic: 0,
+                log_time_ns: 0,
+                data,
+            });
         }
         for &sec in odom_stamps {
-            let odometry = OdometryMessage { header: stamp(sec), ..Default::default() };
+            let odometry = OdometryMessage {
+                header: stamp(sec),
+                ..Default::default()
+            };
             let data = crate::messages::encode(&odometry).unwrap();
-            bag.messages.push(crate::storage::RawMessage { topic: 1, log_time_ns: 0, data });
+            bag.messages.push(crate::storage::RawMessage {
+                topic: 1,
+                log_time_ns: 0,
+                data,
+            });
         }
         bag
     }
 
     #[test]
     fn sessions_refuse_backward_stamps_and_other_encodings() {
-        let ok = session_of(raw_bag(&[1, 2, 3], &[1, 2, 3], "cdr"), &TopicChoice::default()).unwrap();
-        assert_eq!((ok.log.scans.len(), ok.info.mount_from), (3, MountSource::SameFrame));
-        let err = session_of(raw_bag(&[1, 3, 2], &[1, 2, 3], "cdr"), &TopicChoice::default()).unwrap_err();
-        assert!(err.contains("/scan: header stamps are not monotonic: message 3"), "{err}");
-        let err = session_of(raw_bag(&[1, 2], &[2, 1], "cdr"), &TopicChoice::default()).unwrap_err();
-        assert!(err.contains("/odom: header stamps are not monotonic"), "{err}");
-        let err = session_of(raw_bag(&[1, 2], &[1, 2], "ros1"), &TopicChoice::default()).unwrap_err();
+        let ok = session_of(
+            raw_bag(&[1, 2, 3], &[1, 2, 3], "cdr"),
+            &TopicChoice::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            (ok.log.scans.len(), ok.info.mount_from),
+            (3, MountSource::SameFrame)
+        );
+        let err = session_of(
+            raw_bag(&[1, 3, 2], &[1, 2, 3], "cdr"),
+            &TopicChoice::default(),
+        )
+        .unwrap_err();
+        assert!(
+            err.contains("/scan: header stamps are not monotonic: message 3"),
+            "{err}"
+        );
+        let err =
+            session_of(raw_bag(&[1, 2], &[2, 1], "cdr"), &TopicChoice::default()).unwrap_err();
+        assert!(
+            err.contains("/odom: header stamps are not monotonic"),
+            "{err}"
+        );
+        let err =
+            session_of(raw_bag(&[1, 2], &[1, 2], "ros1"), &TopicChoice::default()).unwrap_err();
         assert!(err.contains("serialised as 'ros1'"), "{err}");
-        let err = session_of(raw_bag(&[5, 6], &[1, 2], "cdr"), &TopicChoice::default()).unwrap_err();
+        let err =
+            session_of(raw_bag(&[5, 6], &[1, 2], "cdr"), &TopicChoice::default()).unwrap_err();
         assert!(err.contains("none of the 2 scans"), "{err}");
         let mut corrupt = raw_bag(&[1, 2], &[1, 2], "cdr");
         corrupt.messages[1].data.truncate(20);
         let err = session_of(corrupt, &TopicChoice::default()).unwrap_err();
-        assert!(err.contains("topic '/scan', message 2: malformed CDR"), "{err}");
+        assert!(
+            err.contains("topic '/scan', message 2: malformed CDR"),
+            "{err}"
+        );
     }
 
     #[test]
@@ -611,7 +726,15 @@ mod tests {
     fn float32_angles_recover_the_value_they_were_rounded_from() {
         use std::f64::consts::PI;
         // Multiples of π, as drivers and CARMEN's FLASER compute them.
-        for angle in [-PI / 2.0, PI / 180.0, PI / 179.0, PI / 720.0, -3.0 * PI / 4.0, 2.0 * PI / 1440.0, PI / 360.0] {
+        for angle in [
+            -PI / 2.0,
+            PI / 180.0,
+            PI / 179.0,
+            PI / 720.0,
+            -3.0 * PI / 4.0,
+            2.0 * PI / 1440.0,
+            PI / 360.0,
+        ] {
             assert_eq!(angle_rad_of(angle as f32), angle, "{angle}");
         }
         // Printed decimals, as in ROBOTLASER1.

@@ -78,7 +78,11 @@ impl RawBag {
     /// The index of `name` among the topics, adding it when new.
     fn topic_index(&mut self, name: &str, message_type: &str, encoding: &str) -> usize {
         let message_type = normalise_type(message_type);
-        if let Some(index) = self.topics.iter().position(|t| t.name == name && t.message_type == message_type) {
+        if let Some(index) = self
+            .topics
+            .iter()
+            .position(|t| t.name == name && t.message_type == message_type)
+        {
             return index;
         }
         self.topics.push(Topic {
@@ -129,7 +133,10 @@ pub(crate) fn read_raw_bag(path: &Path, wanted: &dyn Fn(&str) -> bool) -> Result
         }
     } else {
         let storage = Storage::of_file(path).ok_or_else(|| {
-            invalid(path, "not a bag: expected a .mcap or .db3 file or a directory with metadata.yaml")
+            invalid(
+                path,
+                "not a bag: expected a .mcap or .db3 file or a directory with metadata.yaml",
+            )
         })?;
         read_file(&mut bag, path, storage, wanted)?;
     }
@@ -154,7 +161,9 @@ fn read_file(
             read_mcap(bag, &bytes, wanted).map_err(|reason| invalid(file, reason))
         }
         Storage::Sqlite3 => {
-            bag.bytes += std::fs::metadata(file).map_err(|e| io_error(file, e))?.len();
+            bag.bytes += std::fs::metadata(file)
+                .map_err(|e| io_error(file, e))?
+                .len();
             read_db3(bag, file, wanted).map_err(|reason| invalid(file, reason))
         }
     }
@@ -170,10 +179,17 @@ const MAX_RECORD_BYTES_PER_FILE_BYTE: usize = 64;
 /// (an unbounded allocation for a huge record length, a subtraction overflow for a record
 /// longer than its uncompressed chunk; both found by the fuzz target `parse_bag`). Schemas and
 /// channels are linked here; other records are not parsed ([`NEEDED_RECORDS`]).
-pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
+pub(crate) fn read_mcap(
+    bag: &mut RawBag,
+    bytes: &[u8],
+    wanted: &dyn Fn(&str) -> bool,
+) -> Result<(), String> {
     use mcap::records::Record;
     use mcap::sans_io::linear_reader::{LinearReadEvent, LinearReader, LinearReaderOptions};
-    let limit = bytes.len().saturating_mul(MAX_RECORD_BYTES_PER_FILE_BYTE).max(1 << 20);
+    let limit = bytes
+        .len()
+        .saturating_mul(MAX_RECORD_BYTES_PER_FILE_BYTE)
+        .max(1 << 20);
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_record_length_limit(limit)
@@ -203,7 +219,11 @@ pub(crate) fn read_mcap(bag: &mut RawBag, bytes: &[u8], wanted: &dyn Fn(&str) ->
                 while !rest.is_empty() {
                     let (opcode, body, after) = split_record(rest)?;
                     if NEEDED_RECORDS.contains(&opcode) {
-                        links.take(bag, mcap::parse_record(opcode, body).map_err(malformed)?, wanted)?;
+                        links.take(
+                            bag,
+                            mcap::parse_record(opcode, body).map_err(malformed)?,
+                            wanted,
+                        )?;
                     }
                     rest = after;
                 }
@@ -231,16 +251,26 @@ struct Links {
 }
 
 impl Links {
-    fn take(&mut self, bag: &mut RawBag, record: mcap::records::Record<'_>, wanted: &dyn Fn(&str) -> bool) -> Result<(), String> {
+    fn take(
+        &mut self,
+        bag: &mut RawBag,
+        record: mcap::records::Record<'_>,
+        wanted: &dyn Fn(&str) -> bool,
+    ) -> Result<(), String> {
         use mcap::records::Record;
         match record {
             Record::Schema { header, .. } => {
                 self.schemas.insert(header.id, header.name);
             }
             Record::Channel(channel) => {
-                let message_type = self.schemas.get(&channel.schema_id).map_or("", String::as_str);
-                let index = bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
-                self.channels.insert(channel.id, (index, wanted(&bag.topics[index].message_type)));
+                let message_type = self
+                    .schemas
+                    .get(&channel.schema_id)
+                    .map_or("", String::as_str);
+                let index =
+                    bag.topic_index(&channel.topic, message_type, &channel.message_encoding);
+                self.channels
+                    .insert(channel.id, (index, wanted(&bag.topics[index].message_type)));
             }
             Record::Message { header, data } => {
                 let (topic, kept) = *self
@@ -264,15 +294,25 @@ impl Links {
 
 /// The records of a chunk, decompressed (`""`, `zstd`, `lz4`), at most `limit` bytes, checked
 /// against the chunk's size and CRC.
-fn chunk_records(header: &mcap::records::ChunkHeader, data: &[u8], limit: usize) -> Result<Vec<u8>, String> {
+fn chunk_records(
+    header: &mcap::records::ChunkHeader,
+    data: &[u8],
+    limit: usize,
+) -> Result<Vec<u8>, String> {
     use std::io::Read as _;
     let size = usize::try_from(header.uncompressed_size)
         .ok()
         .filter(|&size| size <= limit)
-        .ok_or_else(|| format!("a chunk claims {} bytes uncompressed, more than the file can hold", header.uncompressed_size))?;
+        .ok_or_else(|| {
+            format!(
+                "a chunk claims {} bytes uncompressed, more than the file can hold",
+                header.uncompressed_size
+            )
+        })?;
     let records = match header.compression.as_str() {
         "" => data.to_vec(),
-        "zstd" => zstd::bulk::decompress(data, size).map_err(|e| format!("a zstd chunk does not decompress: {e}"))?,
+        "zstd" => zstd::bulk::decompress(data, size)
+            .map_err(|e| format!("a zstd chunk does not decompress: {e}"))?,
         "lz4" => {
             let mut out = Vec::with_capacity(size);
             lz4::Decoder::new(data)
@@ -280,10 +320,17 @@ fn chunk_records(header: &mcap::records::ChunkHeader, data: &[u8], limit: usize)
                 .map_err(|e| format!("an lz4 chunk does not decompress: {e}"))?;
             out
         }
-        other => return Err(format!("chunk compression '{other}' is not supported (zstd, lz4)")),
+        other => {
+            return Err(format!(
+                "chunk compression '{other}' is not supported (zstd, lz4)"
+            ))
+        }
     };
     if records.len() != size {
-        return Err(format!("a chunk holds {} bytes, its header says {size}", records.len()));
+        return Err(format!(
+            "a chunk holds {} bytes, its header says {size}",
+            records.len()
+        ));
     }
     if header.uncompressed_crc != 0 && crc32fast::hash(&records) != header.uncompressed_crc {
         return Err("a chunk's CRC does not match its records".to_owned());
@@ -320,7 +367,12 @@ fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Res
             .map_err(sql)?;
         let rows = statement
             .query_map([], |row| {
-                Ok((row.get::<_, i64>(0)?, row.get::<_, String>(1)?, row.get::<_, String>(2)?, row.get::<_, String>(3)?))
+                Ok((
+                    row.get::<_, i64>(0)?,
+                    row.get::<_, String>(1)?,
+                    row.get::<_, String>(2)?,
+                    row.get::<_, String>(3)?,
+                ))
             })
             .map_err(sql)?;
         for row in rows {
@@ -335,9 +387,9 @@ fn read_db3(bag: &mut RawBag, file: &Path, wanted: &dyn Fn(&str) -> bool) -> Res
     let mut rows = statement.query([]).map_err(sql)?;
     while let Some(row) = rows.next().map_err(sql)? {
         let topic_id: i64 = row.get(0).map_err(sql)?;
-        let (topic, kept) = *ids
-            .get(&topic_id)
-            .ok_or_else(|| format!("a message names topic id {topic_id}, which the topics table lacks"))?;
+        let (topic, kept) = *ids.get(&topic_id).ok_or_else(|| {
+            format!("a message names topic id {topic_id}, which the topics table lacks")
+        })?;
         bag.topics[topic].messages += 1;
         if !kept {
             continue;
@@ -370,8 +422,8 @@ struct BagfileInformation {
 fn bag_directory_files(directory: &Path) -> Result<Vec<(Storage, PathBuf)>, IoError> {
     let metadata_path = directory.join("metadata.yaml");
     let text = std::fs::read_to_string(&metadata_path).map_err(|e| io_error(&metadata_path, e))?;
-    let metadata: Metadata =
-        serde_yaml_ng::from_str(&text).map_err(|e| invalid(&metadata_path, format!("not rosbag2 metadata: {e}")))?;
+    let metadata: Metadata = serde_yaml_ng::from_str(&text)
+        .map_err(|e| invalid(&metadata_path, format!("not rosbag2 metadata: {e}")))?;
     let info = metadata.rosbag2_bagfile_information;
     if !info.compression_format.is_empty() {
         return Err(invalid(
@@ -382,10 +434,18 @@ fn bag_directory_files(directory: &Path) -> Result<Vec<(Storage, PathBuf)>, IoEr
     let storage = match info.storage_identifier.as_str() {
         "mcap" => Storage::Mcap,
         "sqlite3" => Storage::Sqlite3,
-        other => return Err(invalid(&metadata_path, format!("unknown storage '{other}' (mcap and sqlite3 are read)"))),
+        other => {
+            return Err(invalid(
+                &metadata_path,
+                format!("unknown storage '{other}' (mcap and sqlite3 are read)"),
+            ))
+        }
     };
     if info.relative_file_paths.is_empty() {
-        return Err(invalid(&metadata_path, "no relative_file_paths: the bag has no files"));
+        return Err(invalid(
+            &metadata_path,
+            "no relative_file_paths: the bag has no files",
+        ));
     }
     Ok(info
         .relative_file_paths
@@ -400,8 +460,14 @@ mod tests {
 
     #[test]
     fn types_normalise_to_the_ros2_form() {
-        assert_eq!(normalise_type("sensor_msgs/LaserScan"), "sensor_msgs/msg/LaserScan");
-        assert_eq!(normalise_type("sensor_msgs/msg/LaserScan"), "sensor_msgs/msg/LaserScan");
+        assert_eq!(
+            normalise_type("sensor_msgs/LaserScan"),
+            "sensor_msgs/msg/LaserScan"
+        );
+        assert_eq!(
+            normalise_type("sensor_msgs/msg/LaserScan"),
+            "sensor_msgs/msg/LaserScan"
+        );
         assert_eq!(normalise_type(""), "");
     }
 
@@ -415,7 +481,11 @@ mod tests {
         std::fs::write(&db3, b"not sqlite at all, not at all, not at all").unwrap();
         let err = read_raw_bag(&db3, &|_| true).unwrap_err().to_string();
         assert!(err.contains("x.db3") && err.contains("SQLite"), "{err}");
-        std::fs::write(dir.path().join("metadata.yaml"), "rosbag2_bagfile_information:\n  storage_identifier: rosbag_v1\n").unwrap();
+        std::fs::write(
+            dir.path().join("metadata.yaml"),
+            "rosbag2_bagfile_information:\n  storage_identifier: rosbag_v1\n",
+        )
+        .unwrap();
         let err = read_raw_bag(dir.path(), &|_| true).unwrap_err().to_string();
         assert!(err.contains("unknown storage 'rosbag_v1'"), "{err}");
     }

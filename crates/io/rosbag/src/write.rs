@@ -83,7 +83,11 @@ fn stamp_of(seconds: f64) -> Time {
 
 fn transform_of(pose: &Se2) -> Transform {
     Transform {
-        translation: Vector3 { x: pose.x_m, y: pose.y_m, z: 0.0 },
+        translation: Vector3 {
+            x: pose.x_m,
+            y: pose.y_m,
+            z: 0.0,
+        },
         rotation: Quaternion::from_yaw(pose.theta_rad),
     }
 }
@@ -99,17 +103,32 @@ fn messages_of(
         let d = mount.between(&r.scan.robot_from_sensor);
         d.x_m.abs().max(d.y_m.abs()).max(d.theta_rad.abs()) > MOUNT_TOLERANCE
     }) {
-        return Err(format!("scan {} has another laser mount than the first; one /tf_static cannot hold both", i + 1));
+        return Err(format!(
+            "scan {} has another laser mount than the first; one /tf_static cannot hold both",
+            i + 1
+        ));
     }
     let (mut seconds, mut rewritten) = log.increasing_scan_stamps(params.rewritten_period_s);
     if rewritten.is_none() {
-        if let Some(i) = seconds.iter().position(|t| !(0.0..MAX_ROS_TIME_S).contains(t)) {
-            rewritten = Some(format!("scan {} is stamped {} s, outside a ROS time", i + 1, seconds[i]));
-            seconds = (0..seconds.len()).map(|k| k as f64 * params.rewritten_period_s).collect();
+        if let Some(i) = seconds
+            .iter()
+            .position(|t| !(0.0..MAX_ROS_TIME_S).contains(t))
+        {
+            rewritten = Some(format!(
+                "scan {} is stamped {} s, outside a ROS time",
+                i + 1,
+                seconds[i]
+            ));
+            seconds = (0..seconds.len())
+                .map(|k| k as f64 * params.rewritten_period_s)
+                .collect();
         }
     }
     let stamps: Vec<Time> = seconds.iter().map(|&t| stamp_of(t)).collect();
-    let header = |stamp: Time, frame: &str| Header { stamp, frame_id: frame.to_owned() };
+    let header = |stamp: Time, frame: &str| Header {
+        stamp,
+        frame_id: frame.to_owned(),
+    };
     let mut outgoing = Vec::with_capacity(2 * log.scans.len() + 1);
     let tf = TfMessage {
         transforms: vec![TransformStamped {
@@ -118,7 +137,11 @@ fn messages_of(
             transform: transform_of(&mount),
         }],
     };
-    outgoing.push(Outgoing { topic: 2, stamp: stamps[0], data: encode(&tf)? });
+    outgoing.push(Outgoing {
+        topic: 2,
+        stamp: stamps[0],
+        data: encode(&tf)?,
+    });
     for (record, stamp) in log.scans.iter().zip(&stamps) {
         let scan = &record.scan;
         let beams = scan.ranges_m.len().saturating_sub(1) as f64;
@@ -134,7 +157,11 @@ fn messages_of(
             ranges: scan.ranges_m.clone(),
             intensities: Vec::new(),
         };
-        outgoing.push(Outgoing { topic: 0, stamp: *stamp, data: encode(&message)? });
+        outgoing.push(Outgoing {
+            topic: 0,
+            stamp: *stamp,
+            data: encode(&message)?,
+        });
     }
     let odometry = |stamp: Time, pose: &Se2, velocity: f64, turn_rate: f64| {
         let mut message = OdometryMessage {
@@ -142,7 +169,11 @@ fn messages_of(
             child_frame_id: params.base_frame.clone(),
             ..Default::default()
         };
-        message.pose.pose.position = Vector3 { x: pose.x_m, y: pose.y_m, z: 0.0 };
+        message.pose.pose.position = Vector3 {
+            x: pose.x_m,
+            y: pose.y_m,
+            z: 0.0,
+        };
         message.pose.pose.orientation = Quaternion::from_yaw(pose.theta_rad);
         message.twist.twist.linear.x = velocity;
         message.twist.twist.angular.z = turn_rate;
@@ -152,7 +183,11 @@ fn messages_of(
     if log.scans.iter().all(|r| r.odom_from_robot.is_some()) {
         for (record, stamp) in log.scans.iter().zip(&stamps) {
             if let Some(pose) = &record.odom_from_robot {
-                outgoing.push(Outgoing { topic: 1, stamp: *stamp, data: odometry(*stamp, pose, 0.0, 0.0)? });
+                outgoing.push(Outgoing {
+                    topic: 1,
+                    stamp: *stamp,
+                    data: odometry(*stamp, pose, 0.0, 0.0)?,
+                });
                 odometry_messages += 1;
             }
         }
@@ -162,8 +197,17 @@ fn messages_of(
         }
         for reading in &log.odometry {
             let stamp = stamp_of(reading.stamp_secs);
-            let data = odometry(stamp, &reading.odom_from_robot, reading.velocity_m_per_s, reading.turn_rate_rad_per_s)?;
-            outgoing.push(Outgoing { topic: 1, stamp, data });
+            let data = odometry(
+                stamp,
+                &reading.odom_from_robot,
+                reading.velocity_m_per_s,
+                reading.turn_rate_rad_per_s,
+            )?;
+            outgoing.push(Outgoing {
+                topic: 1,
+                stamp,
+                data,
+            });
             odometry_messages += 1;
         }
     }
@@ -179,8 +223,15 @@ fn messages_of(
 }
 
 /// Writes `log` as a bag at `path`; the extension picks the storage (`.mcap` or `.db3`).
-pub fn write_bag(path: &Path, log: &LaserLog, params: &BagWriteParams) -> Result<BagWriteReport, IoError> {
-    let unwritable = |reason: String| IoError::Unwritable { format: "rosbag2", reason };
+pub fn write_bag(
+    path: &Path,
+    log: &LaserLog,
+    params: &BagWriteParams,
+) -> Result<BagWriteReport, IoError> {
+    let unwritable = |reason: String| IoError::Unwritable {
+        format: "rosbag2",
+        reason,
+    };
     let storage = Storage::of_file(path)
         .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))?;
     let (messages, mut report) = messages_of(log, params).map_err(unwritable)?;
@@ -189,14 +240,20 @@ pub fn write_bag(path: &Path, log: &LaserLog, params: &BagWriteParams) -> Result
         (params.odom_topic.as_str(), ODOMETRY_TYPE),
         ("/tf_static", TF_TYPE),
     ];
-    let file_error = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let file_error = |reason: String| IoError::Invalid {
+        file: path.display().to_string(),
+        reason,
+    };
     match storage {
         Storage::Mcap => write_mcap(path, &topics, &messages).map_err(file_error)?,
         Storage::Sqlite3 => write_db3(path, &topics, &messages).map_err(file_error)?,
     }
     report.storage = storage;
     report.bytes = std::fs::metadata(path)
-        .map_err(|source| IoError::Io { file: path.display().to_string(), source })?
+        .map_err(|source| IoError::Io {
+            file: path.display().to_string(),
+            source,
+        })?
         .len();
     Ok(report)
 }
@@ -211,17 +268,32 @@ pub fn write_cloud_bag(
     clouds: &[Vec<nalgebra::Vector3<f64>>],
     params: &BagWriteParams,
 ) -> Result<BagWriteReport, IoError> {
-    let unwritable = |reason: String| IoError::Unwritable { format: "rosbag2", reason };
+    let unwritable = |reason: String| IoError::Unwritable {
+        format: "rosbag2",
+        reason,
+    };
     let storage = Storage::of_file(path)
         .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))?;
     if clouds.len() != world_from_sensor.len() || clouds.is_empty() {
-        return Err(unwritable(format!("{} clouds and {} poses", clouds.len(), world_from_sensor.len())));
+        return Err(unwritable(format!(
+            "{} clouds and {} poses",
+            clouds.len(),
+            world_from_sensor.len()
+        )));
     }
     let mut messages = Vec::with_capacity(2 * clouds.len());
     for (k, (cloud, pose)) in clouds.iter().zip(world_from_sensor).enumerate() {
         let stamp = stamp_of(k as f64 * params.rewritten_period_s);
-        let header = Header { stamp, frame_id: params.base_frame.clone() };
-        let field = |name: &str, offset| PointField { name: name.into(), offset, datatype: 7, count: 1 };
+        let header = Header {
+            stamp,
+            frame_id: params.base_frame.clone(),
+        };
+        let field = |name: &str, offset| PointField {
+            name: name.into(),
+            offset,
+            datatype: 7,
+            count: 1,
+        };
         let mut data = Vec::with_capacity(12 * cloud.len());
         for point in cloud {
             for v in [point.x, point.y, point.z] {
@@ -239,19 +311,45 @@ pub fn write_cloud_bag(
             data: serde_bytes::ByteBuf::from(data),
             is_dense: true,
         };
-        messages.push(Outgoing { topic: 0, stamp, data: encode(&message).map_err(unwritable)? });
+        messages.push(Outgoing {
+            topic: 0,
+            stamp,
+            data: encode(&message).map_err(unwritable)?,
+        });
         let mut odometry = OdometryMessage {
-            header: Header { stamp, frame_id: params.odom_frame.clone() },
+            header: Header {
+                stamp,
+                frame_id: params.odom_frame.clone(),
+            },
             child_frame_id: params.base_frame.clone(),
             ..Default::default()
         };
         let (t, q) = (&pose.translation_m, pose.rotation.quaternion());
-        odometry.pose.pose.position = Vector3 { x: t.x, y: t.y, z: t.z };
-        odometry.pose.pose.orientation = Quaternion { x: q.i, y: q.j, z: q.k, w: q.w };
-        messages.push(Outgoing { topic: 1, stamp, data: encode(&odometry).map_err(unwritable)? });
+        odometry.pose.pose.position = Vector3 {
+            x: t.x,
+            y: t.y,
+            z: t.z,
+        };
+        odometry.pose.pose.orientation = Quaternion {
+            x: q.i,
+            y: q.j,
+            z: q.k,
+            w: q.w,
+        };
+        messages.push(Outgoing {
+            topic: 1,
+            stamp,
+            data: encode(&odometry).map_err(unwritable)?,
+        });
     }
-    let topics = [("/points", POINT_CLOUD2_TYPE), (params.odom_topic.as_str(), ODOMETRY_TYPE)];
-    let file_error = |reason: String| IoError::Invalid { file: path.display().to_string(), reason };
+    let topics = [
+        ("/points", POINT_CLOUD2_TYPE),
+        (params.odom_topic.as_str(), ODOMETRY_TYPE),
+    ];
+    let file_error = |reason: String| IoError::Invalid {
+        file: path.display().to_string(),
+        reason,
+    };
     match storage {
         Storage::Mcap => write_mcap(path, &topics, &messages).map_err(file_error)?,
         Storage::Sqlite3 => write_db3(path, &topics, &messages).map_err(file_error)?,
@@ -268,14 +366,26 @@ pub fn write_cloud_bag(
 fn write_mcap(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Result<(), String> {
     let file = std::fs::File::create(path).map_err(|e| format!("cannot create: {e}"))?;
     let mcap_error = |e: mcap::McapError| format!("cannot write MCAP: {e}");
-    let options = mcap::WriteOptions::new().profile("ros2").library("mapmerge");
-    let mut writer = options.create(std::io::BufWriter::new(file)).map_err(mcap_error)?;
+    let options = mcap::WriteOptions::new()
+        .profile("ros2")
+        .library("mapmerge");
+    let mut writer = options
+        .create(std::io::BufWriter::new(file))
+        .map_err(mcap_error)?;
     let mut channels = Vec::with_capacity(topics.len());
     for (topic, message_type) in topics {
         let schema = writer
-            .add_schema(message_type, "ros2msg", crate::msgdefs::definition(message_type).as_bytes())
+            .add_schema(
+                message_type,
+                "ros2msg",
+                crate::msgdefs::definition(message_type).as_bytes(),
+            )
             .map_err(mcap_error)?;
-        channels.push(writer.add_channel(schema, topic, "cdr", &BTreeMap::new()).map_err(mcap_error)?);
+        channels.push(
+            writer
+                .add_channel(schema, topic, "cdr", &BTreeMap::new())
+                .map_err(mcap_error)?,
+        );
     }
     for (sequence, message) in messages.iter().enumerate() {
         let time = u64::try_from(message.stamp.nanoseconds()).unwrap_or(0);
@@ -285,7 +395,9 @@ fn write_mcap(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Re
             log_time: time,
             publish_time: time,
         };
-        writer.write_to_known_channel(&header, &message.data).map_err(mcap_error)?;
+        writer
+            .write_to_known_channel(&header, &message.data)
+            .map_err(mcap_error)?;
     }
     writer.finish().map_err(mcap_error)?;
     Ok(())
@@ -320,7 +432,11 @@ fn write_db3(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Res
         transaction
             .execute(
                 "INSERT INTO message_definitions VALUES (?1, ?2, 'ros2msg', ?3, '')",
-                (id as i64 + 1, message_type, crate::msgdefs::definition(message_type)),
+                (
+                    id as i64 + 1,
+                    message_type,
+                    crate::msgdefs::definition(message_type),
+                ),
             )
             .map_err(sql)?;
     }
@@ -330,7 +446,11 @@ fn write_db3(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Res
             .map_err(sql)?;
         for message in messages {
             insert
-                .execute((message.topic as i64 + 1, message.stamp.nanoseconds(), &message.data))
+                .execute((
+                    message.topic as i64 + 1,
+                    message.stamp.nanoseconds(),
+                    &message.data,
+                ))
                 .map_err(sql)?;
         }
     }
@@ -359,12 +479,18 @@ mod tests {
         let params = BagWriteParams::default();
         let stamps = |log: &LaserLog| {
             let (messages, report) = messages_of(log, &params).unwrap();
-            let scans: Vec<f64> = messages.iter().filter(|m| m.topic == 0).map(|m| m.stamp.seconds()).collect();
+            let scans: Vec<f64> = messages
+                .iter()
+                .filter(|m| m.topic == 0)
+                .map(|m| m.stamp.seconds())
+                .collect();
             (scans, report.stamps_rewritten)
         };
         assert_eq!(stamps(&log_with(&[5.0, 5.5])), (vec![5.0, 5.5], None));
         let (clock, why) = stamps(&log_with(&[3.0, 3.0, 3.0]));
-        assert!((clock[2] - 3.2).abs() < 1e-9 && why.unwrap().contains("do not increase at scan 2"));
+        assert!(
+            (clock[2] - 3.2).abs() < 1e-9 && why.unwrap().contains("do not increase at scan 2")
+        );
         let (clock, why) = stamps(&log_with(&[-0.4, 0.0]));
         assert!((clock[1] - 0.1).abs() < 1e-9 && why.unwrap().contains("outside a ROS time"));
     }

@@ -19,16 +19,32 @@ fn bags_written_by_rosbags_and_mcap_ros2_read_back_as_the_carmen_logs() {
     let Some(python) = mapmerge_testkit::tool_from_env("MAPMERGE_BAG_PYTHON", what) else {
         return;
     };
-    let Some(data) = mapmerge_testkit::shared_data_dir() else { return };
-    let script = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../scripts/bag_interop.py"));
+    let Some(data) = mapmerge_testkit::shared_data_dir() else {
+        return;
+    };
+    let script = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../scripts/bag_interop.py"
+    ));
     let out = tempfile::tempdir().unwrap();
     for name in LOGS {
-        let original = mapmerge_io::read_carmen(&data.join(format!("carmen/{name}-corrected.log.xz"))).unwrap();
+        let original =
+            mapmerge_io::read_carmen(&data.join(format!("carmen/{name}-corrected.log.xz")))
+                .unwrap();
         let ours = out.path().join(format!("{name}.mcap"));
         let written = write_bag(&ours, &original, &BagWriteParams::default()).unwrap();
         let rewritten = out.path().join(name);
-        let status = Command::new(&python).arg(&script).arg(&ours).arg(&rewritten).output().unwrap();
-        assert!(status.status.success(), "{name}: {}", String::from_utf8_lossy(&status.stderr));
+        let status = Command::new(&python)
+            .arg(&script)
+            .arg(&ours)
+            .arg(&rewritten)
+            .output()
+            .unwrap();
+        assert!(
+            status.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&status.stderr)
+        );
         for (bag, storage) in [
             (rewritten.join("rosbags-mcap"), Storage::Mcap),
             (rewritten.join("rosbags-db3"), Storage::Sqlite3),
@@ -37,7 +53,12 @@ fn bags_written_by_rosbags_and_mcap_ros2_read_back_as_the_carmen_logs() {
             let session = read_bag(&bag, &TopicChoice::default()).unwrap();
             assert_eq!(session.info.storage, storage, "{}", bag.display());
             let label = format!("{name} via {}", bag.display());
-            assert_same_session(&original, &session.log, written.stamps_rewritten.is_none(), &label);
+            assert_same_session(
+                &original,
+                &session.log,
+                written.stamps_rewritten.is_none(),
+                &label,
+            );
         }
     }
 }

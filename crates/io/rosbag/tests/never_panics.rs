@@ -4,7 +4,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use mapmerge_geometry::Se2;
-use mapmerge_rosbag::{decode, encode, parse_mcap_session, write_bag, BagWriteParams, LaserScanMessage, OdometryMessage, TfMessage, TopicChoice};
+use mapmerge_rosbag::{
+    decode, encode, parse_mcap_session, write_bag, BagWriteParams, LaserScanMessage,
+    OdometryMessage, TfMessage, TopicChoice,
+};
 use mapmerge_scan::{LaserLog, LaserScan, ScanRecord};
 
 /// xorshift64*: a repeatable stream of mutations without a dependency.
@@ -56,13 +59,22 @@ fn small_bag() -> Vec<u8> {
 #[test]
 fn mutated_mcap_bags_never_panic() {
     let bag = small_bag();
-    assert_eq!(parse_mcap_session(&bag, &TopicChoice::default()).unwrap().scans.len(), 6);
+    assert_eq!(
+        parse_mcap_session(&bag, &TopicChoice::default())
+            .unwrap()
+            .scans
+            .len(),
+        6
+    );
     let mut mutations = Mutations(0x9E37_79B9_7F4A_7C15);
     let mut sessions = 0;
     for _ in 0..3000 {
         if let Ok(log) = parse_mcap_session(&mutations.mutate(&bag), &TopicChoice::default()) {
             sessions += 1;
-            assert!(log.scans.windows(2).all(|w| w[1].stamp_secs >= w[0].stamp_secs));
+            assert!(log
+                .scans
+                .windows(2)
+                .all(|w| w[1].stamp_secs >= w[0].stamp_secs));
         }
     }
     // Most single-byte changes land in ranges or padding and still read.
@@ -71,9 +83,16 @@ fn mutated_mcap_bags_never_panic() {
 
 #[test]
 fn mutated_cdr_messages_never_panic() {
-    let mut scan = LaserScanMessage { ranges: vec![1.0; 16], ..Default::default() };
+    let mut scan = LaserScanMessage {
+        ranges: vec![1.0; 16],
+        ..Default::default()
+    };
     scan.header.frame_id = "laser".into();
-    let originals = [encode(&scan).unwrap(), encode(&OdometryMessage::default()).unwrap(), encode(&TfMessage::default()).unwrap()];
+    let originals = [
+        encode(&scan).unwrap(),
+        encode(&OdometryMessage::default()).unwrap(),
+        encode(&TfMessage::default()).unwrap(),
+    ];
     let mut mutations = Mutations(42);
     for original in &originals {
         for _ in 0..3000 {

@@ -71,8 +71,14 @@ impl LaserLog {
         match why {
             None => (stamps, None),
             Some(why) => {
-                let start = stamps.first().copied().filter(|t| t.is_finite() && *t >= 0.0).unwrap_or(0.0);
-                let clock = (0..stamps.len()).map(|k| start + k as f64 * period_secs).collect();
+                let start = stamps
+                    .first()
+                    .copied()
+                    .filter(|t| t.is_finite() && *t >= 0.0)
+                    .unwrap_or(0.0);
+                let clock = (0..stamps.len())
+                    .map(|k| start + k as f64 * period_secs)
+                    .collect();
                 (clock, Some(why))
             }
         }

@@ -394,7 +394,9 @@ fn kept_clouds(
     options: &KittiFolderOptions,
     cloud: impl Fn(usize) -> Result<Vec<Point3>, AssembleError> + Sync,
 ) -> Result<Segment3, AssembleError> {
-    let kept: Vec<usize> = (0..world_from_sensor.len()).step_by(options.stride.max(1)).collect();
+    let kept: Vec<usize> = (0..world_from_sensor.len())
+        .step_by(options.stride.max(1))
+        .collect();
     let radius_sq = options.max_range_m * options.max_range_m;
     let clouds: Vec<Result<Vec<Point3>, AssembleError>> = kept
         .par_iter()
@@ -424,7 +426,11 @@ pub fn segment3_from_clouds(
     if clouds.len() != world_from_sensor.len() {
         return Err(AssembleError::InvalidSegment {
             segment: name,
-            reason: format!("{} clouds but {} poses", clouds.len(), world_from_sensor.len()),
+            reason: format!(
+                "{} clouds but {} poses",
+                clouds.len(),
+                world_from_sensor.len()
+            ),
         });
     }
     kept_clouds(name, world_from_sensor, options, |k| Ok(clouds[k].clone()))

@@ -7,8 +7,19 @@ use mapmerge_scan::LaserLog;
 
 /// The public logs (`../shared/data/carmen`).
 pub const LOGS: [&str; 13] = [
-    "acapulco", "aces", "belgioioso", "csail", "edmonton", "fhw", "freiburg-079", "freiburg-101",
-    "freiburg-campus", "infinite-corridor", "intel", "orebro", "seattle",
+    "acapulco",
+    "aces",
+    "belgioioso",
+    "csail",
+    "edmonton",
+    "fhw",
+    "freiburg-079",
+    "freiburg-101",
+    "freiburg-campus",
+    "infinite-corridor",
+    "intel",
+    "orebro",
+    "seattle",
 ];
 
 /// Largest difference (m, rad) between two poses.
@@ -27,17 +38,28 @@ pub fn assert_same_session(original: &LaserLog, back: &LaserLog, stamps_kept: bo
         assert_eq!(a.scan.range_max_m, b.scan.range_max_m, "{name}: scan {i}");
         assert_eq!(a.scan.range_min_m, b.scan.range_min_m, "{name}: scan {i}");
         // The reader recovers the angles from their float32 values (`angle_rad_of`).
-        assert_eq!(a.scan.angle_min_rad, b.scan.angle_min_rad, "{name}: scan {i}");
-        assert_eq!(a.scan.angle_increment_rad, b.scan.angle_increment_rad, "{name}: scan {i}");
-        assert!(pose_gap(&a.scan.robot_from_sensor, &b.scan.robot_from_sensor) < 1e-3, "{name}: scan {i} mount");
+        assert_eq!(
+            a.scan.angle_min_rad, b.scan.angle_min_rad,
+            "{name}: scan {i}"
+        );
+        assert_eq!(
+            a.scan.angle_increment_rad, b.scan.angle_increment_rad,
+            "{name}: scan {i}"
+        );
+        assert!(
+            pose_gap(&a.scan.robot_from_sensor, &b.scan.robot_from_sensor) < 1e-3,
+            "{name}: scan {i} mount"
+        );
         match (&a.odom_from_robot, &b.odom_from_robot) {
             // `Quaternion::from_yaw` writes headings that read back bit for bit.
             (Some(p), Some(q)) => assert_eq!(p, q, "{name}: scan {i}"),
             (p, q) => assert_eq!(p.is_some(), q.is_some(), "{name}: scan {i} pose"),
         }
         if stamps_kept {
-            assert!((a.stamp_secs - b.stamp_secs).abs() < 1e-6, "{name}: scan {i} stamp");
+            assert!(
+                (a.stamp_secs - b.stamp_secs).abs() < 1e-6,
+                "{name}: scan {i} stamp"
+            );
         }
     }
 }
-
