@@ -16,21 +16,7 @@ use std::process::Command;
 
 use common::{ok_json, p, scratch};
 
-const LOGS: [&str; 13] = [
-    "acapulco",
-    "aces",
-    "belgioioso",
-    "csail",
-    "edmonton",
-    "fhw",
-    "freiburg-079",
-    "freiburg-101",
-    "freiburg-campus",
-    "infinite-corridor",
-    "intel",
-    "orebro",
-    "seattle",
-];
+use mapmerge_testkit::PUBLIC_LOGS as LOGS;
 
 /// The `rmse` line of `evo_ape`'s statistics (printed with six decimals).
 fn evo_rmse_m(reference: &Path, estimate: &Path, evo: &Path) -> f64 {

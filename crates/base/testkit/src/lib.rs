@@ -71,3 +71,20 @@ pub fn tool_from_env(variable: &str, what: &str) -> Option<PathBuf> {
     eprintln!("skipping: {why}");
     None
 }
+
+/// The 13 public corrected CARMEN logs (`carmen/NAME-corrected.log.xz`), by name.
+pub const PUBLIC_LOGS: [&str; 13] = [
+    "acapulco",
+    "aces",
+    "belgioioso",
+    "csail",
+    "edmonton",
+    "fhw",
+    "freiburg-079",
+    "freiburg-101",
+    "freiburg-campus",
+    "infinite-corridor",
+    "intel",
+    "orebro",
+    "seattle",
+];

@@ -11,21 +11,7 @@ use std::time::Duration;
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use mapmerge_rosbag::{read_log, write_bag, BagWriteParams, TopicChoice};
 
-const LOGS: [&str; 13] = [
-    "acapulco",
-    "aces",
-    "belgioioso",
-    "csail",
-    "edmonton",
-    "fhw",
-    "freiburg-079",
-    "freiburg-101",
-    "freiburg-campus",
-    "infinite-corridor",
-    "intel",
-    "orebro",
-    "seattle",
-];
+use mapmerge_testkit::PUBLIC_LOGS as LOGS;
 
 fn read_bag(c: &mut Criterion) {
     let Some(data) = mapmerge_testkit::shared_data_dir() else {

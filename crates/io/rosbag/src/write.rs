@@ -228,33 +228,15 @@ pub fn write_bag(
     log: &LaserLog,
     params: &BagWriteParams,
 ) -> Result<BagWriteReport, IoError> {
-    let unwritable = |reason: String| IoError::Unwritable {
-        format: "rosbag2",
-        reason,
-    };
-    let storage = Storage::of_file(path)
-        .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))?;
+    let storage = storage_of(path)?;
     let (messages, mut report) = messages_of(log, params).map_err(unwritable)?;
     let topics = [
         (params.scan_topic.as_str(), LASER_SCAN_TYPE),
         (params.odom_topic.as_str(), ODOMETRY_TYPE),
         ("/tf_static", TF_TYPE),
     ];
-    let file_error = |reason: String| IoError::Invalid {
-        file: path.display().to_string(),
-        reason,
-    };
-    match storage {
-        Storage::Mcap => write_mcap(path, &topics, &messages).map_err(file_error)?,
-        Storage::Sqlite3 => write_db3(path, &topics, &messages).map_err(file_error)?,
-    }
     report.storage = storage;
-    report.bytes = std::fs::metadata(path)
-        .map_err(|source| IoError::Io {
-            file: path.display().to_string(),
-            source,
-        })?
-        .len();
+    report.bytes = write_messages(path, storage, &topics, &messages)?;
     Ok(report)
 }
 
@@ -268,12 +250,7 @@ pub fn write_cloud_bag(
     clouds: &[Vec<nalgebra::Vector3<f64>>],
     params: &BagWriteParams,
 ) -> Result<BagWriteReport, IoError> {
-    let unwritable = |reason: String| IoError::Unwritable {
-        format: "rosbag2",
-        reason,
-    };
-    let storage = Storage::of_file(path)
-        .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))?;
+    let storage = storage_of(path)?;
     if clouds.len() != world_from_sensor.len() || clouds.is_empty() {
         return Err(unwritable(format!(
             "{} clouds and {} poses",
@@ -346,21 +323,49 @@ pub fn write_cloud_bag(
         ("/points", POINT_CLOUD2_TYPE),
         (params.odom_topic.as_str(), ODOMETRY_TYPE),
     ];
-    let file_error = |reason: String| IoError::Invalid {
-        file: path.display().to_string(),
-        reason,
-    };
-    match storage {
-        Storage::Mcap => write_mcap(path, &topics, &messages).map_err(file_error)?,
-        Storage::Sqlite3 => write_db3(path, &topics, &messages).map_err(file_error)?,
-    }
+    let bytes = write_messages(path, storage, &topics, &messages)?;
     Ok(BagWriteReport {
         storage,
         scans: clouds.len(),
         odometry_messages: clouds.len(),
         stamps_rewritten: None,
-        bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
+        bytes,
     })
+}
+
+/// A writing error: the data cannot be written as a bag.
+fn unwritable(reason: String) -> IoError {
+    IoError::Unwritable {
+        format: "rosbag2",
+        reason,
+    }
+}
+
+/// The storage a bag's file name asks for.
+fn storage_of(path: &Path) -> Result<Storage, IoError> {
+    Storage::of_file(path)
+        .ok_or_else(|| unwritable(format!("{}: name the bag .mcap or .db3", path.display())))
+}
+
+/// Writes `messages` on `topics` into `path` in `storage`; returns the file's bytes.
+fn write_messages(
+    path: &Path,
+    storage: Storage,
+    topics: &[(&str, &str)],
+    messages: &[Outgoing],
+) -> Result<u64, IoError> {
+    let file = path.display().to_string();
+    let written = match storage {
+        Storage::Mcap => write_mcap(path, topics, messages),
+        Storage::Sqlite3 => write_db3(path, topics, messages),
+    };
+    written.map_err(|reason| IoError::Invalid {
+        file: file.clone(),
+        reason,
+    })?;
+    std::fs::metadata(path)
+        .map(|m| m.len())
+        .map_err(|source| IoError::Io { file, source })
 }
 
 fn write_mcap(path: &Path, topics: &[(&str, &str)], messages: &[Outgoing]) -> Result<(), String> {

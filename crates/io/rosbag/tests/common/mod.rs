@@ -5,22 +5,7 @@
 use mapmerge_geometry::{LieGroup as _, Se2};
 use mapmerge_scan::LaserLog;
 
-/// The public logs (`../shared/data/carmen`).
-pub const LOGS: [&str; 13] = [
-    "acapulco",
-    "aces",
-    "belgioioso",
-    "csail",
-    "edmonton",
-    "fhw",
-    "freiburg-079",
-    "freiburg-101",
-    "freiburg-campus",
-    "infinite-corridor",
-    "intel",
-    "orebro",
-    "seattle",
-];
+pub use mapmerge_testkit::PUBLIC_LOGS as LOGS;
 
 /// Largest difference (m, rad) between two poses.
 fn pose_gap(a: &Se2, b: &Se2) -> f64 {
