@@ -29,14 +29,7 @@ pub fn read_log_or_bag(
     path: &Path,
     topics: &TopicChoice,
 ) -> Result<(LaserLog, Option<BagInfo>), JobError> {
-    if mapmerge_rosbag::is_bag(path) {
-        let session =
-            mapmerge_rosbag::read_bag(path, topics).map_err(|e| JobError::bad_file(&e))?;
-        Ok((session.log, Some(session.info)))
-    } else {
-        let log = mapmerge_io::read_carmen(path).map_err(|e| JobError::bad_file(&e))?;
-        Ok((log, None))
-    }
+    mapmerge_rosbag::read_log_or_bag(path, topics).map_err(|e| JobError::bad_file(&e))
 }
 
 /// [`read_session_log`] with the bag's scan and odometry topics chosen.

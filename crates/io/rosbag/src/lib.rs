@@ -50,10 +50,20 @@ pub fn list_topics(path: &Path) -> Result<Vec<Topic>, IoError> {
 /// Reads a laser session from `path`: a rosbag2 bag (see [`is_bag`]) through [`read_bag`],
 /// anything else as a CARMEN log (plain or xz).
 pub fn read_log(path: &Path, choice: &TopicChoice) -> Result<LaserLog, IoError> {
+    Ok(read_log_or_bag(path, choice)?.0)
+}
+
+/// [`read_log`], with what [`read_bag`] says of a bag (topics, frames, the laser's mount,
+/// scans without odometry); `None` for a CARMEN log.
+pub fn read_log_or_bag(
+    path: &Path,
+    choice: &TopicChoice,
+) -> Result<(LaserLog, Option<BagInfo>), IoError> {
     if is_bag(path) {
-        Ok(read_bag(path, choice)?.log)
+        let session = read_bag(path, choice)?;
+        Ok((session.log, Some(session.info)))
     } else {
-        mapmerge_io::read_carmen(path)
+        Ok((mapmerge_io::read_carmen(path)?, None))
     }
 }
 
