@@ -364,6 +364,10 @@ fn check_relative_error<const D: usize, G: LieGroup<D>>(
         &SVector::zeros(),
         1e-6,
     );
+    // Where the residual's angle sits within a step of the ±π cut, the central difference
+    // jumps by 2π / 2h (about 3e6): there is no numerical derivative to compare with (found
+    // by CI: z's angle −3.14078 with a's −0.00081 put the error 5e-7 past π).
+    prop_assume!(max_abs(&numeric_from) < 1e5 && max_abs(&numeric_to) < 1e5);
     assert_close("J_from", &j_from, &numeric_from, 1e-5)?;
     assert_close("J_to", &j_to, &numeric_to, 1e-5)
 }
