@@ -177,7 +177,7 @@ pub fn read_log(
         eprintln!(
             "{}: {} scans on {} ({}), odometry {}; laser at ({:.3} m, {:.3} m, {:.2}°) on {} {}{}{}",
             path.display(),
-            info.scans,
+            log.scans.len(),
             info.scan_topic,
             info.laser_frame,
             info.odom_topic.as_deref().unwrap_or("none"),

@@ -7,12 +7,9 @@ use mapmerge_io::IoError;
 use nalgebra::Vector3;
 
 use crate::messages::{
-    decode, OdometryMessage, PointCloud2Message, TfMessage, ODOMETRY_TYPE, POINT_CLOUD2_TYPE,
-    TF_TYPE,
+    decode, OdometryMessage, PointCloud2Message, ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE,
 };
-use crate::session::{
-    check_monotonic, choose_topic, pose_at, rotation_of, TfTree, ODOMETRY_HOLD_S,
-};
+use crate::session::{check_monotonic, choose_topic, pose_at, rotation_of, Tf, ODOMETRY_HOLD_S};
 use crate::storage::{read_raw_bag, RawBag};
 
 /// One cloud: its stamp, frame and finite points (m, in `frame_id`).
@@ -180,7 +177,7 @@ fn cloud_session_of(
         .first()
         .ok_or_else(|| format!("topic '{}' has no messages", raw.topics[cloud_index].name))?;
     let (mut stamps, mut odom_from_base, mut base_frame) = (Vec::new(), Vec::new(), None);
-    let (mut static_tf, mut dynamic_tf, mut any_tf) = (TfTree::default(), TfTree::default(), false);
+    let mut tf = Tf::default();
     for message in &raw.messages {
         let topic = &raw.topics[message.topic];
         let context = |reason: String| format!("topic '{}': {reason}", topic.name);
@@ -197,14 +194,7 @@ fn cloud_session_of(
             ));
             base_frame.get_or_insert(odometry.child_frame_id);
         } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
-            any_tf = true;
-            let tf: TfMessage = decode(&message.data).map_err(context)?;
-            let tree = if topic.name.ends_with("tf_static") {
-                &mut static_tf
-            } else {
-                &mut dynamic_tf
-            };
-            tree.insert_first(&tf).map_err(context)?;
+            tf.take(topic, &message.data).map_err(context)?;
         }
     }
     check_monotonic(&stamps, &raw.topics[odom_index].name)?;
@@ -215,14 +205,7 @@ fn cloud_session_of(
         .filter(|f| !f.is_empty())
         .unwrap_or_else(|| "base_link".to_owned());
     let sensor_frame = &first.frame_id;
-    let base_from_sensor = if *sensor_frame == base_frame || sensor_frame.is_empty() || !any_tf {
-        Se3::identity()
-    } else {
-        static_tf
-            .lookup(&base_frame, sensor_frame)
-            .or_else(|| dynamic_tf.lookup(&base_frame, sensor_frame))
-            .ok_or_else(|| format!("tf has no transform between the robot's frame '{base_frame}' and the sensor's frame '{sensor_frame}'"))?
-    };
+    let (base_from_sensor, _) = tf.mount(&base_frame, sensor_frame)?;
     let mut session = CloudSession {
         odom_from_sensor: Vec::new(),
         clouds: Vec::new(),

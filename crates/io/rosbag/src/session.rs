@@ -81,12 +81,8 @@ pub struct BagInfo {
     pub laser_upside_down: bool,
     /// Where the mount came from.
     pub mount_from: MountSource,
-    /// Scans in the session.
-    pub scans: usize,
     /// Scans left out: no odometry within [`ODOMETRY_HOLD_S`] of their stamp.
     pub scans_without_odometry: usize,
-    /// Odometry messages read.
-    pub odometry_messages: usize,
 }
 
 /// A bag read as a laser session.
@@ -242,6 +238,47 @@ impl TfTree {
     }
 }
 
+/// Everything a bag's tf says: `/tf_static`, and the first transform of each edge on `/tf`.
+#[derive(Default)]
+pub(crate) struct Tf {
+    static_tree: TfTree,
+    dynamic_tree: TfTree,
+    any: bool,
+}
+
+impl Tf {
+    /// Takes one message of `topic` (a TFMessage topic; `…tf_static` is static).
+    pub(crate) fn take(&mut self, topic: &Topic, data: &[u8]) -> Result<(), String> {
+        self.any = true;
+        let tf: TfMessage = decode(data)?;
+        if topic.name.ends_with("tf_static") {
+            self.static_tree.insert_first(&tf)
+        } else {
+            self.dynamic_tree.insert_first(&tf)
+        }
+    }
+
+    /// `base_from_sensor` and where it came from: identity for the same frame or a bag
+    /// without tf, else through `/tf_static`, else `/tf`; an error when neither links them.
+    pub(crate) fn mount(&self, base: &str, sensor: &str) -> Result<(Se3, MountSource), String> {
+        if sensor == base || sensor.is_empty() {
+            return Ok((Se3::identity(), MountSource::SameFrame));
+        }
+        if !self.any {
+            return Ok((Se3::identity(), MountSource::NoTf));
+        }
+        if let Some(found) = self.static_tree.lookup(base, sensor) {
+            return Ok((found, MountSource::TfStatic));
+        }
+        self.dynamic_tree
+            .lookup(base, sensor)
+            .map(|found| (found, MountSource::Tf))
+            .ok_or_else(|| {
+                format!("tf has no transform between the robot's frame '{base}' and the sensor's frame '{sensor}'")
+            })
+    }
+}
+
 /// `base_from_laser` on the plane, and whether the laser is upside down.
 fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
     let rotation = base_from_laser.rotation.to_rotation_matrix();
@@ -362,9 +399,8 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     )?;
     let mut scans: Vec<LaserScanMessage> = Vec::new();
     let mut odometry: Vec<OdometryMessage> = Vec::new();
-    let (mut static_tf, mut dynamic_tf) = (TfTree::default(), TfTree::default());
+    let mut tf = Tf::default();
     let mut counts = vec![0usize; topics.len()];
-    let mut any_tf = false;
     for message in &raw.messages {
         let topic = &topics[message.topic];
         counts[message.topic] += 1;
@@ -379,14 +415,7 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         } else if Some(message.topic) == odom_topic {
             odometry.push(decode(&message.data).map_err(context)?);
         } else if topic.message_type == TF_TYPE && topic.encoding == "cdr" {
-            any_tf = true;
-            let tf: TfMessage = decode(&message.data).map_err(context)?;
-            let tree = if topic.name.ends_with("tf_static") {
-                &mut static_tf
-            } else {
-                &mut dynamic_tf
-            };
-            tree.insert_first(&tf).map_err(context)?;
+            tf.take(topic, &message.data).map_err(context)?;
         }
     }
     let scan_name = &topics[scan_topic].name;
@@ -404,25 +433,8 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         .filter(|f| !f.is_empty())
         .unwrap_or("base_link")
         .to_owned();
-    let (robot_from_sensor, upside_down, mount_from) = if laser_frame == base_frame
-        || laser_frame.is_empty()
-    {
-        (Se2::identity(), false, MountSource::SameFrame)
-    } else if !any_tf {
-        (Se2::identity(), false, MountSource::NoTf)
-    } else {
-        let (base_from_laser, source) = match static_tf.lookup(&base_frame, &laser_frame) {
-            Some(found) => (found, MountSource::TfStatic),
-            None => (
-                dynamic_tf.lookup(&base_frame, &laser_frame).ok_or_else(|| {
-                    format!("tf has no transform between the robot's frame '{base_frame}' and the laser's frame '{laser_frame}'")
-                })?,
-                MountSource::Tf,
-            ),
-        };
-        let (mount, upside_down) = planar_mount(&base_from_laser)?;
-        (mount, upside_down, source)
-    };
+    let (base_from_laser, mount_from) = tf.mount(&base_frame, &laser_frame)?;
+    let (robot_from_sensor, upside_down) = planar_mount(&base_from_laser)?;
 
     let scan_stamps: Vec<f64> = scans.iter().map(|s| s.header.stamp.seconds()).collect();
     check_monotonic(&scan_stamps, scan_name)?;
@@ -508,9 +520,7 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         robot_from_sensor,
         laser_upside_down: upside_down,
         mount_from,
-        scans: log.scans.len(),
         scans_without_odometry,
-        odometry_messages: log.odometry.len(),
     };
     Ok(BagSession { log, info })
 }
