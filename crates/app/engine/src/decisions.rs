@@ -52,6 +52,12 @@ pub struct DecisionParams {
     /// where G' puts it; matches are observations of the conditional hypothesis (default:
     /// 2).
     pub confirm_every_keyframes: usize,
+    /// Without a conditional merge, the tentative merge hypothesis with the most
+    /// observations is checked the same way, every `confirm_every_keyframes` keyframes:
+    /// the newest keyframe verified where the hypothesis's estimate puts it in its map (the
+    /// two graphs joined rigidly, not optimised). Place recognition alone observes a place
+    /// once every several metres, often more rarely than hypotheses expire (default: false).
+    pub confirm_tentative: bool,
 }
 
 impl Default for DecisionParams {
@@ -64,6 +70,7 @@ impl Default for DecisionParams {
             conditional_reject_threshold: 0.5,
             recover: true,
             confirm_every_keyframes: 2,
+            confirm_tentative: false,
             probation_m: 10.0,
         }
     }

@@ -28,8 +28,8 @@ use mapmerge_atlas::{
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
-    AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, Observation,
-    RejectReason, Target,
+    AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, HypothesisState,
+    Observation, RejectReason, Target,
 };
 use mapmerge_place::ScanMatchVerifier;
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
@@ -542,6 +542,12 @@ impl Engine {
                 }));
             }
         }
+        if self.conditional.is_none()
+            && decisions.confirm_tentative
+            && self.keyframes_in_epoch() % decisions.confirm_every_keyframes.max(1) == 0
+        {
+            merge_matches.extend(self.confirm_tentative());
+        }
         for (map, edge, covariance) in merge_matches {
             let Some(map_from_view) = self
                 .atlas
@@ -576,6 +582,45 @@ impl Engine {
         }
         decided |= self.sync_conditional()?;
         Ok(decided)
+    }
+
+    /// The newest keyframe verified where the tentative merge hypothesis with the most
+    /// observations (the newest of equals) puts it (`decisions.confirm_tentative`).
+    fn confirm_tentative(&self) -> Vec<(MapId, LoopEdge, Matrix3<f64>)> {
+        let best = self
+            .filter
+            .hypotheses()
+            .filter(|h| h.state() == HypothesisState::Tentative)
+            .filter_map(|h| match h.target() {
+                Target::Merge { map } => Some((MapId(map), h)),
+                Target::Recovery => None,
+            })
+            .max_by(|(_, a), (_, b)| {
+                a.observations().len().cmp(&b.observations().len()).then(
+                    a.last_observation_travel_m()
+                        .total_cmp(&b.last_observation_travel_m()),
+                )
+            });
+        let (Some((map, hypothesis)), Some(node)) = (best, self.atlas.robot_node()) else {
+            return Vec::new();
+        };
+        let Some(active_from_inactive) = self.estimate_of(hypothesis) else {
+            return Vec::new();
+        };
+        if self.is_refused(map, &active_from_inactive) {
+            return Vec::new();
+        }
+        self.atlas
+            .confirm_at(map, node, &active_from_inactive, &self.verifier)
+            .into_iter()
+            .map(|edge| {
+                let covariance = edge
+                    .information
+                    .try_inverse()
+                    .unwrap_or_else(Matrix3::zeros);
+                (map, edge, covariance)
+            })
+            .collect()
     }
 
     /// One observation into the filter; its events are logged. An observation the filter

@@ -52,8 +52,14 @@ pub struct OverlapParams {
     pub enabled: bool,
     /// A merged vertex within this distance (m) of an active one is its partner (default: 2).
     pub radius_m: f64,
-    /// ... and within this heading difference (rad) (default: 60°): the views must overlap.
+    /// ... and within this heading difference (rad) (default: 60°), where there is one: the
+    /// views overlap most.
     pub max_heading_rad: f64,
+    /// ... else the nearest at any heading (default: true). The merged side is matched with
+    /// its keyframe's stored local map, which also saw what lies behind that keyframe: a
+    /// robot driving an old corridor the other way (intel, the second epoch after a kidnap)
+    /// found no partner within 60° for 10 m and its conditional merge expired unconfirmed.
+    pub any_heading: bool,
     /// Every `stride`-th active vertex is tried, newest first (default: 3).
     pub stride: usize,
     /// At most this many verifications per merge (default: 40; each builds a match target,
@@ -79,6 +85,7 @@ impl Default for OverlapParams {
             enabled: true,
             radius_m: 2.0,
             max_heading_rad: 60f64.to_radians(),
+            any_heading: true,
             stride: 3,
             max_verifications: 40,
             max_loops: 20,
@@ -361,14 +368,21 @@ impl<B: BackupStore> Atlas<B> {
             let Some(pose_a) = merged.vertex(*a).map(|v| v.pose) else {
                 continue;
             };
+            // The nearest within the radius, one within the heading preferred.
             let nearest = moved
                 .vertices()
-                .filter(|(_, v)| {
-                    wrap_angle_rad(v.pose.theta_rad - pose_a.theta_rad).abs() <= p.max_heading_rad
+                .map(|(id, v)| {
+                    let turned = wrap_angle_rad(v.pose.theta_rad - pose_a.theta_rad).abs()
+                        > p.max_heading_rad;
+                    (
+                        id,
+                        turned,
+                        (v.pose.translation() - pose_a.translation()).norm(),
+                    )
                 })
-                .map(|(id, v)| (id, (v.pose.translation() - pose_a.translation()).norm()))
-                .filter(|(_, d)| *d <= p.radius_m)
-                .min_by(|x, y| x.1.total_cmp(&y.1));
+                .filter(|(_, turned, d)| *d <= p.radius_m && (p.any_heading || !turned))
+                .min_by(|x, y| x.1.cmp(&y.1).then(x.2.total_cmp(&y.2)))
+                .map(|(id, _, d)| (id, d));
             if let Some((b, _)) = nearest {
                 pairs.push((*a, b));
             }
@@ -484,6 +498,31 @@ impl<B: BackupStore> Atlas<B> {
         self.overlap_loops(preview, &[node], &moved, &BTreeSet::new(), verifier)
     }
 
+    /// [`Atlas::confirm_in_preview`] for a merge not yet made: keyframe `node` verified
+    /// where inactive graph `map`, placed rigidly at `active_from_inactive` (nothing
+    /// optimised), puts the nearest of its vertices. Empty for an unknown map or vertex.
+    pub fn confirm_at(
+        &self,
+        map: MapId,
+        node: NodeId,
+        active_from_inactive: &Se2,
+        verifier: &dyn GeometricVerifier,
+    ) -> Vec<LoopEdge> {
+        let Some(inactive) = self.inactive.get(&map) else {
+            return Vec::new();
+        };
+        if !(active_from_inactive.is_finite() && self.active.contains_vertex(node)) {
+            return Vec::new();
+        }
+        let mut moved = inactive.clone();
+        moved.reanchor(active_from_inactive);
+        let mut joined = self.active.clone();
+        if joined.union(&moved, &[]).is_err() {
+            return Vec::new();
+        }
+        self.overlap_loops(&joined, &[node], &moved, &BTreeSet::new(), verifier)
+    }
+
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):
     /// every merged inactive graph comes back from its backup exactly (poses, edges and their
     /// ids, metadata) under its old id; every other-epoch vertex leaves the active graph with
@@ -551,9 +590,13 @@ mod tests {
     use crate::events::EpochEndReason;
     use crate::AtlasParams;
 
-    /// A straight path of `n` vertices from `start`, 0.5 m apart, with odometry edges.
+    /// A gently curving path of `n` vertices from `start`, 0.5 m apart, with odometry edges.
     fn path(atlas: &mut Atlas, start: Se2, n: usize) -> Vec<NodeId> {
-        let step = Se2::new(0.5, 0.0, 0.05);
+        path_with(atlas, start, n, Se2::new(0.5, 0.0, 0.05))
+    }
+
+    /// `n` vertices from `start`, each `step` after the one before, with odometry edges.
+    fn path_with(atlas: &mut Atlas, start: Se2, n: usize, step: Se2) -> Vec<NodeId> {
         let mut pose = start;
         let mut nodes: Vec<NodeId> = Vec::new();
         for _ in 0..n {
@@ -675,6 +718,53 @@ mod tests {
         let request = MergeRequest::forced(MapId(0), Se2::new(0.2, 0.1, 0.0), "t");
         let event = atlas.merge(request, Some(&fake)).unwrap();
         assert_eq!(event.overlap_edges, 0);
+    }
+
+    /// A robot driving the old path the other way: no old vertex within 60° of its heading,
+    /// so only `any_heading` finds it partners.
+    #[test]
+    fn the_overlap_search_pairs_a_robot_driving_the_other_way() {
+        let step = Se2::new(0.5, 0.0, 0.05);
+        let turn = Se2::new(0.0, 0.0, std::f64::consts::PI);
+        let backwards = turn.inverse().compose(&step.inverse()).compose(&turn);
+        let edges = |any_heading: bool| {
+            let mut params = AtlasParams::default();
+            params.merge.overlap.any_heading = any_heading;
+            let mut atlas = Atlas::new(params).unwrap();
+            let old = path(&mut atlas, Se2::identity(), 12);
+            let end = atlas.active().vertex(old[11]).unwrap().pose;
+            atlas.end_epoch(EpochEndReason::Kidnap);
+            path_with(&mut atlas, end.compose(&turn), 12, backwards);
+            let fake = Fake {
+                offset: Se2::new(0.05, 0.0, 0.01),
+            };
+            let request = MergeRequest::forced(MapId(0), Se2::identity(), "t");
+            atlas.merge(request, Some(&fake)).unwrap().overlap_edges
+        };
+        assert!(edges(true) > 0);
+        assert_eq!(edges(false), 0);
+    }
+
+    #[test]
+    fn confirm_at_verifies_a_keyframe_where_the_transform_puts_it() {
+        let atlas = overlapping();
+        let fake = Fake {
+            offset: Se2::new(0.05, 0.0, 0.01),
+        };
+        let robot = atlas.robot_node().unwrap();
+        let here = atlas.confirm_at(MapId(0), robot, &Se2::identity(), &fake);
+        assert_eq!(here.len(), 1);
+        assert_eq!(here[0].active, robot);
+        // Nothing of the map within reach, an unknown map, a non-finite transform: nothing.
+        let far = Se2::new(50.0, 0.0, 0.0);
+        assert!(atlas.confirm_at(MapId(0), robot, &far, &fake).is_empty());
+        assert!(atlas
+            .confirm_at(MapId(7), robot, &Se2::identity(), &fake)
+            .is_empty());
+        let nan = Se2::new(f64::NAN, 0.0, 0.0);
+        assert!(atlas.confirm_at(MapId(0), robot, &nan, &fake).is_empty());
+        // The atlas is unchanged (a query, not a merge).
+        assert!(atlas.inactive(MapId(0)).is_some());
     }
 
     #[test]

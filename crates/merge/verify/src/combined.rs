@@ -164,6 +164,27 @@ impl InvalidMergeDetector for CombinedDetector {
         self.change_detection.support()
     }
 
+    /// The three components' last ratios, so that a merge's record says which one read high.
+    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+        vec![
+            (
+                self.change_detection.name(),
+                self.info.change_detection,
+                self.change_detection.evidence(),
+            ),
+            (
+                self.gridmap.name(),
+                self.info.gridmap,
+                self.gridmap.evidence(),
+            ),
+            (
+                self.better_hypothesis.name(),
+                self.info.better_hypothesis,
+                self.better_hypothesis.evidence(),
+            ),
+        ]
+    }
+
     /// Unsupported while no component had anything to compare.
     fn evidence(&self) -> Evidence {
         if self.change_detection.evidence() == Evidence::Unsupported
