@@ -533,13 +533,11 @@ impl Engine {
                         &self.verifier,
                     )
                 });
-                merge_matches.extend(confirmed.into_iter().map(|edge| {
-                    let covariance = edge
-                        .information
-                        .try_inverse()
-                        .unwrap_or_else(Matrix3::zeros);
-                    (conditional.map, edge, covariance)
-                }));
+                merge_matches.extend(
+                    confirmed
+                        .into_iter()
+                        .map(|edge| merge_match(conditional.map, edge)),
+                );
             }
         }
         if self.conditional.is_none()
@@ -613,13 +611,7 @@ impl Engine {
         self.atlas
             .confirm_at(map, node, &active_from_inactive, &self.verifier)
             .into_iter()
-            .map(|edge| {
-                let covariance = edge
-                    .information
-                    .try_inverse()
-                    .unwrap_or_else(Matrix3::zeros);
-                (map, edge, covariance)
-            })
+            .map(|edge| merge_match(map, edge))
             .collect()
     }
 
@@ -1193,6 +1185,16 @@ impl Engine {
         }
         self.atlas_events_seen = self.atlas.events().len();
     }
+}
+
+/// A verified edge into map `map` as a merge observation: the map, the edge, its covariance
+/// (zero where the information cannot be inverted; the filter floors it).
+fn merge_match(map: MapId, edge: LoopEdge) -> (MapId, LoopEdge, Matrix3<f64>) {
+    let covariance = edge
+        .information
+        .try_inverse()
+        .unwrap_or_else(Matrix3::zeros);
+    (map, edge, covariance)
 }
 
 /// The merge edges a merge hypothesis's observations carry.

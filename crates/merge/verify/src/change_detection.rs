@@ -1,7 +1,8 @@
 //! Change detection (Holoch et al., Sec. IV-A): the free-space check of Underwood et al. 2013
 //! (Algorithm 1) adapted to three classes, run on pairs of a recent current-epoch scan and an
 //! overlapping other-epoch scan, both ways, with the classes of every point fused so that
-//! *agree* wins over *change*.
+//! *agree* wins over *change*. By default the ratio is the smaller of the two directions'
+//! (`two_sided`): a misaligned merge reads as change both ways, a scene change one way.
 //!
 //! Per new vertex only the scans new to the window (or whose pose, or a partner's, moved) are
 //! classified; everything else comes from the cache. The classification itself is one table
@@ -880,23 +881,18 @@ mod tests {
         (r, d)
     }
 
+    /// The other epoch saw a 6 × 4 m room; the current scan, wrongly merged, sees a 4 × 6 m
+    /// room: its side walls cross the other scan's free space, and the other's its.
+    fn crossing_rooms() -> ([DetectorScan; 1], [DetectorScan; 1]) {
+        let at = Se2::identity();
+        let other = room(-3.0, -2.0, 3.0, 2.0).scan(&at, 360, 20.0);
+        let current = room(-2.0, -3.0, 2.0, 3.0).scan(&at, 360, 20.0);
+        ([scan(1, 2, at, current)], [scan(0, 1, at, other)])
+    }
+
     #[test]
     fn a_crossing_wall_reads_as_change() {
-        // The other epoch saw a 6 × 4 m room; the current scan, wrongly merged, sees a 4 × 6 m
-        // room: its side walls cross the other scan's free space.
-        let at = Se2::identity();
-        let other = [scan(
-            0,
-            1,
-            at,
-            room(-3.0, -2.0, 3.0, 2.0).scan(&at, 360, 20.0),
-        )];
-        let current = [scan(
-            1,
-            2,
-            at,
-            room(-2.0, -3.0, 2.0, 3.0).scan(&at, 360, 20.0),
-        )];
+        let (current, other) = crossing_rooms();
         let (r, d) = run(&current, &other);
         assert!(r > 0.5, "ratio {r}, {:?}", d.info());
         // The points on x = ±2 with |y| < 1.8 are in the other scan's free space.
@@ -944,20 +940,8 @@ mod tests {
             both < 0.02 && both < summed / 4.0,
             "two-sided {both}, summed {summed}"
         );
-        // Crossing walls (`a_crossing_wall_reads_as_change`'s rooms): high either way.
-        let at = Se2::identity();
-        let other = [scan(
-            0,
-            1,
-            at,
-            room(-3.0, -2.0, 3.0, 2.0).scan(&at, 360, 20.0),
-        )];
-        let current = [scan(
-            1,
-            2,
-            at,
-            room(-2.0, -3.0, 2.0, 3.0).scan(&at, 360, 20.0),
-        )];
+        // Crossing walls: high either way.
+        let (current, other) = crossing_rooms();
         let (both, info) = ratio(&two_sided, &current, &other);
         assert!(both > 0.4, "two-sided {both}, {info:?}");
     }
