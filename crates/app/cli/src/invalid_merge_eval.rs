@@ -113,12 +113,7 @@ use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanM
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::ScanAnchors;
-use mapmerge_verify::{
-    BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
-    ChangeDetectionParams, DmDetector, EntropyDetector, EntropyParams, Evidence, GridmapDetector,
-    GridmapParams, HistogramDetector, HistogramParams, InvalidMergeDetector, MergedMap,
-    SimilarityParams, SmDetector, DETECTOR_NAMES,
-};
+use mapmerge_verify::{DetectorParams, Evidence, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -252,8 +247,9 @@ pub struct InvalidMergeArgs {
     pub json: bool,
     /// Detector parameters other than the defaults (JSON: `{"change_detection": {…},
     /// "gridmap": {…}, "entropy": {…}, "histogram": {…}, "sm": {…}, "dm": {…},
-    /// "better_hypothesis": {…}}`, each
-    /// optional and each partial, fields as in `mapmerge_verify`), e.g. to vary the window.
+    /// "better_hypothesis": {…}, "combined": {…}}`, each optional and each partial, fields as
+    /// in `mapmerge_verify::DetectorParams`; `combined` carries its parts' own), e.g. to vary
+    /// the window.
     #[arg(long)]
     pub detector_params: Option<PathBuf>,
     /// Also write every detector's invalidity after every new vertex to this file (JSON
@@ -272,44 +268,11 @@ pub struct InvalidMergeArgs {
 }
 
 /// `--detector-params`: parameters per detector name, the rest default.
-#[derive(Debug, Default, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-struct DetectorParamsFile {
-    change_detection: Option<ChangeDetectionParams>,
-    gridmap: Option<GridmapParams>,
-    entropy: Option<EntropyParams>,
-    histogram: Option<HistogramParams>,
-    sm: Option<SimilarityParams>,
-    dm: Option<SimilarityParams>,
-    better_hypothesis: Option<BetterHypothesisParams>,
-}
-
-impl DetectorParamsFile {
-    fn read(path: &Path) -> anyhow::Result<Self> {
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        serde_json::from_str(&text)
-            .map_err(|e| bad_input(format!("{}: bad detector parameters: {e}", path.display())))
-    }
-
-    /// The detector `name` with these parameters (the registry's defaults otherwise).
-    fn detector(&self, name: &str) -> Option<Box<dyn InvalidMergeDetector>> {
-        let boxed: Box<dyn InvalidMergeDetector> = match name {
-            "change_detection" => {
-                Box::new(ChangeDetectionDetector::new(self.change_detection.clone()?))
-            }
-            "gridmap" => Box::new(GridmapDetector::new(self.gridmap.clone()?)),
-            "entropy" => Box::new(EntropyDetector::new(self.entropy.clone()?)),
-            "histogram" => Box::new(HistogramDetector::new(self.histogram.clone()?)),
-            "sm" => Box::new(SmDetector::new(self.sm.clone()?)),
-            "dm" => Box::new(DmDetector::new(self.dm.clone()?)),
-            "better_hypothesis" => Box::new(BetterHypothesisDetector::new(
-                self.better_hypothesis.clone()?,
-            )),
-            _ => return None,
-        };
-        Some(boxed)
-    }
+fn read_detector_params(path: &Path) -> anyhow::Result<DetectorParams> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text)
+        .map_err(|e| bad_input(format!("{}: bad detector parameters: {e}", path.display())))
 }
 
 // ------------------------------------------------------------------ formats
@@ -1792,8 +1755,8 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
         }
     }
     let detector_params = match &args.detector_params {
-        Some(path) => DetectorParamsFile::read(path)?,
-        None => DetectorParamsFile::default(),
+        Some(path) => read_detector_params(path)?,
+        None => DetectorParams::default(),
     };
     let mut cases = read_cases(&args.cases)?;
     if let Some(max) = args.max_cases {
@@ -1855,11 +1818,7 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             .map_err(context)?;
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> = methods
             .iter()
-            .filter_map(|m| {
-                detector_params
-                    .detector(m)
-                    .or_else(|| mapmerge_verify::detector(m))
-            })
+            .filter_map(|m| detector_params.detector(m))
             .collect();
         // The corrected poses, for the trace's misalignment (only when tracing).
         let truth: Option<Vec<Option<Se2>>> = if args.trace.is_some() {

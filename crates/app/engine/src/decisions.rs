@@ -25,7 +25,9 @@ use serde::{Deserialize, Serialize};
 #[serde(default, deny_unknown_fields)]
 pub struct DecisionParams {
     /// The hypothesis filter: gating, conditional (permissive) and full (strict) acceptance,
-    /// expiry (see `mapmerge_hypothesis::HypothesisFilterParams`).
+    /// expiry (see `mapmerge_hypothesis::HypothesisFilterParams`). The engine's default
+    /// expires hypotheses after 30 m without an observation (the filter's own: 10 m): on
+    /// the tuning logs place recognition observed an epoch's map once every ~20 m.
     pub filter: HypothesisFilterParams,
     /// The ambiguous-view tracker (see `mapmerge_hypothesis::AmbiguityParams`).
     pub ambiguity: AmbiguityParams,
@@ -63,7 +65,10 @@ pub struct DecisionParams {
 impl Default for DecisionParams {
     fn default() -> Self {
         Self {
-            filter: HypothesisFilterParams::default(),
+            filter: HypothesisFilterParams {
+                expire_after_m: 30.0,
+                ..HypothesisFilterParams::default()
+            },
             ambiguity: AmbiguityParams::default(),
             motion_noise: (0.01, 0.03, 0.5f64.to_radians(), 0.03, 0.5f64.to_radians()),
             observation_min_sigma_m_rad: (0.1, 2f64.to_radians()),

@@ -36,7 +36,8 @@ use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
 use mapmerge_verify::{
-    DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector, LearnedModel, MergedMap,
+    DetectorParams, DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector, LearnedModel,
+    MergedMap,
 };
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -107,6 +108,10 @@ pub struct EngineParams {
     /// fitted by `mapmerge eval calibrate` on the engine's own merges. An error with any
     /// other detector.
     pub learned_model: Option<LearnedModel>,
+    /// The detectors' parameters by name, the defaults where absent (e.g. `{"combined":
+    /// {"change_detection_threshold": 0.15, "change_detection": {"range_tolerance_m":
+    /// 0.1}}}`); only the chosen `detector`'s are used.
+    pub detector_params: DetectorParams,
     /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
     /// merge more likely invalid than valid).
     pub unmerge_threshold: f64,
@@ -124,6 +129,7 @@ impl Default for EngineParams {
             decisions: DecisionParams::default(),
             detector: "combined".into(),
             learned_model: None,
+            detector_params: DetectorParams::default(),
             unmerge_threshold: 0.5,
             refused_within: (1.0, 10f64.to_radians()),
         }
@@ -203,7 +209,7 @@ impl Engine {
                 ("learned", Some(model)) => Some(Box::new(LearnedDetector::new(model.clone()))),
                 (name, Some(_)) => return Err(EngineError::ModelWithoutLearned(name.to_owned())),
                 (NO_DETECTOR, None) => None,
-                (name, None) => Some(mapmerge_verify::detector(name).ok_or_else(|| {
+                (name, None) => Some(params.detector_params.detector(name).ok_or_else(|| {
                     EngineError::UnknownDetector(
                         params.detector.clone(),
                         format!(

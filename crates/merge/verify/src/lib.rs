@@ -47,5 +47,5 @@ pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
 pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample};
 pub use map::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
-pub use registry::{all_detectors, detector, DETECTOR_NAMES};
+pub use registry::{all_detectors, detector, DetectorParams, DETECTOR_NAMES};
 pub use similarity::{DmDetector, SimilarityParams, SmDetector};

@@ -1,10 +1,13 @@
 //! The detectors by name, with default parameters (what the evaluation harness and the atlas
 //! instantiate).
 
+use serde::{Deserialize, Serialize};
+
 use crate::{
-    BetterHypothesisDetector, ChangeDetectionDetector, CombinedDetector, DmDetector,
-    EntropyDetector, GridmapDetector, HistogramDetector, InvalidMergeDetector, LearnedDetector,
-    SmDetector,
+    BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
+    ChangeDetectionParams, CombinedDetector, CombinedParams, DmDetector, EntropyDetector,
+    EntropyParams, GridmapDetector, GridmapParams, HistogramDetector, HistogramParams,
+    InvalidMergeDetector, LearnedDetector, SimilarityParams, SmDetector,
 };
 
 /// Every detector's [`InvalidMergeDetector::name`], in the order of [`all_detectors`].
@@ -38,6 +41,57 @@ pub fn detector(name: &str) -> Option<Box<dyn InvalidMergeDetector>> {
     Some(boxed)
 }
 
+/// Parameters per detector name, each optional and the defaults where absent (`eval
+/// invalid-merge --detector-params`, the engine's `detector_params`). `combined` carries its
+/// parts' parameters itself: `change_detection` here sets the detector of that name only.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct DetectorParams {
+    /// Change detection's.
+    pub change_detection: Option<ChangeDetectionParams>,
+    /// Gridmap's.
+    pub gridmap: Option<GridmapParams>,
+    /// Entropy's.
+    pub entropy: Option<EntropyParams>,
+    /// The histogram detector's.
+    pub histogram: Option<HistogramParams>,
+    /// SM's.
+    pub sm: Option<SimilarityParams>,
+    /// DM's.
+    pub dm: Option<SimilarityParams>,
+    /// Better hypothesis'.
+    pub better_hypothesis: Option<BetterHypothesisParams>,
+    /// The combined decision's (its thresholds and its three parts').
+    pub combined: Option<CombinedParams>,
+}
+
+impl DetectorParams {
+    /// The detector called `name` with these parameters where given, the defaults otherwise
+    /// ([`detector`]); `None` for an unknown name.
+    pub fn detector(&self, name: &str) -> Option<Box<dyn InvalidMergeDetector>> {
+        fn with<P: Clone, D: InvalidMergeDetector + 'static>(
+            params: &Option<P>,
+            make: fn(P) -> D,
+        ) -> Option<Box<dyn InvalidMergeDetector>> {
+            params
+                .clone()
+                .map(|p| Box::new(make(p)) as Box<dyn InvalidMergeDetector>)
+        }
+        let given = match name {
+            "change_detection" => with(&self.change_detection, ChangeDetectionDetector::new),
+            "gridmap" => with(&self.gridmap, GridmapDetector::new),
+            "entropy" => with(&self.entropy, EntropyDetector::new),
+            "histogram" => with(&self.histogram, HistogramDetector::new),
+            "sm" => with(&self.sm, SmDetector::new),
+            "dm" => with(&self.dm, DmDetector::new),
+            "better_hypothesis" => with(&self.better_hypothesis, BetterHypothesisDetector::new),
+            "combined" => with(&self.combined, CombinedDetector::new),
+            _ => None,
+        };
+        given.or_else(|| detector(name))
+    }
+}
+
 /// Every detector with default parameters, in the order of [`DETECTOR_NAMES`].
 pub fn all_detectors() -> Vec<Box<dyn InvalidMergeDetector>> {
     DETECTOR_NAMES
@@ -58,6 +112,28 @@ mod tests {
         }
         assert!(detector("nope").is_none());
         assert_eq!(all_detectors().len(), DETECTOR_NAMES.len());
+    }
+
+    #[test]
+    fn parameters_by_name_reach_their_detector_and_only_it() {
+        let params: DetectorParams = serde_json::from_str(
+            r#"{"combined": {"change_detection_threshold": 0.3}, "gridmap": {}}"#,
+        )
+        .unwrap();
+        for name in DETECTOR_NAMES {
+            assert_eq!(params.detector(name).unwrap().name(), *name);
+        }
+        assert!(params.detector("nope").is_none());
+        assert!(serde_json::from_str::<DetectorParams>(r#"{"combined": {"nope": 1}}"#).is_err());
+        // The parsed threshold is the combined decision's: a change ratio of 0.2 is below
+        // 0.3 and far above 0.15.
+        let given = CombinedDetector::new(params.combined.clone().unwrap());
+        let lower = CombinedDetector::new(CombinedParams {
+            change_detection_threshold: 0.15,
+            ..CombinedParams::default()
+        });
+        let (at_given, at_lower) = (given.combine(0.2, 0.0, 0.0), lower.combine(0.2, 0.0, 0.0));
+        assert!(at_lower > at_given + 0.2, "{at_given} vs {at_lower}");
     }
 
     /// Issue 15, part 3: a merge that puts the current scans where the other epochs saw
