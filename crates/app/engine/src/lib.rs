@@ -109,8 +109,8 @@ pub struct EngineParams {
     /// other detector.
     pub learned_model: Option<LearnedModel>,
     /// The detectors' parameters by name, the defaults where absent (e.g. `{"combined":
-    /// {"change_detection_threshold": 0.15, "change_detection": {"range_tolerance_m":
-    /// 0.1}}}`); only the chosen `detector`'s are used.
+    /// {"change_detection_threshold": 0.3, "change_detection": {"range_tolerance_m":
+    /// 0.15}}}`); only the chosen `detector`'s are used.
     pub detector_params: DetectorParams,
     /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
     /// merge more likely invalid than valid).
