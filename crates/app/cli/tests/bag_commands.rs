@@ -9,6 +9,14 @@ use std::path::Path;
 
 use common::{ok_json, p, run, scratch};
 
+/// `mapmerge assemble A B … -o OUT --no-pictures --json` with `extra` arguments; its report.
+fn assemble(a: &Path, b: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
+    let mut args = vec!["assemble", p(a), p(b)];
+    args.extend_from_slice(extra);
+    args.extend(["--no-pictures", "-o", p(out), "--json"]);
+    ok_json(&args)
+}
+
 /// `(x, y)` of every pose of a TUM file.
 fn tum_xy(path: &Path) -> Vec<(f64, f64)> {
     std::fs::read_to_string(path)
@@ -124,22 +132,10 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
     ]);
     assert_eq!(atlas_log["scans"], atlas_bag["scans"]);
     assert_eq!(atlas_log["epochs"], atlas_bag["epochs"]);
-    let assemble = |a: &Path, b: &Path, out: &str| {
-        ok_json(&[
-            "assemble",
-            p(a),
-            p(b),
-            "--trajectory",
-            "odometry",
-            "--no-pictures",
-            "-o",
-            p(&dir.join(out)),
-            "--json",
-        ])
-    };
+    let odometry = ["--trajectory", "odometry"];
     let (assembled_log, assembled_bag) = (
-        assemble(&log0, &log1, "asm-log"),
-        assemble(&bag0, &bag1, "asm-bag"),
+        assemble(&log0, &log1, &dir.join("asm-log"), &odometry),
+        assemble(&bag0, &bag1, &dir.join("asm-bag"), &odometry),
     );
     assert_eq!(
         assembled_log["groups"].as_array().map(Vec::len),
@@ -252,20 +248,9 @@ fn point_cloud_bags_assemble_as_the_kitti_folders_they_came_from() {
     let converted = ok_json(&["convert", p(&a), "-o", p(&bag_a), "--json"]);
     assert_eq!(converted["scans"], 40);
     ok_json(&["convert", p(&b), "-o", p(&bag_b), "--json"]);
-    let assemble = |x: &Path, y: &Path, out: &str| {
-        ok_json(&[
-            "assemble",
-            p(x),
-            p(y),
-            "--no-pictures",
-            "-o",
-            p(&dir.join(out)),
-            "--json",
-        ])
-    };
     let (folders, bags) = (
-        assemble(&a, &b, "folders"),
-        assemble(&bag_a, &bag_b, "bags"),
+        assemble(&a, &b, &dir.join("folders"), &[]),
+        assemble(&bag_a, &bag_b, &dir.join("bags"), &[]),
     );
     for k in 0..2 {
         assert_eq!(
