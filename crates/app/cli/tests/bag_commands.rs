@@ -77,22 +77,17 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
     assert!(gap < 0.05, "slam trajectories {gap} m apart");
 
     // grid: the same map from the same poses.
-    let grid_log = ok_json(&[
-        "grid",
-        "--log",
-        p(&log1),
-        "-o",
-        p(&dir.join("g-log.yaml")),
-        "--json",
-    ]);
-    let grid_bag = ok_json(&[
-        "grid",
-        "--log",
-        p(&bag1),
-        "-o",
-        p(&dir.join("g-bag.yaml")),
-        "--json",
-    ]);
+    let grid = |source: &Path, out: &str| {
+        ok_json(&[
+            "grid",
+            "--log",
+            p(source),
+            "-o",
+            p(&dir.join(out)),
+            "--json",
+        ])
+    };
+    let (grid_log, grid_bag) = (grid(&log1, "g-log.yaml"), grid(&bag1, "g-bag.yaml"));
     assert_eq!(grid_log["scans"], grid_bag["scans"]);
     assert_eq!(grid_log["width"], grid_bag["width"]);
 
@@ -114,22 +109,13 @@ fn every_log_command_reads_bags_as_it_reads_the_logs() {
     }
 
     // atlas and assemble: a bag per session, the two storages mixed.
-    let atlas_log = ok_json(&[
-        "atlas",
-        p(&log0),
-        p(&log1),
-        "-o",
-        p(&dir.join("atlas-log")),
-        "--json",
-    ]);
-    let atlas_bag = ok_json(&[
-        "atlas",
-        p(&bag0),
-        p(&bag1),
-        "-o",
-        p(&dir.join("atlas-bag")),
-        "--json",
-    ]);
+    let atlas = |a: &Path, b: &Path, out: &str| {
+        ok_json(&["atlas", p(a), p(b), "-o", p(&dir.join(out)), "--json"])
+    };
+    let (atlas_log, atlas_bag) = (
+        atlas(&log0, &log1, "atlas-log"),
+        atlas(&bag0, &bag1, "atlas-bag"),
+    );
     assert_eq!(atlas_log["scans"], atlas_bag["scans"]);
     assert_eq!(atlas_log["epochs"], atlas_bag["epochs"]);
     let odometry = ["--trajectory", "odometry"];
