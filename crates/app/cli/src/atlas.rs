@@ -149,6 +149,9 @@ struct MergeReport {
     /// Judged by the merge edges against the ground truth (simulation, or the logs' poses
     /// with `--judge-with-log-poses`): `true` when most are within 0.5 m and 10° of it.
     correct: Option<bool>,
+    /// The median merge edge's error against that truth `[m, deg]` (the edge of median
+    /// translation error).
+    error_m_deg: Option<[f64; 2]>,
     /// When it was rejected or undone: scan, and robot travel from the first decision (m).
     undone_at_scan: Option<usize>,
     undone_after_m: Option<f64>,
@@ -167,6 +170,13 @@ struct UnmergeReport {
 }
 
 #[derive(Serialize)]
+struct SelfSimilarityReport {
+    views: usize,
+    self_similar: usize,
+    seconds: f64,
+}
+
+#[derive(Serialize)]
 struct Report {
     sessions: usize,
     scans: usize,
@@ -178,6 +188,9 @@ struct Report {
     unmerges: Vec<UnmergeReport>,
     hypotheses: mapmerge_engine::HypothesisSummary,
     ambiguous_keyframes: usize,
+    /// Views of inactive graphs searched for another placement of their own local map, those
+    /// found self-similar (ambiguous), and the time it took.
+    self_similarity: SelfSimilarityReport,
     /// Where the time went: the tracker's and the constraint builder's counters.
     tracker: mapmerge_slam::TrackerInfo,
     constraints: mapmerge_atlas::ConstraintInfo,
@@ -579,6 +592,15 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         },
         hypotheses: engine.hypothesis_summary(),
         ambiguous_keyframes: engine.ambiguous_keyframes(),
+        self_similarity: SelfSimilarityReport {
+            views: engine.view_self_similarity().len(),
+            self_similar: engine
+                .view_self_similarity()
+                .values()
+                .filter(|&&score| score >= engine.params().decisions.self_similar_from_score)
+                .count(),
+            seconds: engine.self_similarity_seconds(),
+        },
         tracker: engine.tracker_info(),
         constraints: engine.constraint_info(),
         merges,
@@ -652,9 +674,9 @@ fn print_text(report: &Report) {
     }
     let h = &report.hypotheses;
     println!(
-        "  hypotheses: {} ({} merge, {} recovery), {} conditional, {} full, {} conditional rejected, {} expired; {} ambiguous keyframes",
+        "  hypotheses: {} ({} merge, {} recovery), {} conditional, {} full, {} conditional rejected, {} expired; {} ambiguous keyframes ({} of {} views searched fit themselves elsewhere)",
         h.created, h.merge, h.recovery, h.conditional, h.full, h.rejected_conditional, h.expired,
-        report.ambiguous_keyframes
+        report.ambiguous_keyframes, report.self_similarity.self_similar, report.self_similarity.views
     );
     if let (Some(w), Some(u), Some(c), Some(cu), Some(cr), Some(e)) = (
         report.wrong_merges,
@@ -743,6 +765,7 @@ fn summarise(
                 })
             })
             .flatten();
+        let judged = judge(truth_of_node, &record.edges);
         merges.push(MergeReport {
             merge: record.merge,
             hypothesis: record.hypothesis,
@@ -760,7 +783,8 @@ fn summarise(
             full_at_scan: record.full_at_scan,
             full_after_m: record.full_after_m(),
             reason: record.reason.clone(),
-            correct: judge(truth_of_node, &record.edges),
+            correct: judged.map(|(correct, _)| correct),
+            error_m_deg: judged.map(|(_, error)| error),
             undone_at_scan: record.ended_at_scan,
             undone_after_m: record.ended_after_m(),
             final_after_m,
@@ -919,24 +943,31 @@ fn ate_of(
 
 /// A merge is correct when most of its merge edges (recorded by the engine when it decided,
 /// since an undo removes them) are within `TRUE_WITHIN` of the ground truth; `None` without
-/// a truth.
-fn judge(truth_of_node: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Option<bool> {
+/// a truth. Also returns the median edge's error against the truth `[m, deg]` (the edge with
+/// the median translation error).
+fn judge(
+    truth_of_node: &BTreeMap<NodeId, Se2>,
+    edges: &[(NodeId, NodeId, Se2)],
+) -> Option<(bool, [f64; 2])> {
     let truth_of = |node: NodeId| truth_of_node.get(&node).copied();
-    let verdicts: Vec<bool> = edges
+    let mut errors: Vec<(f64, f64)> = edges
         .iter()
         .filter_map(|(from, to, measurement)| {
             let (a, b) = (truth_of(*from)?, truth_of(*to)?);
             let error = a.between(&b).between(measurement);
-            Some(
-                error.translation().norm() <= TRUE_WITHIN.0
-                    && error.theta_rad.abs() <= TRUE_WITHIN.1,
-            )
+            Some((error.translation().norm(), error.theta_rad.abs()))
         })
         .collect();
-    (!verdicts.is_empty()).then(|| {
-        let good = verdicts.iter().filter(|&&ok| ok).count();
-        2 * good > verdicts.len()
-    })
+    if errors.is_empty() {
+        return None;
+    }
+    let good = errors
+        .iter()
+        .filter(|(m, rad)| *m <= TRUE_WITHIN.0 && *rad <= TRUE_WITHIN.1)
+        .count();
+    errors.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (median_m, median_rad) = errors[errors.len() / 2];
+    Some((2 * good > errors.len(), [median_m, median_rad.to_degrees()]))
 }
 
 /// Draws a graph's scans coloured by epoch; the newest current-epoch scans (the detector's

@@ -16,6 +16,7 @@
 use mapmerge_atlas::{LoopEdge, LoopRecord, MapId, MergeId};
 use mapmerge_geometry::Se2;
 use mapmerge_hypothesis::{AmbiguityParams, FilterEvent, HypothesisFilterParams, HypothesisId};
+use mapmerge_place::SelfSimilarityParams;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
@@ -60,6 +61,15 @@ pub struct DecisionParams {
     /// two graphs joined rigidly, not optimised). Place recognition alone observes a place
     /// once every several metres, often more rarely than hypotheses expire (default: false).
     pub confirm_tentative: bool,
+    /// A view of an inactive graph whose own local map fits itself at another place (a
+    /// periodic or symmetric place: rack rows an aisle apart, a hall a half turn maps onto
+    /// itself) is ambiguous (Sec. 5.3) from its first observation on: the search for that
+    /// placement (`mapmerge_place::SelfSimilarity`; default: on, its defaults); `null`
+    /// turns it off.
+    pub self_similarity: Option<SelfSimilarityParams>,
+    /// … the score of that placement from which the view is ambiguous (default: 0.9; the
+    /// merge search accepts a match from 0.975).
+    pub self_similar_from_score: f64,
 }
 
 impl Default for DecisionParams {
@@ -77,6 +87,8 @@ impl Default for DecisionParams {
             confirm_every_keyframes: 2,
             confirm_tentative: false,
             probation_m: 10.0,
+            self_similarity: Some(SelfSimilarityParams::default()),
+            self_similar_from_score: 0.9,
         }
     }
 }

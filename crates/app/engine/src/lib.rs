@@ -31,7 +31,7 @@ use mapmerge_hypothesis::{
     AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, HypothesisState,
     Observation, RejectReason, Target,
 };
-use mapmerge_place::ScanMatchVerifier;
+use mapmerge_place::{ScanMatchVerifier, SelfSimilarity};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
@@ -195,6 +195,13 @@ pub struct Engine {
     filter: HypothesisFilter<ObservedEdge>,
     /// Ambiguous views (Sec. 5.3).
     ambiguity: AmbiguityTracker,
+    /// The search for views whose own map fits itself elsewhere (`decisions.self_similarity`).
+    self_similarity: Option<SelfSimilarity>,
+    /// Views of inactive graphs searched so far, by node, with their best other placement's
+    /// score (each view is searched once).
+    self_similarity_of_view: std::collections::BTreeMap<NodeId, f64>,
+    /// Time spent in those searches (s).
+    self_similarity_seconds: f64,
     /// The conditional merge and its graph copy G' (Sec. 5.2).
     conditional: Option<Conditional>,
     /// The tracker's pose of the previous keyframe (the EKF's motion update).
@@ -227,9 +234,18 @@ impl Engine {
             .map_err(|e| EngineError::Verifier(e.to_string()))?;
         let filter = HypothesisFilter::new(params.decisions.filter.clone())?;
         let ambiguity = AmbiguityTracker::new(params.decisions.ambiguity.clone())?;
+        let self_similarity = params
+            .decisions
+            .self_similarity
+            .map(|p| SelfSimilarity::new(p, params.atlas.recognition.verifier.evidence))
+            .transpose()
+            .map_err(|e| EngineError::Verifier(e.to_string()))?;
         let mut engine = Self {
             filter,
             ambiguity,
+            self_similarity,
+            self_similarity_of_view: std::collections::BTreeMap::new(),
+            self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
             tracker: LocalTracker::new(params.tracker.clone())?,
@@ -344,6 +360,18 @@ impl Engine {
             .iter()
             .map(|v| NodeId(*v))
             .collect()
+    }
+
+    /// The views of inactive graphs searched for another placement of their own local map so
+    /// far, by node, with that placement's score (`decisions.self_similarity`); those from
+    /// `decisions.self_similar_from_score` on are ambiguous.
+    pub fn view_self_similarity(&self) -> &std::collections::BTreeMap<NodeId, f64> {
+        &self.self_similarity_of_view
+    }
+
+    /// Time spent searching views for another placement of their own map (s).
+    pub fn self_similarity_seconds(&self) -> f64 {
+        self.self_similarity_seconds
     }
 
     /// The graph read-only queries use (Sec. 5.2): G' while a merge is conditional, else the
@@ -561,6 +589,7 @@ impl Engine {
             else {
                 continue;
             };
+            self.check_self_similarity(map, edge.inactive);
             let robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
             let observation = Observation {
                 target: Target::Merge { map: map.0 },
@@ -586,6 +615,30 @@ impl Engine {
         }
         decided |= self.sync_conditional()?;
         Ok(decided)
+    }
+
+    /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself
+    /// at another place (`decisions.self_similarity`); each view is searched once.
+    fn check_self_similarity(&mut self, map: MapId, node: NodeId) {
+        let Some(search) = &self.self_similarity else {
+            return;
+        };
+        if self.self_similarity_of_view.contains_key(&node) {
+            return;
+        }
+        let started = std::time::Instant::now();
+        let score = self
+            .atlas
+            .view_keyframe(map, node)
+            .and_then(|keyframe| search.best_other_placement(&keyframe))
+            .map_or(0.0, |(_, proof)| proof.score);
+        self.self_similarity_seconds += started.elapsed().as_secs_f64();
+        self.self_similarity_of_view.insert(node, score);
+        if score >= self.params.decisions.self_similar_from_score && self.ambiguity.mark(node.0) {
+            self.log_decision(Decision::AmbiguousViews {
+                views: vec![node.0],
+            });
+        }
     }
 
     /// The newest keyframe verified where the tentative merge hypothesis with the most

@@ -933,6 +933,22 @@ impl<B: BackupStore> Atlas<B> {
         Some((record, agrees))
     }
 
+    /// Vertex `node` of inactive graph `map` as the merge search verifies it: its local map
+    /// (see [`crate::KeyframeParams`]) with what the stored local maps keep of the place;
+    /// `None` for an unknown graph or vertex.
+    pub fn view_keyframe(&self, map: MapId, node: NodeId) -> Option<mapmerge_place::Keyframe> {
+        let graph = self.inactive.get(&map)?;
+        local_map_keyframes(
+            graph,
+            &self.keyframes,
+            &self.params.keyframes,
+            &[node],
+            Some(&self.local_maps),
+        )
+        .into_values()
+        .next()
+    }
+
     /// The newest current-epoch keyframe as a place-recognition query.
     fn newest_query(&self) -> Option<PlaceQuery> {
         let node = self.robot.filter(|n| self.is_current_epoch(*n))?;

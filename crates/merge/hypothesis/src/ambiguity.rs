@@ -236,6 +236,12 @@ impl AmbiguityTracker {
         marked
     }
 
+    /// Marks `view` ambiguous for a reason found outside the two trackers (e.g. its own map
+    /// fits itself at another place); returns whether it was newly marked.
+    pub fn mark(&mut self, view: u64) -> bool {
+        self.ambiguous.insert(view)
+    }
+
     /// True once `view` was marked ambiguous.
     pub fn is_ambiguous(&self, view: u64) -> bool {
         self.ambiguous.contains(&view)

@@ -59,6 +59,7 @@ mod keyframe;
 mod loops;
 mod scan_context;
 mod scan_match_verifier;
+mod self_similarity;
 mod signature;
 pub mod submap_descriptor;
 mod verify;
@@ -76,6 +77,7 @@ pub use loops::{
 pub use mapmerge_grid::FreeSpace;
 pub use scan_context::{ScanContext, ScanContextParams};
 pub use scan_match_verifier::{PlaceVerifierParams, ScanMatchVerifier};
+pub use self_similarity::{SelfSimilarity, SelfSimilarityParams};
 pub use signature::{PlaceSignature, SignatureExtractor};
 pub use submap_descriptor::{
     cosine_distance, DescriptorRows, RingSpectrumDescriptor, RingSpectrumParams, SubmapDescriptor,
