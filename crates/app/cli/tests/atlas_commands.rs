@@ -27,6 +27,11 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         "2",
         "--duration",
         "60",
+        // A wrong conditional merge rejected and a correct full one (the default seed 12
+        // merges nothing in 2 × 60 s since look-alike views that fit themselves elsewhere
+        // count for nothing).
+        "--seed",
+        "1",
         "-o",
         p(&dir),
         "--merge-results",
@@ -65,6 +70,12 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
     // pictured (before and after each conditional merge, full merge and unmerge).
     for m in report["merges"].as_array().unwrap() {
         assert!(m["correct"].is_boolean(), "{m}");
+        // Its median merge edge's error against the truth, and the verdict follows it.
+        let error = m["error_m_deg"].as_array().unwrap();
+        let (error_m, error_deg) = (error[0].as_f64().unwrap(), error[1].as_f64().unwrap());
+        if error_m > 0.5 || error_deg > 10.0 {
+            assert_eq!(m["correct"], false, "{m}");
+        }
         let state = m["state"].as_str().unwrap();
         assert!(
             ["conditional", "full", "rejected", "undone"].contains(&state),
@@ -98,6 +109,12 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         assert!(report["hypotheses"][key].is_u64(), "{report}");
     }
     assert!(report["ambiguous_keyframes"].is_u64());
+    let searched = &report["self_similarity"];
+    assert!(
+        searched["self_similar"].as_u64().unwrap() <= searched["views"].as_u64().unwrap(),
+        "{searched}"
+    );
+    assert!(searched["seconds"].as_f64().unwrap() >= 0.0);
     // Every later epoch's revisit of earlier places, against the truth: one entry per epoch
     // after the first, the revisit part of its path, and the merged ones as counted above.
     let revisits = report["epoch_revisits"].as_array().unwrap();
