@@ -10,7 +10,7 @@ import mapmerge
 from common import in_testdata, run_cli, truncated_log
 
 # Session 2 re-enters session 0's map early: the CLI merges it conditionally at scan 1424 and
-# fully at 1484 (scans 223 and 283 of session 2); its kidnap comes at scan 519.
+# fully at 1444 (scans 223 and 243 of session 2); its kidnap comes at scan 519.
 SCANS_OF_SESSION_2 = 350
 
 
