@@ -173,6 +173,10 @@ struct UnmergeReport {
 struct SelfSimilarityReport {
     views: usize,
     self_similar: usize,
+    /// Joint local maps of a hypothesis's self-similar views searched (`decisions.joint_views`) …
+    joint_searched: usize,
+    /// … and those that fit nowhere else (their views then count in full).
+    joint_unique: usize,
     seconds: f64,
 }
 
@@ -599,6 +603,12 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .values()
                 .filter(|&&score| score >= engine.params().decisions.self_similar_from_score)
                 .count(),
+            joint_searched: engine.joint_self_similarity().len(),
+            joint_unique: engine
+                .joint_self_similarity()
+                .values()
+                .filter(|&&score| score < engine.params().decisions.self_similar_from_score)
+                .count(),
             seconds: engine.self_similarity_seconds(),
         },
         tracker: engine.tracker_info(),
@@ -674,9 +684,10 @@ fn print_text(report: &Report) {
     }
     let h = &report.hypotheses;
     println!(
-        "  hypotheses: {} ({} merge, {} recovery), {} conditional, {} full, {} conditional rejected, {} expired; {} ambiguous keyframes ({} of {} views searched fit themselves elsewhere)",
+        "  hypotheses: {} ({} merge, {} recovery), {} conditional, {} full, {} conditional rejected, {} expired; {} ambiguous keyframes ({} of {} views searched fit themselves elsewhere; {} of {} joint sets of them fit nowhere else)",
         h.created, h.merge, h.recovery, h.conditional, h.full, h.rejected_conditional, h.expired,
-        report.ambiguous_keyframes, report.self_similarity.self_similar, report.self_similarity.views
+        report.ambiguous_keyframes, report.self_similarity.self_similar, report.self_similarity.views,
+        report.self_similarity.joint_unique, report.self_similarity.joint_searched
     );
     if let (Some(w), Some(u), Some(c), Some(cu), Some(cr), Some(e)) = (
         report.wrong_merges,

@@ -114,6 +114,10 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         searched["self_similar"].as_u64().unwrap() <= searched["views"].as_u64().unwrap(),
         "{searched}"
     );
+    assert!(
+        searched["joint_unique"].as_u64().unwrap() <= searched["joint_searched"].as_u64().unwrap(),
+        "{searched}"
+    );
     assert!(searched["seconds"].as_f64().unwrap() >= 0.0);
     // Every later epoch's revisit of earlier places, against the truth: one entry per epoch
     // after the first, the revisit part of its path, and the merged ones as counted above.

@@ -70,6 +70,11 @@ pub struct DecisionParams {
     /// … the score of that placement from which the view is ambiguous (default: 0.9; the
     /// merge search accepts a match from 0.975).
     pub self_similar_from_score: f64,
+    /// A merge hypothesis's self-similar views count in full when their local maps joined
+    /// (at least 2, at most 8 spread over them) fit nowhere else by the same search and
+    /// threshold: each view alone fits itself elsewhere, together they are one place
+    /// (default: true).
+    pub joint_views: bool,
 }
 
 impl Default for DecisionParams {
@@ -89,6 +94,7 @@ impl Default for DecisionParams {
             probation_m: 10.0,
             self_similarity: Some(SelfSimilarityParams::default()),
             self_similar_from_score: 0.9,
+            joint_views: true,
         }
     }
 }

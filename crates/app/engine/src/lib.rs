@@ -19,6 +19,7 @@
 
 mod decisions;
 
+use std::collections::BTreeSet;
 use std::sync::Arc;
 
 use mapmerge_atlas::{
@@ -28,8 +29,8 @@ use mapmerge_atlas::{
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
-    AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, HypothesisState,
-    Observation, RejectReason, Target,
+    AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, HypothesisId,
+    HypothesisState, Observation, RejectReason, Target,
 };
 use mapmerge_place::{ScanMatchVerifier, SelfSimilarity};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
@@ -200,6 +201,9 @@ pub struct Engine {
     /// Views of inactive graphs searched so far, by node, with their best other placement's
     /// score (each view is searched once).
     self_similarity_of_view: std::collections::BTreeMap<NodeId, f64>,
+    /// Joint local maps of a hypothesis's views searched so far, by their sorted views,
+    /// with their best other placement's score (`decisions.joint_views`).
+    joint_self_similarity: std::collections::BTreeMap<Vec<u64>, f64>,
     /// Time spent in those searches (s).
     self_similarity_seconds: f64,
     /// The conditional merge and its graph copy G' (Sec. 5.2).
@@ -207,6 +211,9 @@ pub struct Engine {
     /// The tracker's pose of the previous keyframe (the EKF's motion update).
     previous_keyframe_local: Option<Se2>,
 }
+
+/// At most this many views of a hypothesis are joined for `decisions.joint_views`.
+const JOINT_VIEWS_MAX: usize = 8;
 
 impl Engine {
     /// A new engine: epoch 0 starts.
@@ -245,6 +252,7 @@ impl Engine {
             ambiguity,
             self_similarity,
             self_similarity_of_view: std::collections::BTreeMap::new(),
+            joint_self_similarity: std::collections::BTreeMap::new(),
             self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
@@ -369,7 +377,15 @@ impl Engine {
         &self.self_similarity_of_view
     }
 
-    /// Time spent searching views for another placement of their own map (s).
+    /// Joint local maps of a merge hypothesis's self-similar views searched so far
+    /// (`decisions.joint_views`), by their sorted views, with their best other placement's
+    /// score; below `decisions.self_similar_from_score` the views counted in full.
+    pub fn joint_self_similarity(&self) -> &std::collections::BTreeMap<Vec<u64>, f64> {
+        &self.joint_self_similarity
+    }
+
+    /// Time spent searching views (and joint sets of views) for another placement of their
+    /// own map (s).
     pub fn self_similarity_seconds(&self) -> f64 {
         self.self_similarity_seconds
     }
@@ -547,7 +563,7 @@ impl Engine {
                 ambiguous: self.ambiguity.is_ambiguous(record.from.0),
                 edge: ObservedEdge::Recovery(*record),
             };
-            accepted_hypotheses.extend(self.observe(observation, travel_m));
+            accepted_hypotheses.extend(self.observe(observation, travel_m).1);
         }
         // Matches in inactive graphs: merge evidence; while a merge is conditional, the new
         // keyframe verified where G' puts it (the robot behaves as localised, Sec. 5.2).
@@ -589,7 +605,7 @@ impl Engine {
             else {
                 continue;
             };
-            self.check_self_similarity(map, edge.inactive);
+            let view_self_similar = self.check_self_similarity(map, edge.inactive);
             let robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
             let observation = Observation {
                 target: Target::Merge { map: map.0 },
@@ -600,7 +616,11 @@ impl Engine {
                 ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
                 edge: ObservedEdge::Merge(edge),
             };
-            accepted_hypotheses.extend(self.observe(observation, travel_m));
+            let (id, accepted) = self.observe(observation, travel_m);
+            accepted_hypotheses.extend(accepted);
+            if let (true, Some(id)) = (view_self_similar, id) {
+                accepted_hypotheses.extend(self.count_jointly_unique_views(id, map));
+            }
         }
         let newly = self.ambiguity.update(travel_m);
         if !newly.is_empty() {
@@ -619,12 +639,13 @@ impl Engine {
 
     /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself
     /// at another place (`decisions.self_similarity`); each view is searched once.
-    fn check_self_similarity(&mut self, map: MapId, node: NodeId) {
+    fn check_self_similarity(&mut self, map: MapId, node: NodeId) -> bool {
         let Some(search) = &self.self_similarity else {
-            return;
+            return false;
         };
-        if self.self_similarity_of_view.contains_key(&node) {
-            return;
+        let threshold = self.params.decisions.self_similar_from_score;
+        if let Some(score) = self.self_similarity_of_view.get(&node) {
+            return *score >= threshold;
         }
         let started = std::time::Instant::now();
         let score = self
@@ -634,11 +655,80 @@ impl Engine {
             .map_or(0.0, |(_, proof)| proof.score);
         self.self_similarity_seconds += started.elapsed().as_secs_f64();
         self.self_similarity_of_view.insert(node, score);
-        if score >= self.params.decisions.self_similar_from_score && self.ambiguity.mark(node.0) {
+        let self_similar = score >= threshold;
+        if self_similar && self.ambiguity.mark(node.0) {
             self.log_decision(Decision::AmbiguousViews {
                 views: vec![node.0],
             });
         }
+        self_similar
+    }
+
+    /// A merge hypothesis whose views fit themselves elsewhere one by one counts them in
+    /// full when their joint local map fits nowhere else (`decisions.joint_views`): rack
+    /// rows seen from two aisles, one of them beside the wall, are one place only. Only
+    /// those views are joined (a view that is no look-alike counts already, and would make
+    /// any set look unique). Searched once per set of views. Returns the hypothesis if that
+    /// made it fully accepted.
+    fn count_jointly_unique_views(
+        &mut self,
+        id: HypothesisId,
+        map: MapId,
+    ) -> Option<Hypothesis<ObservedEdge>> {
+        let decisions = &self.params.decisions;
+        let threshold = decisions.self_similar_from_score;
+        let search = self.self_similarity.as_ref()?;
+        let hypothesis = self.filter.hypothesis(id)?;
+        if !decisions.joint_views
+            || !matches!(
+                hypothesis.state(),
+                HypothesisState::Tentative | HypothesisState::Conditional
+            )
+        {
+            return None;
+        }
+        let views: BTreeSet<u64> = hypothesis
+            .observations()
+            .iter()
+            .map(|r| r.observation.view)
+            .collect();
+        let self_similar: BTreeSet<u64> = views
+            .iter()
+            .filter(|v| {
+                self.self_similarity_of_view
+                    .get(&NodeId(**v))
+                    .is_some_and(|score| *score >= threshold)
+            })
+            .copied()
+            .collect();
+        if self_similar.len() < 2 {
+            return None;
+        }
+        // At most `JOINT_VIEWS_MAX` of them, spread over the set.
+        let all: Vec<u64> = self_similar.iter().copied().collect();
+        let step = all.len().div_ceil(JOINT_VIEWS_MAX).max(1);
+        let joint: Vec<u64> = all.iter().step_by(step).copied().collect();
+        let score = match self.joint_self_similarity.get(&joint) {
+            Some(score) => *score,
+            None => {
+                let started = std::time::Instant::now();
+                let nodes: Vec<NodeId> = joint.iter().map(|v| NodeId(*v)).collect();
+                let score = self
+                    .atlas
+                    .joint_view_keyframe(map, &nodes)
+                    .and_then(|keyframe| search.best_other_placement(&keyframe))
+                    .map_or(0.0, |(_, proof)| proof.score);
+                self.self_similarity_seconds += started.elapsed().as_secs_f64();
+                self.joint_self_similarity.insert(joint, score);
+                score
+            }
+        };
+        if score >= threshold {
+            return None;
+        }
+        let outcome = self.filter.count_views_again(id, &self_similar)?;
+        self.log_filter_events(outcome.events);
+        outcome.accepted
     }
 
     /// The newest keyframe verified where the tentative merge hypothesis with the most
@@ -681,10 +771,12 @@ impl Engine {
         &mut self,
         observation: Observation<ObservedEdge>,
         travel_m: f64,
-    ) -> Option<Hypothesis<ObservedEdge>> {
-        let outcome = self.filter.observe(observation, travel_m, None).ok()?;
+    ) -> (Option<HypothesisId>, Option<Hypothesis<ObservedEdge>>) {
+        let Ok(outcome) = self.filter.observe(observation, travel_m, None) else {
+            return (None, None);
+        };
         self.log_filter_events(outcome.events);
-        outcome.accepted
+        (Some(outcome.hypothesis), outcome.accepted)
     }
 
     /// Keeps the conditional merge in step with the filter's conditional hypothesis: drops

@@ -421,10 +421,30 @@ fn a_view_whose_own_map_fits_itself_elsewhere_is_ambiguous_from_its_first_observ
         }
     }
     assert!(marked > 0, "no self-similar view: {scores:?}");
+    // Hypotheses on several such views: their views joined are searched once per set, and
+    // only self-similar views are joined (`decisions.joint_views`).
+    let joints = engine.joint_self_similarity();
+    assert!(!joints.is_empty(), "no joint set searched");
+    for (views, score) in joints {
+        assert!((2..=8).contains(&views.len()), "{views:?}");
+        assert!(
+            views.windows(2).all(|w| w[0] < w[1]),
+            "{views:?} not sorted"
+        );
+        assert!((0.0..=1.0).contains(score), "{views:?}: {score}");
+        for view in views {
+            let alone = scores.get(&NodeId(*view)).copied().unwrap_or(0.0);
+            assert!(
+                alone >= params.self_similar_from_score,
+                "{view} joined but scored {alone} alone"
+            );
+        }
+    }
     // Without the rule nothing is searched, though views of inactive graphs were observed.
     let mut engine_params = EngineParams::default();
     engine_params.decisions.self_similarity = None;
     let (engine, _) = run_with(engine_params, "warehouse", 7, 3, 120.0);
     assert!(engine.hypothesis_summary().merge > 0);
     assert!(engine.view_self_similarity().is_empty());
+    assert!(engine.joint_self_similarity().is_empty());
 }

@@ -949,6 +949,24 @@ impl<B: BackupStore> Atlas<B> {
         .next()
     }
 
+    /// The local maps of views `nodes` of inactive graph `map` joined in the first one's
+    /// frame (as [`Atlas::view_keyframe`] makes each): what the views saw together. `None`
+    /// for an unknown graph or first vertex.
+    pub fn joint_view_keyframe(
+        &self,
+        map: MapId,
+        nodes: &[NodeId],
+    ) -> Option<mapmerge_place::Keyframe> {
+        let graph = self.inactive.get(&map)?;
+        crate::recognition::joint_local_map(
+            graph,
+            &self.keyframes,
+            &self.params.keyframes,
+            nodes,
+            Some(&self.local_maps),
+        )
+    }
+
     /// The newest current-epoch keyframe as a place-recognition query.
     fn newest_query(&self) -> Option<PlaceQuery> {
         let node = self.robot.filter(|n| self.is_current_epoch(*n))?;

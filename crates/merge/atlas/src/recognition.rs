@@ -153,75 +153,144 @@ pub(crate) fn local_map_keyframes(
     nodes: &[NodeId],
     stored: Option<&BTreeMap<NodeId, LocalMapGrid>>,
 ) -> BTreeMap<NodeId, Keyframe> {
-    let order: Vec<(NodeId, Se2, EpochId)> = graph
-        .vertices()
-        .map(|(id, v)| (id, v.pose, EpochId::of(&v.meta)))
-        .collect();
-    let scan = |id: NodeId| scans.get(id).map(|s| &s[..]).unwrap_or(&[]);
-    let mut keyframes = BTreeMap::new();
+    let order = vertex_order(graph);
+    nodes
+        .iter()
+        .filter_map(|node| {
+            let parts = local_map_parts(&order, scans, params, *node, stored)?;
+            Some((*node, parts.into_keyframe(node.0, params)))
+        })
+        .collect()
+}
+
+/// The local maps of `nodes` joined in the first one's frame, as one keyframe with its id:
+/// what those views saw together. `None` when the first is not a vertex of `graph`.
+pub(crate) fn joint_local_map(
+    graph: &PoseGraph2,
+    scans: &KeyframeStore,
+    params: &KeyframeParams,
+    nodes: &[NodeId],
+    stored: Option<&BTreeMap<NodeId, LocalMapGrid>>,
+) -> Option<Keyframe> {
+    let order = vertex_order(graph);
+    let first = *nodes.first()?;
+    let map_from_first = graph.vertex(first)?.pose;
+    let mut joint = LocalMapParts::default();
     for node in nodes {
-        let Ok(i) = order.binary_search_by(|(id, _, _)| id.cmp(node)) else {
+        let (Some(parts), Some(vertex)) = (
+            local_map_parts(&order, scans, params, *node, stored),
+            graph.vertex(*node),
+        ) else {
             continue;
         };
-        let (_, map_from_node, epoch) = order[i];
-        let mut points: Vec<Point2> = scan(*node).to_vec();
-        // Beams (node frame) from each vertex's origin to its returns.
-        let keep_rays = params.free_space_m > 0.0;
-        let mut rays: Vec<(Point2, Point2)> = Vec::new();
-        if keep_rays {
-            rays.extend(points.iter().map(|p| (Point2::zeros(), *p)));
-        }
-        let mut travel_m = 0.0;
-        // Node ids grow with time within an epoch: the preceding ids are the path so far.
-        for j in (0..i).rev() {
-            let (id, pose, e) = order[j];
-            if e != epoch {
-                break;
-            }
-            travel_m += (order[j + 1].1.translation() - pose.translation()).norm();
-            if travel_m > params.local_map_m {
-                break;
-            }
-            let node_from_other = map_from_node.between(&pose);
-            let other = transform_points(&node_from_other, scan(id));
-            if keep_rays {
-                let origin = node_from_other.translation();
-                rays.extend(other.iter().map(|p| (origin, *p)));
-            }
-            points.extend(other);
-        }
-        let mut free_cells = Vec::new();
-        if let Some(grids) = stored.filter(|_| params.local_map_m > 0.0) {
-            let anchored = grids.iter().filter_map(|(anchor, grid)| {
-                let k = order.binary_search_by(|(id, _, _)| id.cmp(anchor)).ok()?;
-                Some((map_from_node.between(&order[k].1), grid))
-            });
-            for (node_from_anchor, grid) in anchored {
-                let node_in_anchor = node_from_anchor.inverse().translation();
-                if node_in_anchor.norm() > params.local_map_m + grid.reach_m() {
-                    continue;
-                }
-                let (occupied, free) = grid.cells_within(
-                    &node_in_anchor,
-                    params.local_map_m,
-                    &ClassThresholds::default(),
-                );
-                points.extend(transform_points(&node_from_anchor, &occupied));
-                free_cells.extend(transform_points(&node_from_anchor, &free));
-            }
-        }
-        if params.local_map_m > 0.0 {
-            points = voxel_downsample(&points, params.voxel_m);
-        }
-        let keyframe = Keyframe::new(node.0, points);
-        let keyframe = if free_cells.is_empty() {
-            keyframe.with_rays(params.free_space_m, rays)
-        } else {
-            with_free_cells(keyframe, params.free_space_m, rays, free_cells)
-        };
-        keyframes.insert(*node, keyframe);
+        let first_from_node = map_from_first.between(&vertex.pose);
+        let moved = |p: &Point2| first_from_node.transform_point(p);
+        joint.points.extend(parts.points.iter().map(moved));
+        joint
+            .rays
+            .extend(parts.rays.iter().map(|(o, e)| (moved(o), moved(e))));
+        joint.free_cells.extend(parts.free_cells.iter().map(moved));
     }
-    keyframes
+    Some(joint.into_keyframe(first.0, params))
+}
+
+/// Every vertex of `graph` in id order, with its pose and epoch.
+fn vertex_order(graph: &PoseGraph2) -> Vec<(NodeId, Se2, EpochId)> {
+    graph
+        .vertices()
+        .map(|(id, v)| (id, v.pose, EpochId::of(&v.meta)))
+        .collect()
+}
+
+/// A local map before it becomes a keyframe (node frame).
+#[derive(Default)]
+struct LocalMapParts {
+    points: Vec<Point2>,
+    /// Beams from each vertex's origin to its returns (when free space is kept).
+    rays: Vec<(Point2, Point2)>,
+    /// Free cells of the stored local maps.
+    free_cells: Vec<Point2>,
+}
+
+impl LocalMapParts {
+    fn into_keyframe(self, id: u64, params: &KeyframeParams) -> Keyframe {
+        let points = if params.local_map_m > 0.0 {
+            voxel_downsample(&self.points, params.voxel_m)
+        } else {
+            self.points
+        };
+        let keyframe = Keyframe::new(id, points);
+        if self.free_cells.is_empty() {
+            keyframe.with_rays(params.free_space_m, self.rays)
+        } else {
+            with_free_cells(keyframe, params.free_space_m, self.rays, self.free_cells)
+        }
+    }
+}
+
+/// `node`'s scan, the scans of the same epoch's preceding vertices within
+/// `params.local_map_m` of travel, and with `stored` what the stored local maps keep within
+/// that distance, in `node`'s frame; `None` when `node` is not in `order`.
+fn local_map_parts(
+    order: &[(NodeId, Se2, EpochId)],
+    scans: &KeyframeStore,
+    params: &KeyframeParams,
+    node: NodeId,
+    stored: Option<&BTreeMap<NodeId, LocalMapGrid>>,
+) -> Option<LocalMapParts> {
+    let scan = |id: NodeId| scans.get(id).map(|s| &s[..]).unwrap_or(&[]);
+    let i = order.binary_search_by(|(id, _, _)| id.cmp(&node)).ok()?;
+    let (_, map_from_node, epoch) = order[i];
+    let mut points: Vec<Point2> = scan(node).to_vec();
+    let keep_rays = params.free_space_m > 0.0;
+    let mut rays: Vec<(Point2, Point2)> = Vec::new();
+    if keep_rays {
+        rays.extend(points.iter().map(|p| (Point2::zeros(), *p)));
+    }
+    let mut travel_m = 0.0;
+    // Node ids grow with time within an epoch: the preceding ids are the path so far.
+    for j in (0..i).rev() {
+        let (id, pose, e) = order[j];
+        if e != epoch {
+            break;
+        }
+        travel_m += (order[j + 1].1.translation() - pose.translation()).norm();
+        if travel_m > params.local_map_m {
+            break;
+        }
+        let node_from_other = map_from_node.between(&pose);
+        let other = transform_points(&node_from_other, scan(id));
+        if keep_rays {
+            let origin = node_from_other.translation();
+            rays.extend(other.iter().map(|p| (origin, *p)));
+        }
+        points.extend(other);
+    }
+    let mut free_cells = Vec::new();
+    if let Some(grids) = stored.filter(|_| params.local_map_m > 0.0) {
+        let anchored = grids.iter().filter_map(|(anchor, grid)| {
+            let k = order.binary_search_by(|(id, _, _)| id.cmp(anchor)).ok()?;
+            Some((map_from_node.between(&order[k].1), grid))
+        });
+        for (node_from_anchor, grid) in anchored {
+            let node_in_anchor = node_from_anchor.inverse().translation();
+            if node_in_anchor.norm() > params.local_map_m + grid.reach_m() {
+                continue;
+            }
+            let (occupied, free) = grid.cells_within(
+                &node_in_anchor,
+                params.local_map_m,
+                &ClassThresholds::default(),
+            );
+            points.extend(transform_points(&node_from_anchor, &occupied));
+            free_cells.extend(transform_points(&node_from_anchor, &free));
+        }
+    }
+    Some(LocalMapParts {
+        points,
+        rays,
+        free_cells,
+    })
 }
 
 /// `keyframe` with the free space of `rays` and of the stored maps' `free_cells` (keyframe
@@ -344,6 +413,38 @@ mod tests {
         for p in points.iter() {
             assert!(!free.is_free(p), "{p:?} is a return and free");
         }
+    }
+
+    #[test]
+    fn a_joint_local_map_holds_every_view_in_the_first_ones_frame() {
+        let (graph, mut scans, _) = pruned_place();
+        let record = |points: Vec<Point2>| KeyframeRecord {
+            points_in_robot: points.into(),
+            travel_m: 0.0,
+            local_from_robot: Se2::identity(),
+            submap: None,
+        };
+        // Vertex 1 sees the wall y = 2; vertex 2 (at (3, 0), facing +y) a post 1 m ahead.
+        scans.insert(NodeId(1), record(wall()));
+        scans.insert(NodeId(2), record(vec![Point2::new(1.0, 0.0)]));
+        let params = KeyframeParams {
+            local_map_m: 0.0,
+            ..KeyframeParams::default()
+        };
+        let nodes = [NodeId(1), NodeId(2)];
+        let joint = joint_local_map(&graph, &scans, &params, &nodes, None).unwrap();
+        assert_eq!(joint.id.0, 1);
+        let points = &joint.points_in_keyframe;
+        assert_eq!(points.len(), wall().len() + 1);
+        // The post at (3, 1) in vertex 1's frame, the map's.
+        assert!(points
+            .iter()
+            .any(|p| (p - Point2::new(3.0, 1.0)).norm() < 1e-9));
+        assert!(joint.free_space.is_some(), "both views' beams");
+        let reversed = [NodeId(2), NodeId(1)];
+        let other_frame = joint_local_map(&graph, &scans, &params, &reversed, None).unwrap();
+        assert_eq!(other_frame.id.0, 2);
+        assert!(joint_local_map(&graph, &scans, &params, &[NodeId(9)], None).is_none());
     }
 
     #[test]

@@ -177,6 +177,19 @@ pub struct ObserveOutcome<E> {
     pub events: Vec<FilterEvent>,
 }
 
+/// What [`crate::HypothesisFilter::count_views_again`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Reconsidered<E> {
+    /// Observations that count in full again.
+    pub changed: usize,
+    /// True when the hypothesis became the conditional merge.
+    pub conditional_started: bool,
+    /// The fully accepted hypothesis, no longer live.
+    pub accepted: Option<Hypothesis<E>>,
+    /// Everything that changed, in order.
+    pub events: Vec<FilterEvent>,
+}
+
 /// Cumulative counts since the filter was made.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FilterStats {

@@ -10,7 +10,7 @@ use crate::ekf::{self, Innovation};
 use crate::{
     FilterEvent, FilterStats, GateCandidate, Hypothesis, HypothesisCounts, HypothesisError,
     HypothesisFilterParams, HypothesisId, HypothesisState, Observation, ObservationRecord,
-    ObserveOutcome, RejectReason, Target,
+    ObserveOutcome, Reconsidered, RejectReason, Target,
 };
 
 /// Merge and recovery hypotheses, each an EKF on SE(2) over `robot_from_target`.
@@ -358,6 +358,36 @@ impl<E> HypothesisFilter<E> {
             }
         }
         changed
+    }
+
+    /// Counts hypothesis `id`'s observations of `views` in full again: views ambiguous one
+    /// by one whose joint map is not (what they saw together fits nowhere else), then
+    /// re-evaluates its acceptance as after an observation. `None` when `id` is not live.
+    pub fn count_views_again(
+        &mut self,
+        id: HypothesisId,
+        views: &BTreeSet<u64>,
+    ) -> Option<Reconsidered<E>> {
+        let h = self.live.get_mut(&id)?;
+        let mut changed = 0;
+        for record in &mut h.observations {
+            if record.observation.ambiguous && views.contains(&record.observation.view) {
+                record.observation.ambiguous = false;
+                changed += 1;
+            }
+        }
+        let mut events = Vec::new();
+        let (conditional_started, accepted) = if changed > 0 {
+            self.promote(id, &mut events)
+        } else {
+            (false, None)
+        };
+        Some(Reconsidered {
+            changed,
+            conditional_started,
+            accepted,
+            events,
+        })
     }
 
     fn due(&self, travel_m: f64, time_s: Option<f64>) -> Vec<Due> {

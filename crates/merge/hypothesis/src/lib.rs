@@ -60,7 +60,9 @@ pub use ambiguity::{
     AmbiguityParams, AmbiguityTracker, DistanceTracker, RejectedView, TrackedEntry,
 };
 pub use error::HypothesisError;
-pub use event::{FilterEvent, FilterStats, GateCandidate, ObserveOutcome, RejectReason};
+pub use event::{
+    FilterEvent, FilterStats, GateCandidate, ObserveOutcome, Reconsidered, RejectReason,
+};
 pub use filter::HypothesisFilter;
 pub use hypothesis::{
     Hypothesis, HypothesisCounts, HypothesisId, HypothesisState, Observation, ObservationRecord,

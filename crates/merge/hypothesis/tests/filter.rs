@@ -270,6 +270,44 @@ fn views_found_ambiguous_later_are_discounted() {
 }
 
 #[test]
+fn views_counted_again_make_a_hypothesis_conditional_and_then_full() {
+    let mut f = filter();
+    // Two ambiguous views, then a third: nothing counts yet.
+    let ids: Vec<HypothesisId> = (0..3)
+        .map(|i| {
+            let mut o = seen(MAP_1, 10 + i, at());
+            o.ambiguous = true;
+            f.observe(o, i as f64, None).unwrap().hypothesis
+        })
+        .collect();
+    let h = ids[0];
+    assert!(ids.iter().all(|id| *id == h));
+    assert_eq!(f.hypothesis(h).unwrap().state(), HypothesisState::Tentative);
+    // Views 10 and 11 count again: 2 views, 2 observations, conditional.
+    let again = f.count_views_again(h, &[10, 11].into()).unwrap();
+    assert_eq!(again.changed, 2);
+    assert!(again.conditional_started);
+    assert!(again.accepted.is_none());
+    assert!(matches!(
+        again.events[..],
+        [FilterEvent::Conditional { id, .. }] if id == h
+    ));
+    // Counting them again changes nothing.
+    let same = f.count_views_again(h, &[10, 11].into()).unwrap();
+    assert_eq!((same.changed, same.conditional_started), (0, false));
+    assert!(same.events.is_empty());
+    // Two more counting views and view 12 again: 5 observations of 5 views over 4 m, full.
+    observe_views(&mut f, MAP_1, at(), &[13, 14], 3.0, 1.0);
+    let full = f.count_views_again(h, &[12].into()).unwrap();
+    assert_eq!(
+        full.accepted.map(|a| a.state()),
+        Some(HypothesisState::Full)
+    );
+    // Not live any more.
+    assert!(f.count_views_again(h, &[10].into()).is_none());
+}
+
+#[test]
 fn only_one_conditional_and_a_stronger_competitor_supersedes_it() {
     let mut f = filter();
     let a = observe_views(&mut f, MAP_1, at(), &[10, 11], 0.0, 0.1)[1].hypothesis;
