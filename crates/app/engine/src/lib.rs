@@ -201,8 +201,8 @@ pub struct Engine {
     /// Views of inactive graphs searched so far, by node, with their best other placement's
     /// score (each view is searched once).
     self_similarity_of_view: std::collections::BTreeMap<NodeId, f64>,
-    /// Joint local maps of a hypothesis's views searched so far, by their sorted views,
-    /// with their best other placement's score (`decisions.joint_views`).
+    /// Joint local maps of a hypothesis's self-similar views searched so far, by their
+    /// sorted views, with their best other placement's score (`decisions.joint_views`).
     joint_self_similarity: std::collections::BTreeMap<Vec<u64>, f64>,
     /// Time spent in those searches (s).
     self_similarity_seconds: f64,
