@@ -30,6 +30,7 @@ mod gridmap;
 mod histogram;
 mod learned;
 mod map;
+mod realign;
 mod registry;
 mod similarity;
 #[cfg(test)]
@@ -47,5 +48,6 @@ pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
 pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample};
 pub use map::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+pub use realign::{RealignDetector, RealignInfo, RealignParams};
 pub use registry::{all_detectors, detector, DetectorParams, DETECTOR_NAMES};
 pub use similarity::{DmDetector, SimilarityParams, SmDetector};

@@ -7,7 +7,8 @@ use crate::{
     BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
     ChangeDetectionParams, CombinedDetector, CombinedParams, DmDetector, EntropyDetector,
     EntropyParams, GridmapDetector, GridmapParams, HistogramDetector, HistogramParams,
-    InvalidMergeDetector, LearnedDetector, SimilarityParams, SmDetector,
+    InvalidMergeDetector, LearnedDetector, RealignDetector, RealignParams, SimilarityParams,
+    SmDetector,
 };
 
 /// Every detector's [`InvalidMergeDetector::name`], in the order of [`all_detectors`].
@@ -19,6 +20,7 @@ pub const DETECTOR_NAMES: &[&str] = &[
     "sm",
     "dm",
     "better_hypothesis",
+    "realign",
     "combined",
     "learned",
 ];
@@ -34,6 +36,7 @@ pub fn detector(name: &str) -> Option<Box<dyn InvalidMergeDetector>> {
         "sm" => Box::<SmDetector>::default(),
         "dm" => Box::<DmDetector>::default(),
         "better_hypothesis" => Box::<BetterHypothesisDetector>::default(),
+        "realign" => Box::<RealignDetector>::default(),
         "combined" => Box::<CombinedDetector>::default(),
         "learned" => Box::<LearnedDetector>::default(),
         _ => return None,
@@ -61,6 +64,8 @@ pub struct DetectorParams {
     pub dm: Option<SimilarityParams>,
     /// Better hypothesis'.
     pub better_hypothesis: Option<BetterHypothesisParams>,
+    /// Re-registration's.
+    pub realign: Option<RealignParams>,
     /// The combined decision's (its thresholds and its three parts').
     pub combined: Option<CombinedParams>,
 }
@@ -85,6 +90,7 @@ impl DetectorParams {
             "sm" => with(&self.sm, SmDetector::new),
             "dm" => with(&self.dm, DmDetector::new),
             "better_hypothesis" => with(&self.better_hypothesis, BetterHypothesisDetector::new),
+            "realign" => with(&self.realign, RealignDetector::new),
             "combined" => with(&self.combined, CombinedDetector::new),
             _ => None,
         };

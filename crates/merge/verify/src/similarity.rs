@@ -57,7 +57,7 @@ impl Default for SimilarityParams {
 
 /// The beams of `scans` in the map frame: (sensor origin, return points), non-finite and
 /// over-long ones left out.
-fn beams_in_map<'a>(
+pub(crate) fn beams_in_map<'a>(
     scans: impl IntoIterator<Item = &'a DetectorScan>,
     max_range_m: f64,
 ) -> Vec<(Point2, Vec<Point2>)> {
