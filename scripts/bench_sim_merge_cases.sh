@@ -33,7 +33,7 @@ for noise in $noises; do mkdir -p "$out/$prefix$noise"; done
 cargo build --release -q -p mapmerge-cli
 cp target/release/mapmerge "$out/mapmerge"
 bin="$out/mapmerge"
-methods=change_detection,gridmap,entropy,histogram,sm,dm,better_hypothesis,combined
+methods=change_detection,gridmap,entropy,histogram,sm,dm,better_hypothesis,realign,combined
 one_seed() { # core seed
   local core="$1" seed="$2" name="$world-$2"
   local pin=(env RAYON_NUM_THREADS=1)
