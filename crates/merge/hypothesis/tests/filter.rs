@@ -32,6 +32,14 @@ fn seen(target: Target, view: u64, robot_from_target: Se2) -> Observation<u64> {
     }
 }
 
+/// [`seen`] of a view that fits elsewhere in its own map too (ambiguous).
+fn seen_ambiguous(target: Target, view: u64, robot_from_target: Se2) -> Observation<u64> {
+    Observation {
+        ambiguous: true,
+        ..seen(target, view, robot_from_target)
+    }
+}
+
 fn filter() -> HypothesisFilter<u64> {
     HypothesisFilter::new(HypothesisFilterParams::default()).unwrap()
 }
@@ -220,9 +228,9 @@ fn conditional_after_two_views_then_full_after_the_strict_criteria() {
 fn ambiguous_observations_update_but_do_not_count() {
     let mut f = filter();
     for (i, view) in [10, 11, 12, 13, 14, 15].into_iter().enumerate() {
-        let mut o = seen(MAP_1, view, at());
-        o.ambiguous = true;
-        let outcome = f.observe(o, i as f64, None).unwrap();
+        let outcome = f
+            .observe(seen_ambiguous(MAP_1, view, at()), i as f64, None)
+            .unwrap();
         assert_eq!(outcome.state, HypothesisState::Tentative);
         assert_eq!(outcome.created, i == 0);
     }
@@ -250,9 +258,9 @@ fn ambiguous_observations_update_but_do_not_count() {
     .unwrap();
     let states: Vec<HypothesisState> = (0..5)
         .map(|i| {
-            let mut o = seen(MAP_1, 10 + i, at());
-            o.ambiguous = true;
-            f.observe(o, i as f64, None).unwrap().state
+            f.observe(seen_ambiguous(MAP_1, 10 + i, at()), i as f64, None)
+                .unwrap()
+                .state
         })
         .collect();
     assert_eq!(states[4], HypothesisState::Full);
@@ -275,9 +283,9 @@ fn views_counted_again_make_a_hypothesis_conditional_and_then_full() {
     // Two ambiguous views, then a third: nothing counts yet.
     let ids: Vec<HypothesisId> = (0..3)
         .map(|i| {
-            let mut o = seen(MAP_1, 10 + i, at());
-            o.ambiguous = true;
-            f.observe(o, i as f64, None).unwrap().hypothesis
+            f.observe(seen_ambiguous(MAP_1, 10 + i, at()), i as f64, None)
+                .unwrap()
+                .hypothesis
         })
         .collect();
     let h = ids[0];
