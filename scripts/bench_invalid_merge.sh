@@ -8,7 +8,8 @@
 # [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P]
 # Issue 15's protocol: --valid-at merge-place --segment-length-m 30 --odometry-noise none|default
 # (valid merges exact at the merge place; rotation, shift and careless invalid cases; AUC per kind).
-# Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*); OUT_DIR=… elsewhere.
+# Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*, and the machine's memory
+# latency in bench-out/memory-latency.md); OUT_DIR=… elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seed=0; max_pairs=15; methods=""; only=(); valid_at=start-frames; length_args=(); noise=default
@@ -62,6 +63,9 @@ worker() {
       -o "$work/$log.results.jsonl" "${method_args[@]}" --report "$work/$log.table.md" > /dev/null
   done
 }
+# The machine's memory latency beside the times (gridmap's update is bound by it, §8).
+pin0=(); command -v taskset >/dev/null && pin0=(taskset -c 0)
+"${pin0[@]}" cargo bench -q -p mapmerge-verify --bench memory_latency > "$out/memory-latency.md"
 even=(); odd=()
 for k in "${!logs[@]}"; do
   if (( k % 2 == 0 )); then even+=("${logs[$k]}"); else odd+=("${logs[$k]}"); fi
