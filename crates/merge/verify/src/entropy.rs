@@ -302,6 +302,8 @@ impl InvalidMergeDetector for EntropyDetector {
 
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
         self.last_delta_h = None;
+        // Unsupported until enough points are paired (step 3), also when the window is empty.
+        self.evidence = Evidence::Unsupported;
         if self
             .snapshot
             .as_ref()
@@ -343,7 +345,6 @@ impl InvalidMergeDetector for EntropyDetector {
         let current = voxel_downsample(&current, voxel);
         let other = voxel_downsample(&other, voxel);
         // 3. ΔH where the parts meet, mapped into [0, 1].
-        self.evidence = Evidence::Unsupported;
         let Some((delta_h, paired)) = paired_entropy_increase(&current, &other, &self.params)
         else {
             return 0.0;

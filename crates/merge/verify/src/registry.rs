@@ -142,6 +142,31 @@ mod tests {
         assert!(at_lower > at_given + 0.2, "{at_given} vs {at_lower}");
     }
 
+    /// A merged map with nothing in it reads 0 in every detector, and no detector claims
+    /// support for it: nothing to compare is no evidence either way (issue 15, part 3).
+    /// The learned decision is the exception by design: it scores "never supported" where
+    /// such merges fell in training (a merge claims overlap), so it reads high here.
+    #[test]
+    fn an_empty_merged_map_reads_zero_and_unsupported_in_every_detector() {
+        use crate::{Evidence, MergedMap};
+        let empty = MergedMap {
+            current: &[],
+            other: &[],
+        };
+        for &name in DETECTOR_NAMES {
+            let mut d = detector(name).unwrap();
+            d.on_merge(&empty);
+            let first = d.on_vertex(&empty);
+            let again = d.on_vertex(&empty);
+            assert_eq!(d.evidence(), Evidence::Unsupported, "{name}");
+            if name == "learned" {
+                assert!(first > 0.5 && first == again, "{name}: {first}, {again}");
+            } else {
+                assert_eq!((first, again), (0.0, 0.0), "{name}");
+            }
+        }
+    }
+
     /// Issue 15, part 3: a merge that puts the current scans where the other epochs saw
     /// nothing is unsupported for every appearance detector (not "valid, 0"); one inside
     /// their rooms is supported. (Better hypothesis, and the combinations holding it, do have
