@@ -502,15 +502,4 @@ mod tests {
         };
         assert!(local_map(&scans, 1, &without).free_space.is_none());
     }
-
-    #[test]
-    fn no_data_gives_zero() {
-        let mut d = BetterHypothesisDetector::default();
-        let empty = MergedMap {
-            current: &[],
-            other: &[],
-        };
-        d.on_merge(&empty);
-        assert_eq!(d.on_vertex(&empty), 0.0);
-    }
 }

@@ -750,11 +750,6 @@ mod tests {
     fn degenerate_input_gives_zero() {
         use std::sync::Arc;
         let mut d = GridmapDetector::default();
-        let empty = MergedMap {
-            current: &[],
-            other: &[],
-        };
-        assert_eq!(d.on_vertex(&empty), 0.0);
         let weird = [
             DetectorScan {
                 node: NodeId(1),

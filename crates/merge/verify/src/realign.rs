@@ -338,16 +338,4 @@ mod tests {
         assert!(right < 0.05, "{right}");
         assert!(shifted > 0.2, "{shifted}");
     }
-
-    #[test]
-    fn no_data_is_unsupported() {
-        let mut d = RealignDetector::default();
-        let empty = MergedMap {
-            current: &[],
-            other: &[],
-        };
-        d.on_merge(&empty);
-        assert_eq!(d.on_vertex(&empty), 0.0);
-        assert_eq!(d.evidence(), Evidence::Unsupported);
-    }
 }

@@ -142,8 +142,8 @@ mod tests {
         assert!(at_lower > at_given + 0.2, "{at_given} vs {at_lower}");
     }
 
-    /// A merged map with nothing in it reads 0 in every detector, and no detector claims
-    /// support for it: nothing to compare is no evidence either way (issue 15, part 3).
+    /// A merged map with nothing in it (before any merge, and after an empty one) reads 0 in
+    /// every detector, and no detector claims support for it: nothing to compare is no evidence either way (issue 15, part 3).
     /// The learned decision is the exception by design: it scores "never supported" where
     /// such merges fell in training (a merge claims overlap), so it reads high here.
     #[test]
@@ -154,9 +154,10 @@ mod tests {
             other: &[],
         };
         for &name in DETECTOR_NAMES {
+            // Before any merge, then after an empty one.
             let mut d = detector(name).unwrap();
-            d.on_merge(&empty);
             let first = d.on_vertex(&empty);
+            d.on_merge(&empty);
             let again = d.on_vertex(&empty);
             assert_eq!(d.evidence(), Evidence::Unsupported, "{name}");
             if name == "learned" {

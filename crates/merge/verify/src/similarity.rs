@@ -302,17 +302,4 @@ mod tests {
             );
         }
     }
-
-    #[test]
-    fn no_data_gives_zero() {
-        let mut d = SmDetector::default();
-        let empty = MergedMap {
-            current: &[],
-            other: &[],
-        };
-        d.on_merge(&empty);
-        assert_eq!(d.on_vertex(&empty), 0.0);
-        let mut d = DmDetector::default();
-        assert_eq!(d.on_vertex(&empty), 0.0);
-    }
 }
