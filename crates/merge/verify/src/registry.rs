@@ -143,7 +143,8 @@ mod tests {
     }
 
     /// A merged map with nothing in it (before any merge, and after an empty one) reads 0 in
-    /// every detector, and no detector claims support for it: nothing to compare is no evidence either way (issue 15, part 3).
+    /// every detector, and no detector claims support for it: nothing to compare is no
+    /// evidence either way (issue 15, part 3).
     /// The learned decision is the exception by design: it scores "never supported" where
     /// such merges fell in training (a merge claims overlap), so it reads high here.
     #[test]
