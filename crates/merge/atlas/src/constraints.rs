@@ -16,14 +16,17 @@
 //! the graph they belong to.
 
 use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
 use std::time::Instant;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_place::{
-    verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe, KeyframeId,
-    PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, SignatureExtractor, Verification,
+    seen_from_beside, verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe,
+    KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, SignatureExtractor,
+    Verification,
 };
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
+use mapmerge_scan::Point2;
 use mapmerge_scanmatch::{ScanMatchParams, ScanMatcher, SearchWindow};
 use mapmerge_slam::{edge_information, RefineFirst, Submap, TrackerParams};
 use mapmerge_solve::{chi2_quantile_99, OptimizerParams, RobustKernel};
@@ -324,7 +327,7 @@ impl ConstraintBuilder {
     pub(crate) fn index_keyframe(
         &mut self,
         node: NodeId,
-        points: &std::sync::Arc<[mapmerge_scan::Point2]>,
+        points: &Arc<[Point2]>,
         descriptor: PlaceSignature,
         submap: Option<NodeId>,
     ) {
@@ -335,7 +338,7 @@ impl ConstraintBuilder {
         self.index.insert(id, descriptor);
         self.ordinal_of.insert(id, self.indexed.len());
         self.indexed.push(IndexedKeyframe {
-            keyframe: Keyframe::new(node.0, std::sync::Arc::clone(points)),
+            keyframe: Keyframe::new(node.0, Arc::clone(points)),
             submap,
         });
         self.epoch_indexed += usize::from(submap.is_some());
@@ -436,21 +439,47 @@ impl<B: BackupStore> Atlas<B> {
         }
     }
 
-    /// The place index's descriptors of `nodes` of `graph`: of each keyframe's points, or of
-    /// its local map with `index_local_maps` (see [`crate::KeyframeParams`]).
-    fn describe(&self, graph: &PoseGraph2, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
-        let extractor = &self.constraints.extractor;
+    /// The points the place index describes for `nodes` of `graph`: each keyframe's, or its
+    /// local map with `index_local_maps` (see [`crate::KeyframeParams`]).
+    fn indexed_points(&self, graph: &PoseGraph2, nodes: &[NodeId]) -> Vec<(NodeId, Arc<[Point2]>)> {
         if self.params.index_local_maps {
             local_map_keyframes(graph, &self.keyframes, &self.params.keyframes, nodes, None)
                 .into_iter()
-                .map(|(node, k)| (node, extractor.describe(&k.points_in_keyframe)))
+                .map(|(node, k)| (node, k.points_in_keyframe))
                 .collect()
         } else {
             nodes
                 .iter()
-                .filter_map(|n| Some((*n, extractor.describe(self.keyframes.get(*n)?))))
+                .filter_map(|n| Some((*n, self.keyframes.get(*n)?.clone())))
                 .collect()
         }
+    }
+
+    /// The place index's descriptors of `nodes` of `graph` (of [`Atlas::indexed_points`]).
+    fn describe(&self, graph: &PoseGraph2, nodes: &[NodeId]) -> Vec<(NodeId, PlaceSignature)> {
+        let extractor = &self.constraints.extractor;
+        self.indexed_points(graph, nodes)
+            .into_iter()
+            .map(|(node, points)| (node, extractor.describe(&points)))
+            .collect()
+    }
+
+    /// The place index's descriptors of `node` of `graph` as seen from each of
+    /// `recognition.lateral_offsets_m` to the robot's left, for retrieval only.
+    fn describe_beside(&self, graph: &PoseGraph2, node: NodeId) -> Vec<PlaceSignature> {
+        let offsets = &self.params.recognition.lateral_offsets_m;
+        if offsets.is_empty() {
+            return Vec::new();
+        }
+        let Some((_, points)) = self.indexed_points(graph, &[node]).pop() else {
+            return Vec::new();
+        };
+        let extractor = &self.constraints.extractor;
+        offsets
+            .iter()
+            .filter(|offset_m| offset_m.is_finite())
+            .map(|offset_m| extractor.describe(&seen_from_beside(&points, *offset_m)))
+            .collect()
     }
 
     /// The constraint search for the new keyframe `node` (see the module docs): loops inside
@@ -632,7 +661,7 @@ impl<B: BackupStore> Atlas<B> {
     fn recognise_place(
         &mut self,
         node: NodeId,
-        points: &std::sync::Arc<[mapmerge_scan::Point2]>,
+        points: &Arc<[Point2]>,
         map_from_robot: Se2,
     ) -> usize {
         let loops_params = self.params.loops.clone();
@@ -689,7 +718,7 @@ impl<B: BackupStore> Atlas<B> {
             locate: &locate,
             window: loops_params.place_window,
         };
-        let query = Keyframe::new(node.0, std::sync::Arc::clone(points));
+        let query = Keyframe::new(node.0, Arc::clone(points));
         let Some(found) = verify_candidates(&query, &candidates, &verifier, &loops_params.place)
         else {
             return 0;
@@ -971,6 +1000,7 @@ impl<B: BackupStore> Atlas<B> {
     fn newest_query(&self) -> Option<PlaceQuery> {
         let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
         let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
+        let offset_descriptors = self.describe_beside(&self.active, node);
         let local_maps = local_map_keyframes(
             &self.active,
             &self.keyframes,
@@ -984,6 +1014,7 @@ impl<B: BackupStore> Atlas<B> {
             node,
             pose,
             descriptor,
+            offset_descriptors,
             keyframe,
         })
     }
@@ -1000,12 +1031,31 @@ impl<B: BackupStore> Atlas<B> {
     ) -> Option<mapmerge_place::VerifiedLoop> {
         let p = &self.params.recognition;
         let c = &self.constraints;
-        let retrieved =
-            c.index
-                .query_filtered(&query.descriptor, p.place.candidates_per_query, |_, id| {
-                    let node = NodeId(id.0);
-                    graph.contains_vertex(node) && keep(node)
-                });
+        let k = p.place.candidates_per_query;
+        let kept = |_: usize, id: KeyframeId| {
+            let node = NodeId(id.0);
+            graph.contains_vertex(node) && keep(node)
+        };
+        let mut retrieved = c.index.query_filtered(&query.descriptor, k, kept);
+        if !query.offset_descriptors.is_empty() {
+            // Scan Context++'s augmentation: the k nearest over every viewpoint's list, each
+            // keyframe once at its smallest distance.
+            for descriptor in &query.offset_descriptors {
+                for found in c.index.query_filtered(descriptor, k, kept) {
+                    match retrieved.iter_mut().find(|r| r.keyframe == found.keyframe) {
+                        Some(r) if found.descriptor_distance < r.descriptor_distance => *r = found,
+                        Some(_) => {}
+                        None => retrieved.push(found),
+                    }
+                }
+            }
+            retrieved.sort_by(|x, y| {
+                x.descriptor_distance
+                    .total_cmp(&y.descriptor_distance)
+                    .then(x.keyframe.0.cmp(&y.keyframe.0))
+            });
+            retrieved.truncate(k);
+        }
         let nodes: Vec<(NodeId, f64, usize)> = retrieved
             .iter()
             .filter(|r| p.place.admits(r))
@@ -1058,6 +1108,8 @@ struct PlaceQuery {
     pose: Se2,
     /// Its descriptor (the place index's kind).
     descriptor: PlaceSignature,
+    /// Its descriptors as seen from `recognition.lateral_offsets_m` beside the robot.
+    offset_descriptors: Vec<PlaceSignature>,
     /// Its local map, for verification.
     keyframe: Keyframe,
 }

@@ -80,6 +80,13 @@ pub struct RecognitionParams {
     pub min_epoch_keyframes: usize,
     /// The geometric verifier of the merge search (default: [`PlaceVerifierParams`]'s).
     pub verifier: PlaceVerifierParams,
+    /// The query is also described as if seen from these offsets (m) to the robot's left
+    /// (negative: right), and the `place.candidates_per_query` nearest of all those lists
+    /// are verified (Kim et al., "Scan Context++", T-RO 2021, Sec. IV-B, lateral
+    /// augmentation: a polar descriptor changes quickly with a sideways offset, so a robot
+    /// passing 0.5–1 m beside its earlier path ranks the true place low). Empty: the query
+    /// as seen from the robot only (default).
+    pub lateral_offsets_m: Vec<f64>,
 }
 
 impl Default for RecognitionParams {
@@ -95,6 +102,7 @@ impl Default for RecognitionParams {
             every_keyframes: 5,
             min_epoch_keyframes: 10,
             verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
+            lateral_offsets_m: Vec::new(),
         }
     }
 }

@@ -131,6 +131,14 @@ fn recognition_with_local_maps_in_the_index_merges_as_well() {
     });
 }
 
+/// The query also described from beside the robot (Scan Context++'s lateral augmentation).
+#[test]
+fn recognition_with_views_from_beside_merges_as_well() {
+    let mut params = AtlasParams::default();
+    params.recognition.lateral_offsets_m = vec![-1.0, -0.5, 0.5, 1.0];
+    merges_onto_the_true_transform(params);
+}
+
 /// Keyframes without their free space: verification scores by the older evidence (inliers,
 /// violations), with the thresholds chosen for it before issue 16.
 #[test]

@@ -39,3 +39,76 @@ pub trait DescriptorExtractor: Send + Sync {
     /// input: empty sets and non-finite points give a valid (possibly empty) descriptor.
     fn describe(&self, points_in_keyframe: &[Point2]) -> Self::Descriptor;
 }
+
+/// `points_in_keyframe` as seen from `offset_m` to the keyframe's left (negative: right),
+/// with the same heading: the query a polar descriptor would get from a viewpoint beside the
+/// robot (Kim et al., "Scan Context++", T-RO 2021, Sec. IV-B, lateral augmentation;
+/// occlusion is not modelled). Non-finite points stay non-finite.
+pub fn seen_from_beside(points_in_keyframe: &[Point2], offset_m: f64) -> Vec<Point2> {
+    points_in_keyframe
+        .iter()
+        .map(|p| Point2::new(p.x, p.y - offset_m))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(clippy::unwrap_used)]
+
+    use super::*;
+    use mapmerge_sim::{RayCaster, Segment};
+
+    use crate::{PlaceParams, SignatureExtractor};
+
+    /// A 360° scan (1° beams, up to 20 m) from `(x, y)` with heading 0 among `walls`.
+    fn scan(walls: &RayCaster, x: f64, y: f64) -> Vec<Point2> {
+        (0..360)
+            .filter_map(|i| {
+                let angle_rad = f64::from(i).to_radians();
+                let range_m = walls.cast(&Point2::new(x, y), angle_rad, 20.0)?;
+                Some(Point2::new(angle_rad.cos(), angle_rad.sin()) * range_m)
+            })
+            .collect()
+    }
+
+    /// A robot 0.8 m to the left of an earlier keyframe in a corridor with side rooms: its
+    /// scan described as seen from 0.8 m to its right matches the keyframe better than its
+    /// own view does, and better than the view from the wrong side.
+    #[test]
+    fn a_view_from_beside_matches_a_keyframe_taken_there() {
+        let p = Point2::new;
+        let wall_ends = [
+            (p(-10.0, -1.5), p(2.0, -1.5)),
+            (p(2.0, -1.5), p(2.0, -5.0)),
+            (p(2.0, -5.0), p(5.0, -5.0)),
+            (p(5.0, -5.0), p(5.0, -1.5)),
+            (p(5.0, -1.5), p(15.0, -1.5)),
+            (p(-10.0, 1.5), p(-3.0, 1.5)),
+            (p(-3.0, 1.5), p(-3.0, 4.0)),
+            (p(-3.0, 4.0), p(0.5, 4.0)),
+            (p(0.5, 4.0), p(0.5, 1.5)),
+            (p(0.5, 1.5), p(15.0, 1.5)),
+            (p(15.0, 1.5), p(15.0, -1.5)),
+        ];
+        let segments: Vec<Segment> = wall_ends
+            .iter()
+            .map(|(a, b)| Segment::new(*a, *b))
+            .collect();
+        let walls = RayCaster::from_segments(&segments, 1.0);
+        let extractor = SignatureExtractor::new(&PlaceParams::default());
+        let keyframe = extractor.describe(&scan(&walls, 1.0, -0.4));
+        let beside = scan(&walls, 1.0, 0.4);
+        let distance = |offset_m: f64| {
+            extractor
+                .describe(&seen_from_beside(&beside, offset_m))
+                .compare(&keyframe)
+                .distance
+        };
+        let (own, right, left) = (distance(0.0), distance(-0.8), distance(0.8));
+        assert!(
+            right < own && right < left,
+            "right {right}, own {own}, left {left}"
+        );
+        assert!(seen_from_beside(&[p(f64::NAN, 1.0)], 1.0)[0].x.is_nan());
+    }
+}

@@ -64,7 +64,7 @@ mod signature;
 pub mod submap_descriptor;
 mod verify;
 
-pub use descriptor::{DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
+pub use descriptor::{seen_from_beside, DescriptorExtractor, DescriptorMatch, PlaceDescriptor};
 pub use evidence::{disagreement_ratio, evidence, Evidence, EvidenceParams};
 pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
