@@ -1,7 +1,8 @@
 //! The interface every place descriptor implements, so that Scan Context can be swapped for
 //! another (e.g. a learned) descriptor without touching the index or the loop search.
 
-use mapmerge_scan::Point2;
+use mapmerge_geometry::Se2;
+use mapmerge_scan::{transform_points, Point2};
 
 /// How well two descriptors match and at which relative heading.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,10 +46,8 @@ pub trait DescriptorExtractor: Send + Sync {
 /// robot (Kim et al., "Scan Context++", T-RO 2021, Sec. IV-B, lateral augmentation;
 /// occlusion is not modelled). Non-finite points stay non-finite.
 pub fn seen_from_beside(points_in_keyframe: &[Point2], offset_m: f64) -> Vec<Point2> {
-    points_in_keyframe
-        .iter()
-        .map(|p| Point2::new(p.x, p.y - offset_m))
-        .collect()
+    let viewpoint_from_keyframe = Se2::new(0.0, -offset_m, 0.0);
+    transform_points(&viewpoint_from_keyframe, points_in_keyframe)
 }
 
 #[cfg(test)]
