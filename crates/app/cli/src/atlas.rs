@@ -169,6 +169,15 @@ struct UnmergeReport {
     reason: String,
 }
 
+/// How many of the searched local maps' scores fit themselves elsewhere: from
+/// `decisions.self_similar_from_score` (`threshold`) on.
+fn fitting_elsewhere<'a>(scores: impl IntoIterator<Item = &'a f64>, threshold: f64) -> usize {
+    scores
+        .into_iter()
+        .filter(|&&score| score >= threshold)
+        .count()
+}
+
 #[derive(Serialize)]
 struct SelfSimilarityReport {
     views: usize,
@@ -177,6 +186,10 @@ struct SelfSimilarityReport {
     joint_searched: usize,
     /// … and those that fit nowhere else (their views then count in full).
     joint_unique: usize,
+    /// Queries searched (`decisions.query_self_similarity`), and those that fit themselves
+    /// elsewhere.
+    queries: usize,
+    queries_self_similar: usize,
     seconds: f64,
 }
 
@@ -554,6 +567,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         });
     let revisiting = |e: &&EpochRevisit| e.revisit_travel_m >= REVISIT_MIN_M;
     let seconds = started.elapsed().as_secs_f64();
+    let threshold = engine.params().decisions.self_similar_from_score;
     let report = Report {
         epochs_revisiting: epoch_revisits
             .as_ref()
@@ -598,17 +612,15 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         ambiguous_keyframes: engine.ambiguous_keyframes(),
         self_similarity: SelfSimilarityReport {
             views: engine.view_self_similarity().len(),
-            self_similar: engine
-                .view_self_similarity()
-                .values()
-                .filter(|&&score| score >= engine.params().decisions.self_similar_from_score)
-                .count(),
+            self_similar: fitting_elsewhere(engine.view_self_similarity().values(), threshold),
             joint_searched: engine.joint_self_similarity().len(),
-            joint_unique: engine
-                .joint_self_similarity()
-                .values()
-                .filter(|&&score| score < engine.params().decisions.self_similar_from_score)
-                .count(),
+            joint_unique: engine.joint_self_similarity().len()
+                - fitting_elsewhere(engine.joint_self_similarity().values(), threshold),
+            queries: engine.query_self_similarity().len(),
+            queries_self_similar: fitting_elsewhere(
+                engine.query_self_similarity().values(),
+                threshold,
+            ),
             seconds: engine.self_similarity_seconds(),
         },
         tracker: engine.tracker_info(),

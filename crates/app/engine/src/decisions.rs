@@ -75,6 +75,12 @@ pub struct DecisionParams {
     /// threshold: each view alone fits itself elsewhere, together they are one place
     /// (default: true).
     pub joint_views: bool,
+    /// A merge observation whose query, the robot's own local map at the matched keyframe,
+    /// fits itself at another place by the same search and threshold counts for nothing in
+    /// the conditional and full criteria, as an observation of an ambiguous view does
+    /// (default: false). The view's local map may not contain the period or symmetry (one
+    /// aisle, one half of a hall) that the robot's does.
+    pub query_self_similarity: bool,
 }
 
 impl Default for DecisionParams {
@@ -95,6 +101,7 @@ impl Default for DecisionParams {
             self_similarity: Some(SelfSimilarityParams::default()),
             self_similar_from_score: 0.9,
             joint_views: true,
+            query_self_similarity: false,
         }
     }
 }

@@ -204,6 +204,9 @@ pub struct Engine {
     /// Joint local maps of a hypothesis's self-similar views searched so far, by their
     /// sorted views, with their best other placement's score (`decisions.joint_views`).
     joint_self_similarity: std::collections::BTreeMap<Vec<u64>, f64>,
+    /// Queries (active-graph keyframes a merge observation was made from) searched so far,
+    /// by node, with their best other placement's score (`decisions.query_self_similarity`).
+    self_similarity_of_query: std::collections::BTreeMap<NodeId, f64>,
     /// Time spent in those searches (s).
     self_similarity_seconds: f64,
     /// The conditional merge and its graph copy G' (Sec. 5.2).
@@ -253,6 +256,7 @@ impl Engine {
             self_similarity,
             self_similarity_of_view: std::collections::BTreeMap::new(),
             joint_self_similarity: std::collections::BTreeMap::new(),
+            self_similarity_of_query: std::collections::BTreeMap::new(),
             self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
@@ -384,8 +388,14 @@ impl Engine {
         &self.joint_self_similarity
     }
 
-    /// Time spent searching views (and joint sets of views) for another placement of their
-    /// own map (s).
+    /// The queries searched for another placement of their own local map so far
+    /// (`decisions.query_self_similarity`), by node, with that placement's score.
+    pub fn query_self_similarity(&self) -> &std::collections::BTreeMap<NodeId, f64> {
+        &self.self_similarity_of_query
+    }
+
+    /// Time spent searching views (and joint sets of views, and queries) for another
+    /// placement of their own map (s).
     pub fn self_similarity_seconds(&self) -> f64 {
         self.self_similarity_seconds
     }
@@ -606,6 +616,8 @@ impl Engine {
                 continue;
             };
             let view_self_similar = self.check_self_similarity(map, edge.inactive);
+            let query_self_similar =
+                decisions.query_self_similarity && self.check_query_self_similarity(edge.active);
             let robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
             let observation = Observation {
                 target: Target::Merge { map: map.0 },
@@ -613,7 +625,7 @@ impl Engine {
                 robot: edge.active.0,
                 robot_from_target: robot_from_inactive,
                 covariance: decisions.observation_covariance(&covariance),
-                ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
+                ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0) || query_self_similar,
                 edge: ObservedEdge::Merge(edge),
             };
             let (id, accepted) = self.observe(observation, travel_m);
@@ -640,20 +652,13 @@ impl Engine {
     /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself
     /// at another place (`decisions.self_similarity`); each view is searched once.
     fn check_self_similarity(&mut self, map: MapId, node: NodeId) -> bool {
-        let Some(search) = &self.self_similarity else {
-            return false;
-        };
         let threshold = self.params.decisions.self_similar_from_score;
         if let Some(score) = self.self_similarity_of_view.get(&node) {
             return *score >= threshold;
         }
-        let started = std::time::Instant::now();
-        let score = self
-            .atlas
-            .view_keyframe(map, node)
-            .and_then(|keyframe| search.best_other_placement(&keyframe))
-            .map_or(0.0, |(_, proof)| proof.score);
-        self.self_similarity_seconds += started.elapsed().as_secs_f64();
+        let Some(score) = self.self_similarity_score(|atlas| atlas.view_keyframe(map, node)) else {
+            return false;
+        };
         self.self_similarity_of_view.insert(node, score);
         let self_similar = score >= threshold;
         if self_similar && self.ambiguity.mark(node.0) {
@@ -662,6 +667,39 @@ impl Engine {
             });
         }
         self_similar
+    }
+
+    /// Whether active-graph keyframe `node`, the query of a merge observation, has a local
+    /// map that fits itself at another place (`decisions.query_self_similarity`): a match is
+    /// only as unique as the less unique of its two places, and the robot's own map may show
+    /// the period or symmetry that the view's does not contain. Each query is searched once.
+    fn check_query_self_similarity(&mut self, node: NodeId) -> bool {
+        let threshold = self.params.decisions.self_similar_from_score;
+        if let Some(score) = self.self_similarity_of_query.get(&node) {
+            return *score >= threshold;
+        }
+        let Some(score) = self.self_similarity_score(|atlas| atlas.query_keyframe(node)) else {
+            return false;
+        };
+        self.self_similarity_of_query.insert(node, score);
+        score >= threshold
+    }
+
+    /// The score of the best placement of a local map on itself away from the identity (0
+    /// when there is none, or no such local map), the map made by `local_map` from the atlas;
+    /// `None` when `decisions.self_similarity` is off. Its time counts in
+    /// `self_similarity_seconds`.
+    fn self_similarity_score(
+        &mut self,
+        local_map: impl FnOnce(&Atlas) -> Option<mapmerge_place::Keyframe>,
+    ) -> Option<f64> {
+        let search = self.self_similarity.as_ref()?;
+        let started = std::time::Instant::now();
+        let score = local_map(&self.atlas)
+            .and_then(|keyframe| search.best_other_placement(&keyframe))
+            .map_or(0.0, |(_, proof)| proof.score);
+        self.self_similarity_seconds += started.elapsed().as_secs_f64();
+        Some(score)
     }
 
     /// A merge hypothesis whose views fit themselves elsewhere one by one counts them in
@@ -677,9 +715,9 @@ impl Engine {
     ) -> Option<Hypothesis<ObservedEdge>> {
         let decisions = &self.params.decisions;
         let threshold = decisions.self_similar_from_score;
-        let search = self.self_similarity.as_ref()?;
         let hypothesis = self.filter.hypothesis(id)?;
         if !decisions.joint_views
+            || self.self_similarity.is_none()
             || !matches!(
                 hypothesis.state(),
                 HypothesisState::Tentative | HypothesisState::Conditional
@@ -711,14 +749,9 @@ impl Engine {
         let score = match self.joint_self_similarity.get(&joint) {
             Some(score) => *score,
             None => {
-                let started = std::time::Instant::now();
                 let nodes: Vec<NodeId> = joint.iter().map(|v| NodeId(*v)).collect();
-                let score = self
-                    .atlas
-                    .joint_view_keyframe(map, &nodes)
-                    .and_then(|keyframe| search.best_other_placement(&keyframe))
-                    .map_or(0.0, |(_, proof)| proof.score);
-                self.self_similarity_seconds += started.elapsed().as_secs_f64();
+                let score =
+                    self.self_similarity_score(|atlas| atlas.joint_view_keyframe(map, &nodes))?;
                 self.joint_self_similarity.insert(joint, score);
                 score
             }
@@ -726,7 +759,15 @@ impl Engine {
         if score >= threshold {
             return None;
         }
-        let outcome = self.filter.count_views_again(id, &self_similar)?;
+        // An observation from a query that fits itself elsewhere stays ambiguous
+        // (`decisions.query_self_similarity`): the views' joint map says nothing of it.
+        let queries = &self.self_similarity_of_query;
+        let outcome = self.filter.count_again(id, |o| {
+            self_similar.contains(&o.view)
+                && queries
+                    .get(&NodeId(o.robot))
+                    .is_none_or(|score| *score < threshold)
+        })?;
         self.log_filter_events(outcome.events);
         outcome.accepted
     }

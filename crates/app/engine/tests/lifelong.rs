@@ -10,6 +10,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
 use mapmerge_engine::{Engine, EngineParams, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_hypothesis::{FilterEvent, HypothesisId, Target};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_sim::{simulate, SimParams};
 use mapmerge_verify::LearnedModel;
@@ -447,4 +448,55 @@ fn a_view_whose_own_map_fits_itself_elsewhere_is_ambiguous_from_its_first_observ
     assert!(engine.hypothesis_summary().merge > 0);
     assert!(engine.view_self_similarity().is_empty());
     assert!(engine.joint_self_similarity().is_empty());
+}
+
+#[test]
+fn a_merge_observation_whose_query_fits_itself_elsewhere_counts_for_nothing() {
+    // Warehouse fitting seed 5: the robot's own local map in the racking fits itself an
+    // aisle over while some of the old map's views there do not (their local maps hold one
+    // aisle). Joint views are off, so nothing is counted again and a hypothesis's weighted
+    // observations can only grow by observations that count.
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.query_self_similarity = true;
+    engine_params.decisions.joint_views = false;
+    let (engine, _) = run_with(engine_params, "warehouse", 5, 3, 120.0);
+    let threshold = engine.params().decisions.self_similar_from_score;
+    let queries = engine.query_self_similarity();
+    assert!(
+        queries.values().any(|score| *score >= threshold),
+        "no self-similar query: {queries:?}"
+    );
+    let mut weighted: BTreeMap<HypothesisId, f64> = BTreeMap::new();
+    let mut checked = 0;
+    for event in engine.events() {
+        let EventKind::Hypothesis(FilterEvent::Updated {
+            id,
+            target: Target::Merge { .. },
+            robot,
+            counts,
+            ..
+        }) = event.event
+        else {
+            continue;
+        };
+        let query_score = queries.get(&NodeId(robot)).copied();
+        assert!(query_score.is_some(), "query {robot} was not searched");
+        if let (Some(before), Some(score)) = (weighted.get(&id), query_score) {
+            if score >= threshold {
+                checked += 1;
+                assert!(
+                    counts.weighted_observations <= *before + 1e-9,
+                    "hypothesis {id:?}: query {robot} fits itself elsewhere ({score}) but \
+                     counted ({before} -> {})",
+                    counts.weighted_observations
+                );
+            }
+        }
+        weighted.insert(id, counts.weighted_observations);
+    }
+    assert!(checked > 0, "no update from a self-similar query");
+    // Off by default: no query is searched.
+    let (engine, _) = run("warehouse", 5, 3, 120.0);
+    assert!(engine.hypothesis_summary().merge > 0);
+    assert!(engine.query_self_similarity().is_empty());
 }

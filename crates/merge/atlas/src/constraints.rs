@@ -996,19 +996,26 @@ impl<B: BackupStore> Atlas<B> {
         )
     }
 
-    /// The newest current-epoch keyframe as a place-recognition query.
-    fn newest_query(&self) -> Option<PlaceQuery> {
-        let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
-        let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
-        let offset_descriptors = self.describe_beside(&self.active, node);
-        let local_maps = local_map_keyframes(
+    /// Vertex `node` of the active graph as the merge search's query: its local map (see
+    /// [`crate::KeyframeParams`]); `None` for an unknown vertex.
+    pub fn query_keyframe(&self, node: NodeId) -> Option<mapmerge_place::Keyframe> {
+        local_map_keyframes(
             &self.active,
             &self.keyframes,
             &self.params.keyframes,
             &[node],
             None,
-        );
-        let keyframe = local_maps.into_values().next()?;
+        )
+        .into_values()
+        .next()
+    }
+
+    /// The newest current-epoch keyframe as a place-recognition query.
+    fn newest_query(&self) -> Option<PlaceQuery> {
+        let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
+        let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
+        let offset_descriptors = self.describe_beside(&self.active, node);
+        let keyframe = self.query_keyframe(node)?;
         let pose = self.active.vertex(node)?.pose;
         Some(PlaceQuery {
             node,

@@ -177,7 +177,7 @@ pub struct ObserveOutcome<E> {
     pub events: Vec<FilterEvent>,
 }
 
-/// What [`crate::HypothesisFilter::count_views_again`] did.
+/// What [`crate::HypothesisFilter::count_again`] did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Reconsidered<E> {
     /// Observations that count in full again.

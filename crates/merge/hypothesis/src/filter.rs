@@ -360,18 +360,19 @@ impl<E> HypothesisFilter<E> {
         changed
     }
 
-    /// Counts hypothesis `id`'s observations of `views` in full again: views ambiguous one
-    /// by one whose joint map is not (what they saw together fits nowhere else), then
-    /// re-evaluates its acceptance as after an observation. `None` when `id` is not live.
-    pub fn count_views_again(
+    /// Counts the ambiguous observations of hypothesis `id` that `counts_again` picks in
+    /// full again (e.g. of views ambiguous one by one whose joint map is not: what they saw
+    /// together fits nowhere else), then re-evaluates its acceptance as after an
+    /// observation. `None` when `id` is not live.
+    pub fn count_again(
         &mut self,
         id: HypothesisId,
-        views: &BTreeSet<u64>,
+        counts_again: impl Fn(&Observation<E>) -> bool,
     ) -> Option<Reconsidered<E>> {
         let h = self.live.get_mut(&id)?;
         let mut changed = 0;
         for record in &mut h.observations {
-            if record.observation.ambiguous && views.contains(&record.observation.view) {
+            if record.observation.ambiguous && counts_again(&record.observation) {
                 record.observation.ambiguous = false;
                 changed += 1;
             }

@@ -292,7 +292,7 @@ fn views_counted_again_make_a_hypothesis_conditional_and_then_full() {
     assert!(ids.iter().all(|id| *id == h));
     assert_eq!(f.hypothesis(h).unwrap().state(), HypothesisState::Tentative);
     // Views 10 and 11 count again: 2 views, 2 observations, conditional.
-    let again = f.count_views_again(h, &[10, 11].into()).unwrap();
+    let again = f.count_again(h, |o| [10, 11].contains(&o.view)).unwrap();
     assert_eq!(again.changed, 2);
     assert!(again.conditional_started);
     assert!(again.accepted.is_none());
@@ -301,18 +301,18 @@ fn views_counted_again_make_a_hypothesis_conditional_and_then_full() {
         [FilterEvent::Conditional { id, .. }] if id == h
     ));
     // Counting them again changes nothing.
-    let same = f.count_views_again(h, &[10, 11].into()).unwrap();
+    let same = f.count_again(h, |o| [10, 11].contains(&o.view)).unwrap();
     assert_eq!((same.changed, same.conditional_started), (0, false));
     assert!(same.events.is_empty());
     // Two more counting views and view 12 again: 5 observations of 5 views over 4 m, full.
     observe_views(&mut f, MAP_1, at(), &[13, 14], 3.0, 1.0);
-    let full = f.count_views_again(h, &[12].into()).unwrap();
+    let full = f.count_again(h, |o| [12].contains(&o.view)).unwrap();
     assert_eq!(
         full.accepted.map(|a| a.state()),
         Some(HypothesisState::Full)
     );
     // Not live any more.
-    assert!(f.count_views_again(h, &[10].into()).is_none());
+    assert!(f.count_again(h, |o| [10].contains(&o.view)).is_none());
 }
 
 #[test]
