@@ -310,7 +310,8 @@ fn with_free_cells(
     rays: Vec<(Point2, Point2)>,
     free_cells: Vec<Point2>,
 ) -> Keyframe {
-    if !(resolution_m > 0.0) {
+    // NaN too.
+    if resolution_m.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return keyframe;
     }
     let cell = |p: &Point2| {
