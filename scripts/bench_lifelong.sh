@@ -128,7 +128,7 @@ if logs:
     latency = os.path.join(out, "memory-latency.md")
     if os.path.exists(latency):
         print()
-        print("Memory latency on core 0 during this run (`cargo bench -p mapmerge-verify --bench memory_latency`):")
+        print("Memory latency on core 0 right after these runs (`cargo bench -p mapmerge-verify --bench memory_latency`):")
         print()
         print(open(latency).read().strip())
 PY

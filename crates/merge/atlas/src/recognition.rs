@@ -310,7 +310,7 @@ fn with_free_cells(
     rays: Vec<(Point2, Point2)>,
     free_cells: Vec<Point2>,
 ) -> Keyframe {
-    // NaN too.
+    // Not positive, or NaN: no cells to rasterise.
     if resolution_m.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
         return keyframe;
     }
