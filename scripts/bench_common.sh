@@ -9,3 +9,10 @@ mapmerge_bin() {
     realpath target/release/mapmerge
   fi
 }
+# The machine's memory latency on core 0 (`cargo bench -p mapmerge-verify --bench
+# memory_latency`, a Markdown table) into file $1: timings that wait on memory (the matcher,
+# gridmap) follow it, and it has varied tenfold between sessions on this machine.
+memory_latency() {
+  local pin=(); command -v taskset >/dev/null && pin=(taskset -c 0)
+  "${pin[@]}" cargo bench -q -p mapmerge-verify --bench memory_latency > "$1"
+}

@@ -12,6 +12,7 @@
 # latency in bench-out/memory-latency.md); OUT_DIR=… elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source scripts/bench_common.sh
 seed=0; max_pairs=15; methods=""; only=(); valid_at=start-frames; length_args=(); noise=default
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -64,8 +65,7 @@ worker() {
   done
 }
 # The machine's memory latency beside the times (gridmap's update is bound by it, §8).
-pin0=(); command -v taskset >/dev/null && pin0=(taskset -c 0)
-"${pin0[@]}" cargo bench -q -p mapmerge-verify --bench memory_latency > "$out/memory-latency.md"
+memory_latency "$out/memory-latency.md"
 even=(); odd=()
 for k in "${!logs[@]}"; do
   if (( k % 2 == 0 )); then even+=("${logs[$k]}"); else odd+=("${logs[$k]}"); fi

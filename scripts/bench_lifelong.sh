@@ -13,6 +13,7 @@
 # --config passes engine parameters to every run (e.g. {"detector": "learned"}).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+source scripts/bench_common.sh
 jobs=2; only=""; config=(); fitting=0
 while [[ $# -gt 0 ]]; do
   case "$1" in
@@ -58,11 +59,8 @@ if [[ "$only" != sim ]]; then
     "${one_core[@]}" "$bin" atlas "$path" "${config[@]}" --kidnap-at "$((n / 4)),$((n / 2)),$((3 * n / 4))" \
       --judge-with-log-poses --no-pictures -o "$out/log-$log" --json > "$out/log-$log.json" 2> "$out/log-$log.err"
   done
-  # The machine's memory latency beside the times: the engine's time is mostly the
-  # correlative matcher's grid loads (docs/benchmarks.md §10), and this machine's latency
-  # beyond 1 MB has varied tenfold between sessions.
-  pin0=(); command -v taskset >/dev/null && pin0=(taskset -c 0)
-  "${pin0[@]}" cargo bench -q -p mapmerge-verify --bench memory_latency > "$out/memory-latency.md"
+  # Beside the times: the engine's time is mostly the matcher's grid loads (§10).
+  memory_latency "$out/memory-latency.md"
 fi
 wait
 python3 - "$out" > "$out/../lifelong.md" <<'PY'
@@ -123,8 +121,8 @@ if logs:
         print(f"| {name[4:]} | {r['scans']} | {r['epochs'] - 1} | {r['epochs_merged_correctly']} | {r['wrong_merges']} | {kept_wrong} | {decisions} | {r['ms_per_scan']:.1f} |")
     # The time target: the average over every scan of the three runs.
     scans = sum(r["scans"] for _, r in logs)
-    total_ms = sum(r["ms_per_scan"] * r["scans"] for _, r in logs)
-    print(f"| **all** | {scans} | | | | | | {total_ms / max(scans, 1):.2f} |")
+    seconds = sum(r["seconds"] for _, r in logs)
+    print(f"| **all** | {scans} | | | | | | {1e3 * seconds / max(scans, 1):.2f} |")
     latency = os.path.join(out, "memory-latency.md")
     if os.path.exists(latency):
         print()
