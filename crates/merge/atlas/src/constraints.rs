@@ -614,9 +614,19 @@ impl<B: BackupStore> Atlas<B> {
                     distance <= loops_params.refine_below_drift_m
                         && loops_params.refine_first.accepts(m, &guess)
                 });
-            let Some(found) =
-                refined.or_else(|| matcher.match_scan(submap.target(), &points, &guess, &window))
-            else {
+            // Matches below `min_score` are refused below, so the search need only prove that
+            // nothing reaches it (the same loops; fewer cells where none is found).
+            let Some(found) = refined.or_else(|| {
+                matcher.match_scan_above(
+                    submap.target(),
+                    &points,
+                    &guess,
+                    &window,
+                    loops_params
+                        .min_score
+                        .max(matcher.params().correlative.min_score),
+                )
+            }) else {
                 continue;
             };
             // ICP's covariance shows a corridor's ambiguity; the correlative one cannot.

@@ -318,10 +318,20 @@ impl Search {
         sum as f64 / (self.point_count as f64 * f64::from(LIKELIHOOD_MAX))
     }
 
-    /// The smallest integer sum whose score reaches `min_score`.
+    /// The smallest integer sum whose score reaches `min_score`: the product's rounding
+    /// corrected, so that the search's integer test and a caller's test of the returned
+    /// score (`score < min_score`) never disagree.
     fn threshold(&self, min_score: f64) -> u64 {
-        let full = self.point_count as f64 * f64::from(LIKELIHOOD_MAX);
-        (min_score.max(0.0) * full).ceil().min(full) as u64
+        let full_sum = self.point_count * u64::from(LIKELIHOOD_MAX);
+        let full = full_sum as f64;
+        let mut sum = (min_score.max(0.0) * full).ceil().min(full) as u64;
+        while sum > 0 && self.normalise(sum - 1) >= min_score {
+            sum -= 1;
+        }
+        while sum < full_sum && self.normalise(sum) < min_score {
+            sum += 1;
+        }
+        sum
     }
 
     /// Olson 2009, Sec. IV: mean and covariance of the pose under the score distribution

@@ -5,7 +5,7 @@ use mapmerge_scan::{scan_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix3;
 use serde::Serialize;
 
-use crate::correlative::{match_scan, score_at, MatchTarget};
+use crate::correlative::{match_scan_above, score_at, MatchTarget};
 use crate::error::ScanMatchError;
 use crate::icp::{refine_icp, IcpInfo, IcpTarget};
 use crate::params::{IcpParams, ScanMatchParams, SearchWindow};
@@ -184,12 +184,34 @@ impl ScanMatcher {
         guess_target_from_robot: &Se2,
         window: &SearchWindow,
     ) -> Option<Match> {
+        self.match_scan_above(
+            target,
+            query_points_in_robot,
+            guess_target_from_robot,
+            window,
+            target.correlative.params().min_score,
+        )
+    }
+
+    /// As [`ScanMatcher::match_scan`] with `min_score` in place of the target's floor: the same
+    /// match when its (correlative) score reaches `min_score`, `None` otherwise. A caller that
+    /// refuses matches below some score finds that out far sooner: the search proves that
+    /// nothing reaches the higher floor instead of the lower one.
+    pub fn match_scan_above(
+        &self,
+        target: &ScanMatchTarget,
+        query_points_in_robot: &[Point2],
+        guess_target_from_robot: &Se2,
+        window: &SearchWindow,
+        min_score: f64,
+    ) -> Option<Match> {
         // 1. Exhaustive-equivalent correlative search.
-        let coarse = match_scan(
+        let coarse = match_scan_above(
             &target.correlative,
             query_points_in_robot,
             guess_target_from_robot,
             window,
+            min_score,
         )?;
         let mut result = Match {
             target_from_query: coarse.target_from_query,

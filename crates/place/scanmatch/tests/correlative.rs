@@ -6,8 +6,8 @@
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::Point2;
 use mapmerge_scanmatch::{
-    match_scan, match_scan_above, match_scan_brute_force, CorrelativeParams, MatchTarget,
-    ScanMatcher, SearchWindow,
+    match_scan, match_scan_above, match_scan_brute_force, CorrelativeParams, Match, MatchTarget,
+    ScanMatchParams, ScanMatcher, SearchWindow,
 };
 use proptest::prelude::*;
 
@@ -223,6 +223,35 @@ proptest! {
         } else {
             prop_assert!(above.is_none(), "{:?} below {}", above, floor);
         }
+    }
+
+    /// The floor is applied exactly as a caller compares scores: a floor at the optimum's own
+    /// score keeps it, the next score up refuses it. The matcher (correlative search, then
+    /// ICP) gives the same match with a floor it reaches as without one.
+    #[test]
+    fn a_floor_at_the_optimums_score_keeps_it_and_the_next_score_up_refuses_it(
+        segments in prop::collection::vec((-2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64), 1..6),
+        offset in (-0.2..0.2f64, -0.2..0.2f64, -0.2..0.2f64),
+        keep_every in 1usize..7,
+    ) {
+        let points = random_target(&segments);
+        let mut params = ScanMatchParams::default();
+        params.correlative.min_score = 0.0;
+        let matcher = ScanMatcher::new(params).unwrap();
+        let target = matcher.target(&points).unwrap();
+        let truth = Se2::new(offset.0, offset.1, offset.2);
+        let query: Vec<Point2> = seen_from(&points, &truth).into_iter().step_by(keep_every).collect();
+        let window = SearchWindow::new(0.3, 0.2);
+        let all = matcher.match_scan(&target, &query, &Se2::identity(), &window).unwrap();
+        prop_assume!(all.score > 0.0);
+        let at = matcher.match_scan_above(&target, &query, &Se2::identity(), &window, all.score);
+        // The same match, found with fewer candidates scored.
+        let at = at.unwrap();
+        prop_assert!(at.candidates <= all.candidates);
+        prop_assert_eq!(Match { candidates: all.candidates, ..at }, all);
+        let next_up = f64::from_bits(all.score.to_bits() + 1);
+        let above = matcher.match_scan_above(&target, &query, &Se2::identity(), &window, next_up);
+        prop_assert!(above.is_none(), "{:?} above {}", above, next_up);
     }
 }
 
