@@ -622,9 +622,7 @@ impl<B: BackupStore> Atlas<B> {
                     &points,
                     &guess,
                     &window,
-                    loops_params
-                        .min_score
-                        .max(matcher.params().correlative.min_score),
+                    loops_params.min_score,
                 )
             }) else {
                 continue;

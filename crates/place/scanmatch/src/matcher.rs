@@ -193,10 +193,10 @@ impl ScanMatcher {
         )
     }
 
-    /// As [`ScanMatcher::match_scan`] with `min_score` in place of the target's floor: the same
-    /// match when its (correlative) score reaches `min_score`, `None` otherwise. A caller that
-    /// refuses matches below some score finds that out far sooner: the search proves that
-    /// nothing reaches the higher floor instead of the lower one.
+    /// As [`ScanMatcher::match_scan`], also refusing matches whose (correlative) score is below
+    /// `min_score`: the same match when it reaches both floors, `None` otherwise. A caller
+    /// that refuses matches below some score finds that out far sooner: the search proves
+    /// that nothing reaches the higher floor instead of the lower one.
     pub fn match_scan_above(
         &self,
         target: &ScanMatchTarget,
@@ -211,7 +211,7 @@ impl ScanMatcher {
             query_points_in_robot,
             guess_target_from_robot,
             window,
-            min_score,
+            min_score.max(target.correlative.params().min_score),
         )?;
         let mut result = Match {
             target_from_query: coarse.target_from_query,

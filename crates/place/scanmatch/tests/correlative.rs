@@ -226,8 +226,9 @@ proptest! {
     }
 
     /// The floor is applied exactly as a caller compares scores: a floor at the optimum's own
-    /// score keeps it, the next score up refuses it. The matcher (correlative search, then
-    /// ICP) gives the same match with a floor it reaches as without one.
+    /// score keeps it, the next score up refuses it, and so does the target's own floor when
+    /// the caller's is lower. The matcher (correlative search, then ICP) gives the same match
+    /// with a floor it reaches as without one.
     #[test]
     fn a_floor_at_the_optimums_score_keeps_it_and_the_next_score_up_refuses_it(
         segments in prop::collection::vec((-2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64, -2.0..2.0f64), 1..6),
@@ -252,6 +253,12 @@ proptest! {
         let next_up = f64::from_bits(all.score.to_bits() + 1);
         let above = matcher.match_scan_above(&target, &query, &Se2::identity(), &window, next_up);
         prop_assert!(above.is_none(), "{:?} above {}", above, next_up);
+        // A lower floor of the caller's does not lower the target's own.
+        params.correlative.min_score = next_up;
+        let strict = ScanMatcher::new(params).unwrap();
+        let strict_target = strict.target(&points).unwrap();
+        let below = strict.match_scan_above(&strict_target, &query, &Se2::identity(), &window, 0.0);
+        prop_assert!(below.is_none(), "{:?} below the target's {}", below, next_up);
     }
 }
 
