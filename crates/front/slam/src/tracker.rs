@@ -365,18 +365,26 @@ impl LocalTracker {
         if submap.is_empty() {
             return None;
         }
-        submap.prepare();
         let guess = submap.local_from_submap.between(predicted);
-        let target = submap.target();
         let refined = self
             .matcher
-            .refine(target, points, &guess)
+            .refine(submap.target(), points, &guess)
             .filter(|m| self.params.refine_first.accepts(m, &guess));
         self.info.refined += usize::from(refined.is_some());
-        let mut found = refined.or_else(|| {
-            self.matcher
-                .match_scan(target, points, &guess, &self.params.odometry_window)
-        })?;
+        let mut found = match refined {
+            Some(refined) => refined,
+            // Only the correlative search reads the submap's coarse levels: they are brought
+            // up to date here, not for every scan that ICP matched.
+            None => {
+                submap.prepare();
+                self.matcher.match_scan(
+                    submap.target(),
+                    points,
+                    &guess,
+                    &self.params.odometry_window,
+                )?
+            }
+        };
         let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
         let prior_covariance = odometry_covariance(
             &previous_local.between(predicted),

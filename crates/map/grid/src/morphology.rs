@@ -23,12 +23,13 @@ pub struct DistanceField {
 impl OccupancyGrid {
     /// The cells of class `class`.
     pub fn mask(&self, class: CellClass, thresholds: &ClassThresholds) -> CellMask {
+        let mut classify = thresholds.classifier();
         CellMask {
             geometry: *self.geometry(),
             set: self
                 .log_odds()
                 .iter()
-                .map(|&l| thresholds.classify(l) == class)
+                .map(|&l| classify(l) == class)
                 .collect(),
         }
     }

@@ -64,6 +64,21 @@ impl ClassThresholds {
             CellClass::Unknown
         }
     }
+
+    /// [`Self::classify`] for many cells in a row: a grid's log-odds come in runs of one
+    /// value (unknown, clamped free), so the last value's class is kept and its probability
+    /// (an `exp`) not computed again.
+    pub fn classifier(&self) -> impl FnMut(f32) -> CellClass + '_ {
+        let mut last: Option<(u32, CellClass)> = None;
+        move |log_odds| match last {
+            Some((bits, class)) if bits == log_odds.to_bits() => class,
+            _ => {
+                let class = self.classify(log_odds);
+                last = Some((log_odds.to_bits(), class));
+                class
+            }
+        }
+    }
 }
 
 /// The inverse sensor model: log-odds added for a beam ending in a cell (hit) or passing
@@ -221,10 +236,8 @@ impl OccupancyGrid {
 
     /// Class of every cell, row-major.
     pub fn classes(&self, thresholds: &ClassThresholds) -> Vec<CellClass> {
-        self.log_odds
-            .iter()
-            .map(|&l| thresholds.classify(l))
-            .collect()
+        let mut classify = thresholds.classifier();
+        self.log_odds.iter().map(|&l| classify(l)).collect()
     }
 
     /// Sets the log-odds of `cell`, growing the grid if needed.
@@ -356,4 +369,29 @@ fn check_geometry(geometry: &GridGeometry) -> Result<(), GridError> {
         return Err(GridError::TooLarge);
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The run-keeping classifier gives every cell the class `classify` gives it.
+        #[test]
+        fn the_classifier_agrees_with_classify(
+            values in proptest::collection::vec(
+                prop_oneof![Just(0.0f32), Just(-2.0f32), Just(3.5f32), Just(f32::NAN), -5.0f32..5.0],
+                0..64,
+            ),
+            occupied_min in 0.5f64..1.0,
+            free_max in 0.0f64..0.5,
+        ) {
+            let thresholds = ClassThresholds { occupied_min, free_max };
+            let mut classify = thresholds.classifier();
+            for l in values {
+                prop_assert_eq!(classify(l), thresholds.classify(l), "log-odds {}", l);
+            }
+        }
+    }
 }

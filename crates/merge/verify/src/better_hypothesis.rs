@@ -131,6 +131,8 @@ pub struct BetterHypothesisDetector {
     index: PlaceIndex<PlaceSignature>,
     vertices: usize,
     info: BetterHypothesisInfo,
+    /// How many times the other epochs' keyframes were built.
+    other_builds: usize,
 }
 
 impl Default for BetterHypothesisDetector {
@@ -217,6 +219,7 @@ impl BetterHypothesisDetector {
             keyframes: Vec::new(),
             vertices: 0,
             info: BetterHypothesisInfo::default(),
+            other_builds: 0,
         }
     }
 
@@ -235,8 +238,21 @@ impl BetterHypothesisDetector {
         unit(c / (c + a + self.params.prior_agreeing.max(0.0)))
     }
 
+    /// The other epochs' keyframes: in their own frames, with poses read at query time, so
+    /// built again only when the other epochs' vertices changed.
+    fn keep_or_rebuild(&mut self, other: &[DetectorScan]) {
+        if self
+            .snapshot
+            .as_ref()
+            .is_none_or(|s| !s.same_vertices(other))
+        {
+            self.prepare(other);
+        }
+    }
+
     fn prepare(&mut self, other: &[DetectorScan]) {
         self.snapshot = Some(OtherSnapshot::new(other));
+        self.other_builds += 1;
         self.index = PlaceIndex::new(self.params.place.index.clone());
         self.keyframes.clear();
         for i in 0..other.len() {
@@ -247,6 +263,11 @@ impl BetterHypothesisDetector {
             );
             self.keyframes.push(keyframe);
         }
+        self.forget_evidence();
+    }
+
+    /// Starts the count of vertices and of agreeing and contradicting places over.
+    fn forget_evidence(&mut self) {
         self.vertices = 0;
         self.info = BetterHypothesisInfo::default();
     }
@@ -366,20 +387,15 @@ impl InvalidMergeDetector for BetterHypothesisDetector {
         "better_hypothesis"
     }
 
+    /// A new merge starts its evidence over. The other epochs' keyframes stay when their
+    /// vertices are the same (a conditional merge made full), as they do for a new vertex.
     fn on_merge(&mut self, map: &MergedMap<'_>) {
-        self.prepare(map.other);
+        self.keep_or_rebuild(map.other);
+        self.forget_evidence();
     }
 
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
-        // Keyframes are in their own frames; poses are read at query time, so only a change
-        // of the other epochs' vertices needs a rebuild.
-        if self
-            .snapshot
-            .as_ref()
-            .is_none_or(|s| !s.same_vertices(map.other))
-        {
-            self.prepare(map.other);
-        }
+        self.keep_or_rebuild(map.other);
         if self.keyframes.is_empty() {
             return 0.0;
         }
@@ -468,6 +484,22 @@ mod tests {
         let ratio = case.max_ratio(&mut unchecked);
         assert!(unchecked.info().contradicting > 0, "{:?}", unchecked.info());
         assert!(ratio > 0.0);
+    }
+
+    /// A second merge of the same epochs (a conditional merge made full) keeps their
+    /// keyframes and starts the evidence over: it reads what a fresh detector reads.
+    #[test]
+    fn a_merge_of_the_same_epochs_keeps_their_keyframes_and_starts_the_evidence_over() {
+        let open = World::office(false);
+        let far = Case::office(&open, &open, &Se2::new(20.0, 0.0, 0.0));
+        let mut restarted = BetterHypothesisDetector::default();
+        let mut fresh = BetterHypothesisDetector::default();
+        far.merge_again_halfway(&mut restarted, &mut fresh);
+        assert_eq!(restarted.other_builds, 1);
+        assert!(restarted.info().contradicting > 0, "{:?}", restarted.info());
+        assert_eq!(restarted.info(), fresh.info());
+        far.merge_other_epochs(&mut restarted);
+        assert_eq!(restarted.other_builds, 2);
     }
 
     #[test]

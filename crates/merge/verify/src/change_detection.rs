@@ -425,6 +425,8 @@ pub struct ChangeDetectionDetector {
     entries: Vec<Entry>,
     scratch: Scratch,
     info: ChangeDetectionInfo,
+    /// How many times the other epochs' data was built.
+    other_builds: usize,
 }
 
 impl ChangeDetectionDetector {
@@ -484,6 +486,22 @@ impl ChangeDetectionDetector {
         }
     }
 
+    /// The other epochs' data: rebuilt when they changed or moved by half a visibility cell
+    /// (small moves are handled per pair by the window's cache check), kept otherwise.
+    fn keep_or_rebuild(&mut self, other: &[DetectorScan]) {
+        let half_cell = self.params.visibility_cell_m.max(0.0) * 0.5;
+        let rebuild = self.prepared.as_ref().is_none_or(|p| {
+            !p.snapshot.still_valid(
+                other,
+                half_cell,
+                half_cell / self.params.max_range_m.max(1.0),
+            )
+        });
+        if rebuild {
+            self.prepare(other);
+        }
+    }
+
     fn prepare(&mut self, other: &[DetectorScan]) {
         let bins = Bins::new(&self.params);
         let visibility = build_visibility(other, &self.params, &mut self.scratch);
@@ -503,6 +521,7 @@ impl ChangeDetectionDetector {
         self.scratch.fused_mark.resize(other.len(), 0);
         self.scratch.fused_generation = 0;
         self.scratch.spare.append(&mut self.entries);
+        self.other_builds += 1;
         self.prepared = Some(Prepared {
             snapshot: OtherSnapshot::new(other),
             visibility,
@@ -716,26 +735,17 @@ impl InvalidMergeDetector for ChangeDetectionDetector {
         "change_detection"
     }
 
+    /// A new merge of the same epochs, not moved beyond the cache's tolerance (a conditional
+    /// merge made full), keeps their data and the window's, as a new vertex would.
     fn on_merge(&mut self, map: &MergedMap<'_>) {
-        self.prepare(map.other);
+        self.keep_or_rebuild(map.other);
         self.info = ChangeDetectionInfo::default();
     }
 
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
         self.info = ChangeDetectionInfo::default();
-        // 1. The other epochs' data: rebuild when they changed or moved by half a visibility
-        // cell (small moves are handled per pair by the cache check below).
-        let half_cell = self.params.visibility_cell_m.max(0.0) * 0.5;
-        let rebuild = self.prepared.as_ref().is_none_or(|p| {
-            !p.snapshot.still_valid(
-                map.other,
-                half_cell,
-                half_cell / self.params.max_range_m.max(1.0),
-            )
-        });
-        if rebuild {
-            self.prepare(map.other);
-        }
+        // 1. The other epochs' data.
+        self.keep_or_rebuild(map.other);
         let Some(prepared) = self.prepared.take() else {
             return 0.0;
         };
@@ -1012,6 +1022,20 @@ mod tests {
         };
         d.on_vertex(&map);
         assert!(d.info().classified_scans >= 1);
+    }
+
+    /// A second merge of the same epochs, unmoved (a conditional merge made full), keeps
+    /// their data and the window's, and reads what a fresh detector reads; a merge of other
+    /// epochs builds theirs.
+    #[test]
+    fn a_merge_of_the_same_epochs_keeps_their_data() {
+        let open = World::office(false);
+        let case = Case::office(&open, &open, &wrong_turned());
+        let mut restarted = ChangeDetectionDetector::default();
+        case.merge_again_halfway(&mut restarted, &mut ChangeDetectionDetector::default());
+        assert_eq!(restarted.other_builds, 1);
+        case.merge_other_epochs(&mut restarted);
+        assert_eq!(restarted.other_builds, 2);
     }
 
     #[test]

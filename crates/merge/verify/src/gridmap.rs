@@ -7,13 +7,15 @@
 //!   merge (exact ray casting, `mapmerge-grid`), classified and dilated (`CellMask::dilate`);
 //! - the window's grid is kept as per-cell counters (returns, beams through, returns within
 //!   the dilation square) on the other grid's lattice, so a new vertex adds one scan and
-//!   removes the one that left the window, and the overlap and contradiction counts are
-//!   updated for the cells whose class changed. Comparing on all cells known in the window's
+//!   removes the one that left the window (walking the cells its insertion recorded, not
+//!   tracing its beams again), and the overlap and contradiction counts are updated for the
+//!   cells whose class changed. Comparing on all cells known in the window's
 //!   grid is the paper's comparison in the bounding box, which contains every such cell;
 //!   cells the other epochs never saw cannot overlap and are not stored, and the window's
 //!   beams skip them (a bit per cell says which are known);
-//! - the other epochs' grid is kept while a re-optimisation only moves them rigidly: the
-//!   window is then inserted in the grid's frame.
+//! - the other epochs' grid is kept while a re-optimisation only moves them rigidly, and
+//!   across a new merge of the same epochs (a conditional merge made full): the window is
+//!   then inserted in the grid's frame.
 //!
 //! The window's grid classes (counter form of "hits win", as `mapmerge-grid` within a scan):
 //! occupied when any window scan returned from a cell (after dilation: from any cell of the
@@ -24,8 +26,6 @@
 //! both count. When the robot's scans cross only such space (it left the merged map, or the
 //! merge put it where the merged map has no structure) the overlap stays below `τ`: the
 //! ratio is 0 and the merge is *unsupported* ([`Evidence::Unsupported`]), not valid.
-
-use std::sync::Arc;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};
@@ -64,7 +64,7 @@ pub struct GridmapParams {
     /// … or turned more than this (rad) (default: 0.5°).
     pub cache_rotation_rad: f64,
     /// Largest grid (cells); a larger extent gets coarser cells (default: 2²⁴, 100 × 160 m
-    /// at 2.5 cm).
+    /// at 2.5 cm; at most 2³⁰).
     pub max_cells: usize,
 }
 
@@ -87,6 +87,10 @@ impl Default for GridmapParams {
     }
 }
 
+/// Most cells a canvas stores (padded to whole tiles), so that a storage index fits in the
+/// `u32` of [`ScanCells::missed`]; `max_cells` is held to half of it.
+const MAX_STORED_CELLS: usize = 1 << 31;
+
 const UNKNOWN: u8 = 0;
 const FREE: u8 = 1;
 const OCCUPIED: u8 = 2;
@@ -102,12 +106,29 @@ pub struct GridmapInfo {
     pub updated_scans: usize,
 }
 
-/// A window scan as inserted (kept so that it can be removed exactly).
+/// A window scan as inserted: where it was, and the cells its beams changed, so that it is
+/// removed exactly without tracing its beams again.
 #[derive(Clone, Debug)]
 struct Inserted {
     node: NodeId,
     pose: Se2,
-    points: Arc<[Point2]>,
+    cells: ScanCells,
+}
+
+/// The cells one scan's beams changed in the window's grid.
+#[derive(Clone, Debug, Default)]
+struct ScanCells {
+    /// Storage index of every known cell a beam passed through, once per beam.
+    missed: Vec<u32>,
+    /// Every cell `(x, y)` a beam returned from, once per beam.
+    returned: Vec<(u32, u32)>,
+}
+
+impl ScanCells {
+    fn clear(&mut self) {
+        self.missed.clear();
+        self.returned.clear();
+    }
 }
 
 /// Where cell `(x, y)` of a grid is stored: in 32 × 32 tiles (8 KB of cell records), row by
@@ -276,14 +297,16 @@ impl Canvas {
         }
     }
 
-    /// Adds (or removes) the beams of `points_in_robot` taken at `map_from_robot`.
-    fn apply_scan(
+    /// Adds the beams of `points_in_robot` taken at `map_from_robot`, and records in `changed`
+    /// (cleared first) the cells they changed.
+    fn insert_scan(
         &mut self,
         map_from_robot: &Se2,
         points_in_robot: &[Point2],
         max_range_m: f64,
-        add: bool,
+        changed: &mut ScanCells,
     ) {
+        changed.clear();
         let Some(geometry) = self.geometry else {
             return;
         };
@@ -308,18 +331,32 @@ impl Canvas {
                 continue;
             };
             // Misses along the beam (the end cell excluded when it is the return; cells the
-            // other epochs never saw skipped), then the return.
+            // other epochs never saw skipped), then the return. Storage indices fit in u32
+            // (`MAX_STORED_CELLS`).
             mapmerge_grid::traverse_cells(from, to, end_inside, |x, y| {
                 let i = lattice.index(x as usize, y as usize);
                 if known.get(i >> 6).is_some_and(|w| (w >> (i & 63)) & 1 == 1) {
-                    self.miss(i, add);
+                    self.miss(i, true);
+                    changed.missed.push(i as u32);
                 }
             });
             if end_inside {
-                self.hit(end.x.floor() as usize, end.y.floor() as usize, add);
+                let (x, y) = (end.x.floor() as u32, end.y.floor() as u32);
+                self.hit(x as usize, y as usize, true);
+                changed.returned.push((x, y));
             }
         }
         self.known = known;
+    }
+
+    /// Takes out a scan whose insertion changed `cells`.
+    fn remove_scan(&mut self, cells: &ScanCells) {
+        for &i in &cells.missed {
+            self.miss(i as usize, false);
+        }
+        for &(x, y) in &cells.returned {
+            self.hit(x as usize, y as usize, false);
+        }
     }
 }
 
@@ -379,6 +416,8 @@ pub struct GridmapDetector {
     canvas: Canvas,
     inserted: Vec<Inserted>,
     info: GridmapInfo,
+    /// How many times the other epochs' grid was built.
+    other_builds: usize,
 }
 
 impl Default for GridmapDetector {
@@ -390,6 +429,7 @@ impl Default for GridmapDetector {
             canvas: Canvas::default(),
             inserted: Vec::new(),
             info: GridmapInfo::default(),
+            other_builds: 0,
         }
     }
 }
@@ -428,9 +468,27 @@ impl GridmapDetector {
         }
     }
 
+    /// The other epochs' grid: kept while they only moved as a whole (the window is then
+    /// inserted in the grid's frame), rebuilt when they changed or deformed.
+    fn keep_or_rebuild(&mut self, other: &[DetectorScan]) {
+        let (t, r) = (
+            self.params.cache_translation_m,
+            self.params.cache_rotation_rad,
+        );
+        match self
+            .snapshot
+            .as_ref()
+            .and_then(|s| s.rigid_motion(other, t, r))
+        {
+            Some(now_from_then) => self.canvas_from_map = now_from_then.inverse(),
+            None => self.prepare(other),
+        }
+    }
+
     /// The other epochs' grid, classified and dilated, and an empty window grid on its lattice.
     fn prepare(&mut self, other: &[DetectorScan]) {
         self.snapshot = Some(OtherSnapshot::new(other));
+        self.other_builds += 1;
         self.canvas_from_map = Se2::identity();
         self.inserted.clear();
         self.canvas = Canvas::default();
@@ -466,7 +524,7 @@ impl GridmapDetector {
             return;
         }
         let extent = hi - lo;
-        let max_cells = self.params.max_cells.max(1) as f64;
+        let max_cells = self.params.max_cells.clamp(1, MAX_STORED_CELLS / 2) as f64;
         if (extent.x / cell_m + 2.0) * (extent.y / cell_m + 2.0) > max_cells {
             cell_m = ((extent.x + 1.0) * (extent.y + 1.0) / max_cells).sqrt() * 1.01;
         }
@@ -486,6 +544,9 @@ impl GridmapDetector {
         let free = grid.mask(CellClass::Free, thresholds);
         let geometry = *grid.geometry();
         let (lattice, stored) = TileLattice::new(geometry.width, geometry.height);
+        if stored > MAX_STORED_CELLS {
+            return;
+        }
         let mut cells = vec![CellState::default(); stored];
         let mut known = vec![0u64; stored.div_ceil(64)];
         let classes = occupied.flags().iter().zip(free.flags());
@@ -521,8 +582,10 @@ impl InvalidMergeDetector for GridmapDetector {
         "gridmap"
     }
 
+    /// A new merge of the same epochs, moved at most rigidly (a conditional merge made full)
+    /// keeps their grid and the window, as a new vertex would; other merges rebuild.
     fn on_merge(&mut self, map: &MergedMap<'_>) {
-        self.prepare(map.other);
+        self.keep_or_rebuild(map.other);
         self.info = GridmapInfo::default();
     }
 
@@ -531,30 +594,24 @@ impl InvalidMergeDetector for GridmapDetector {
             self.params.cache_translation_m,
             self.params.cache_rotation_rad,
         );
-        // 1. The other epochs' grid: kept while they only moved as a whole (the window is
-        // then inserted in the grid's frame), rebuilt when they changed or deformed.
-        match self
-            .snapshot
-            .as_ref()
-            .and_then(|s| s.rigid_motion(map.other, t, r))
-        {
-            Some(now_from_then) => self.canvas_from_map = now_from_then.inverse(),
-            None => self.prepare(map.other),
-        }
+        // 1. The other epochs' grid.
+        self.keep_or_rebuild(map.other);
         let canvas_from_map = self.canvas_from_map;
         // 2. The window: remove scans that left it or moved, insert new and moved ones.
         let window = recent(map.current, self.params.recent_scans);
         let max_range_m = self.max_range_m();
         let mut updated = 0;
         let mut inserted = std::mem::take(&mut self.inserted);
-        inserted.retain(|e| {
+        // The cell lists of removed scans, reused for the inserted ones.
+        let mut spare: Vec<ScanCells> = Vec::new();
+        inserted.retain_mut(|e| {
             let keep = window.iter().any(|s| {
                 s.node == e.node
                     && !moved(&e.pose, &canvas_from_map.compose(&s.map_from_robot), t, r)
             });
             if !keep {
-                self.canvas
-                    .apply_scan(&e.pose, &e.points, max_range_m, false);
+                self.canvas.remove_scan(&e.cells);
+                spare.push(std::mem::take(&mut e.cells));
                 updated += 1;
             }
             keep
@@ -564,12 +621,17 @@ impl InvalidMergeDetector for GridmapDetector {
                 continue;
             }
             let canvas_from_robot = canvas_from_map.compose(&scan.map_from_robot);
-            self.canvas
-                .apply_scan(&canvas_from_robot, &scan.points_in_robot, max_range_m, true);
+            let mut cells = spare.pop().unwrap_or_default();
+            self.canvas.insert_scan(
+                &canvas_from_robot,
+                &scan.points_in_robot,
+                max_range_m,
+                &mut cells,
+            );
             inserted.push(Inserted {
                 node: scan.node,
                 pose: canvas_from_robot,
-                points: Arc::clone(&scan.points_in_robot),
+                cells,
             });
             updated += 1;
         }
@@ -673,6 +735,20 @@ mod tests {
         assert_eq!((d.canvas.overlap, d.canvas.contradictions), (0, 0));
         assert!(d.canvas.hits.iter().all(|&h| h == 0));
         assert!(d.canvas.cells.iter().all(|c| c.misses == 0 && c.near == 0));
+    }
+
+    /// A second merge of the same epochs (a conditional merge made full) keeps their grid
+    /// and the window, and reads what a fresh detector reads; a merge of other epochs
+    /// builds a new grid.
+    #[test]
+    fn a_merge_of_the_same_epochs_keeps_their_grid() {
+        let open = World::office(false);
+        let case = Case::office(&open, &open, &wrong_turned());
+        let mut restarted = GridmapDetector::default();
+        case.merge_again_halfway(&mut restarted, &mut GridmapDetector::default());
+        assert_eq!(restarted.other_builds, 1);
+        case.merge_other_epochs(&mut restarted);
+        assert_eq!(restarted.other_builds, 2);
     }
 
     /// Every cell of a grid has its own storage index, inside the padded storage.

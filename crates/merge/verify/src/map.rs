@@ -52,7 +52,9 @@ pub trait InvalidMergeDetector: Send {
 
     /// A merge happened (or was undone and another one made): precompute what depends only on
     /// the other epochs' data (e.g. the visibility grid of change detection, Sec. IV-A) and
-    /// forget cached state.
+    /// forget the evidence gathered for the last merge. What a detector cached may be kept
+    /// where it still holds for the epochs now merged (the same epochs, not moved beyond its
+    /// cache's tolerance: a conditional merge made full), as a new vertex would keep it.
     fn on_merge(&mut self, map: &MergedMap<'_>);
 
     /// A new current-epoch vertex was added (the last of `map.current`): the invalidity ratio

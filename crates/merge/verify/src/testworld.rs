@@ -154,6 +154,39 @@ impl Case {
         }
         max
     }
+
+    /// Runs `restarted` through the first half of the current walk, then merges the same
+    /// epochs again there (a conditional merge made full): from then on it must read what
+    /// `fresh`, merged there first, reads.
+    pub fn merge_again_halfway(
+        &self,
+        restarted: &mut dyn crate::InvalidMergeDetector,
+        fresh: &mut dyn crate::InvalidMergeDetector,
+    ) {
+        let map = |k: usize| MergedMap {
+            current: &self.current[..k],
+            other: &self.other,
+        };
+        let half = self.current.len() / 2;
+        restarted.on_merge(&map(1));
+        for k in 1..=half {
+            restarted.on_vertex(&map(k));
+        }
+        restarted.on_merge(&map(half));
+        fresh.on_merge(&map(half));
+        for k in half..=self.current.len() {
+            let (a, b) = (restarted.on_vertex(&map(k)), fresh.on_vertex(&map(k)));
+            assert_eq!(a, b, "{} at vertex {k}", restarted.name());
+        }
+    }
+
+    /// Merges the walk with all but the first of the other epoch's scans.
+    pub fn merge_other_epochs(&self, detector: &mut dyn crate::InvalidMergeDetector) {
+        detector.on_merge(&MergedMap {
+            current: &self.current,
+            other: self.other.get(1..).unwrap_or(&[]),
+        });
+    }
 }
 
 /// The wrong merges of the tests: turned by 90° about the left room's centre, and shifted

@@ -309,28 +309,27 @@ pub(crate) fn fast_floor(v: f64) -> i64 {
     }
 }
 
-/// `new[k] = max(old[k − shift], old[k])` with missing entries 0; `new` is `shift` longer.
-/// Slices without bounds checks in the loops, so the compiler vectorises them.
-fn max_of_shifted(old: &[u16], new: &mut [u16], shift: usize) {
+/// Appends `new[k] = max(old[k − shift], old[k])` for `k ∈ [0, old.len() + shift)`, missing
+/// entries 0, to `out`. Appended, not written over zeros, so each cell is written once; the
+/// slice iterators carry no bounds checks, so the compiler vectorises them.
+fn extend_max_of_shifted(old: &[u16], out: &mut Vec<u16>, shift: usize) {
     let n = old.len();
-    debug_assert_eq!(new.len(), n + shift);
     if shift >= n {
-        let (head, tail) = new.split_at_mut(n.min(new.len()));
-        head.copy_from_slice(&old[..head.len()]);
-        let tail_len = tail.len();
-        tail[tail_len - n..].copy_from_slice(old);
+        // Only old[k] for k < n, nothing for n ≤ k < shift, only old[k − shift] after.
+        out.extend_from_slice(old);
+        out.resize(out.len() + (shift - n), 0);
+        out.extend_from_slice(old);
         return;
     }
     // k < shift: only old[k]; shift ≤ k < n: both; n ≤ k: only old[k − shift].
-    new[..shift].copy_from_slice(&old[..shift]);
-    for ((out, a), b) in new[shift..n]
-        .iter_mut()
-        .zip(&old[..n - shift])
-        .zip(&old[shift..])
-    {
-        *out = (*a).max(*b);
-    }
-    new[n..].copy_from_slice(&old[n - shift..]);
+    out.extend_from_slice(&old[..shift]);
+    out.extend(
+        old[..n - shift]
+            .iter()
+            .zip(&old[shift..])
+            .map(|(a, b)| (*a).max(*b)),
+    );
+    out.extend_from_slice(&old[n - shift..]);
 }
 
 /// One precomputed level: cell (i, j) holds the max of the base cells
@@ -419,30 +418,24 @@ impl PrecomputedGrid {
         let (width, height) = (old_width + half, old_height + half);
         // Pass 1, along x: row[k] = max(old[k − half], old[k]).
         rows.clear();
-        rows.resize(width * old_height, 0);
-        for (old, new) in cells
-            .chunks_exact(old_width.max(1))
-            .zip(rows.chunks_exact_mut(width))
-        {
-            max_of_shifted(old, new, half);
+        rows.reserve(width * old_height);
+        for old in cells.chunks_exact(old_width.max(1)).take(old_height) {
+            extend_max_of_shifted(old, rows, half);
         }
+        rows.resize(width * old_height, 0);
         // Pass 2, along y, whole rows at a time.
         out.cells.clear();
-        out.cells.resize(width * height, 0);
-        for (k, out_row) in out.cells.chunks_exact_mut(width).enumerate() {
+        out.cells.reserve(width * height);
+        for k in 0..height {
             let row = |index: Option<usize>| {
                 index
                     .filter(|&j| j < old_height)
                     .and_then(|j| rows.get(j * width..(j + 1) * width))
             };
             match (row(k.checked_sub(half)), row(Some(k))) {
-                (Some(a), Some(b)) => {
-                    for ((out, x), y) in out_row.iter_mut().zip(a).zip(b) {
-                        *out = (*x).max(*y);
-                    }
-                }
-                (Some(a), None) | (None, Some(a)) => out_row.copy_from_slice(a),
-                (None, None) => {}
+                (Some(a), Some(b)) => out.cells.extend(a.iter().zip(b).map(|(x, y)| (*x).max(*y))),
+                (Some(a), None) | (None, Some(a)) => out.cells.extend_from_slice(a),
+                (None, None) => out.cells.resize(out.cells.len() + width, 0),
             }
         }
         out.offset = old_offset + half as i64;
