@@ -81,6 +81,13 @@ pub struct DecisionParams {
     /// (default: false). The view's local map may not contain the period or symmetry (one
     /// aisle, one half of a hall) that the robot's does.
     pub query_self_similarity: bool,
+    /// When an epoch ends (a kidnap, a restart) while a merge is conditional, the epoch's
+    /// keyframes are verified where G' puts them (the overlap search: newest first, every
+    /// `overlap.stride`-th, within its limits) and the matches its hypothesis has not
+    /// observed yet count as its observations, each at its keyframe's travel; the merge is
+    /// made full if that meets the full criteria, else dropped as without it. The robot
+    /// cannot gather more evidence for a merge of an epoch it has left (default: false).
+    pub confirm_at_epoch_end: bool,
 }
 
 impl Default for DecisionParams {
@@ -102,6 +109,7 @@ impl Default for DecisionParams {
             self_similar_from_score: 0.9,
             joint_views: true,
             query_self_similarity: false,
+            confirm_at_epoch_end: false,
         }
     }
 }
@@ -286,6 +294,16 @@ pub enum Decision {
         /// Their keyframe nodes.
         views: Vec<u64>,
     },
+    /// A local map was searched for itself elsewhere (`decisions.self_similarity`): an
+    /// inactive graph's view (`map` set) or the robot's own query keyframe (`map` none).
+    SelfSimilarity {
+        /// The inactive graph of the view; none for the active graph's query.
+        map: Option<MapId>,
+        /// The keyframe node.
+        node: u64,
+        /// The best placement away from the identity, on the whole-map scale (0 when none).
+        score: f64,
+    },
 }
 
 /// The event kinds of [`crate::EngineEvent`].
@@ -408,6 +426,16 @@ mod tests {
                 edges: 9,
             },
             Decision::AmbiguousViews { views: vec![7, 8] },
+            Decision::SelfSimilarity {
+                map: Some(MapId(2)),
+                node: 11,
+                score: 0.93,
+            },
+            Decision::SelfSimilarity {
+                map: None,
+                node: 12,
+                score: 0.0,
+            },
         ];
         for decision in decisions {
             let kind = EventKind::Decision(decision);

@@ -432,6 +432,11 @@ impl Engine {
     pub fn end_epoch(&mut self, reason: EpochEndReason) -> Result<&[EngineEvent], EngineError> {
         let before = self.events.len();
         self.collect_events();
+        if self.params.decisions.confirm_at_epoch_end {
+            for hypothesis in self.confirm_conditional_at_epoch_end() {
+                self.accept_fully(hypothesis)?;
+            }
+        }
         let cleared = self.filter.clear();
         self.log_filter_events(cleared);
         if let Some(conditional) = self.conditional.take() {
@@ -589,7 +594,7 @@ impl Engine {
                     self.atlas.confirm_in_preview(
                         &conditional.graph,
                         conditional.map,
-                        node,
+                        &[node],
                         &self.verifier,
                     )
                 });
@@ -607,32 +612,7 @@ impl Engine {
             merge_matches.extend(self.confirm_tentative());
         }
         for (map, edge, covariance) in merge_matches {
-            let Some(map_from_view) = self
-                .atlas
-                .inactive(map)
-                .and_then(|g| g.vertex(edge.inactive))
-                .map(|v| v.pose)
-            else {
-                continue;
-            };
-            let view_self_similar = self.check_self_similarity(map, edge.inactive);
-            let query_self_similar =
-                decisions.query_self_similarity && self.check_query_self_similarity(edge.active);
-            let robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
-            let observation = Observation {
-                target: Target::Merge { map: map.0 },
-                view: edge.inactive.0,
-                robot: edge.active.0,
-                robot_from_target: robot_from_inactive,
-                covariance: decisions.observation_covariance(&covariance),
-                ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0) || query_self_similar,
-                edge: ObservedEdge::Merge(edge),
-            };
-            let (id, accepted) = self.observe(observation, travel_m);
-            accepted_hypotheses.extend(accepted);
-            if let (true, Some(id)) = (view_self_similar, id) {
-                accepted_hypotheses.extend(self.count_jointly_unique_views(id, map));
-            }
+            accepted_hypotheses.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
         }
         let newly = self.ambiguity.update(travel_m);
         if !newly.is_empty() {
@@ -649,6 +629,103 @@ impl Engine {
         Ok(decided)
     }
 
+    /// A verified match of active keyframe `edge.active` against view `edge.inactive` of
+    /// inactive graph `map` as a merge observation (Eq. 3), made at robot travel `travel_m`;
+    /// the view (and with `decisions.query_self_similarity` the query) is searched for
+    /// self-similarity first. A keyframe older than the robot's is brought into the robot's
+    /// frame along the active graph. Returns the hypotheses it made fully accepted.
+    fn observe_merge_match(
+        &mut self,
+        map: MapId,
+        edge: LoopEdge,
+        covariance: &Matrix3<f64>,
+        travel_m: f64,
+    ) -> Vec<Hypothesis<ObservedEdge>> {
+        let Some(map_from_view) = self
+            .atlas
+            .inactive(map)
+            .and_then(|g| g.vertex(edge.inactive))
+            .map(|v| v.pose)
+        else {
+            return Vec::new();
+        };
+        let mut robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
+        if let Some(robot) = self.atlas.robot_node().filter(|r| *r != edge.active) {
+            let active = self.atlas.active();
+            let (Some(robot_pose), Some(keyframe_pose)) = (
+                active.vertex(robot).map(|v| v.pose),
+                active.vertex(edge.active).map(|v| v.pose),
+            ) else {
+                return Vec::new();
+            };
+            robot_from_inactive = robot_pose
+                .between(&keyframe_pose)
+                .compose(&robot_from_inactive);
+        }
+        let view_self_similar = self.check_self_similarity(map, edge.inactive);
+        let query_self_similar = self.params.decisions.query_self_similarity
+            && self.check_query_self_similarity(edge.active);
+        let observation = Observation {
+            target: Target::Merge { map: map.0 },
+            view: edge.inactive.0,
+            robot: edge.active.0,
+            robot_from_target: robot_from_inactive,
+            covariance: self.params.decisions.observation_covariance(covariance),
+            ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0) || query_self_similar,
+            edge: ObservedEdge::Merge(edge),
+        };
+        let (id, accepted) = self.observe(observation, travel_m);
+        let mut accepted: Vec<_> = accepted.into_iter().collect();
+        if let (true, Some(id)) = (view_self_similar, id) {
+            accepted.extend(self.count_jointly_unique_views(id, map));
+        }
+        accepted
+    }
+
+    /// The conditional merge's last chance when its epoch ends
+    /// (`decisions.confirm_at_epoch_end`): the epoch's keyframes are verified where G' puts
+    /// them, as the overlap search does, and each match its hypothesis has not observed yet
+    /// becomes an observation made at that keyframe's travel. Returns the hypotheses this
+    /// made fully accepted.
+    fn confirm_conditional_at_epoch_end(&mut self) -> Vec<Hypothesis<ObservedEdge>> {
+        let Some(conditional) = &self.conditional else {
+            return Vec::new();
+        };
+        let observed: BTreeSet<(NodeId, NodeId)> = self
+            .filter
+            .hypothesis(conditional.hypothesis)
+            .map(|h| {
+                merge_edges_of(h)
+                    .into_iter()
+                    .map(|e| (e.active, e.inactive))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let map = conditional.map;
+        let nodes = self.atlas.current_epoch_nodes();
+        let confirmed =
+            self.atlas
+                .confirm_in_preview(&conditional.graph, map, &nodes, &self.verifier);
+        let mut accepted = Vec::new();
+        for edge in confirmed {
+            if observed.contains(&(edge.active, edge.inactive)) {
+                continue;
+            }
+            let Some(travel_in_epoch_m) = self
+                .atlas
+                .keyframes()
+                .record(edge.active)
+                .map(|k| k.travel_m)
+            else {
+                continue;
+            };
+            let (_, _, covariance) = merge_match(map, edge);
+            let travel_m = self.travel_before_epoch_m + travel_in_epoch_m;
+            accepted.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
+        }
+        accepted
+    }
+
     /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself
     /// at another place (`decisions.self_similarity`); each view is searched once.
     fn check_self_similarity(&mut self, map: MapId, node: NodeId) -> bool {
@@ -660,6 +737,11 @@ impl Engine {
             return false;
         };
         self.self_similarity_of_view.insert(node, score);
+        self.log_decision(Decision::SelfSimilarity {
+            map: Some(map),
+            node: node.0,
+            score,
+        });
         let self_similar = score >= threshold;
         if self_similar && self.ambiguity.mark(node.0) {
             self.log_decision(Decision::AmbiguousViews {
@@ -682,6 +764,11 @@ impl Engine {
             return false;
         };
         self.self_similarity_of_query.insert(node, score);
+        self.log_decision(Decision::SelfSimilarity {
+            map: None,
+            node: node.0,
+            score,
+        });
         score >= threshold
     }
 

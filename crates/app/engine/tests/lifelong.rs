@@ -500,3 +500,40 @@ fn a_merge_observation_whose_query_fits_itself_elsewhere_counts_for_nothing() {
     assert!(engine.hypothesis_summary().merge > 0);
     assert!(engine.query_self_similarity().is_empty());
 }
+
+#[test]
+fn a_conditional_merge_confirmed_by_the_epochs_keyframes_is_made_full_when_the_epoch_ends() {
+    // Office fitting seed 9: the first later epoch's merge is conditional when the robot is
+    // kidnapped, 0.6 m after it became so; its keyframes verified where G' puts them make
+    // it full (`decisions.confirm_at_epoch_end`), and it is correct.
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.confirm_at_epoch_end = true;
+    let (engine, truth_of) = run_with(engine_params, "office", 9, 3, 120.0);
+    let epoch_ends: BTreeSet<usize> = engine
+        .events()
+        .iter()
+        .filter(|e| matches!(e.atlas(), Some(AtlasEvent::EpochEnded { .. })))
+        .map(|e| e.scan)
+        .collect();
+    let at_end: Vec<_> = engine
+        .merge_log()
+        .iter()
+        .filter(|r| r.full_at_scan.is_some_and(|s| epoch_ends.contains(&s)))
+        .collect();
+    assert!(!at_end.is_empty(), "no merge made full at an epoch's end");
+    for record in &at_end {
+        assert_eq!(record.state, MergeState::Full, "{record:?}");
+        assert!(record.conditional_at_scan.is_some(), "{record:?}");
+        assert_eq!(correct(&truth_of, &record.edges), Some(true), "{record:?}");
+    }
+    // Without the option the same hypotheses stay conditional when their epochs end.
+    let (engine, _) = run("office", 9, 3, 120.0);
+    for record in at_end {
+        let before = engine
+            .merge_log()
+            .iter()
+            .find(|r| r.hypothesis == record.hypothesis)
+            .unwrap_or_else(|| panic!("{record:?} not in the log without the option"));
+        assert_eq!(before.state, MergeState::Conditional, "{before:?}");
+    }
+}

@@ -243,6 +243,15 @@ impl<B: BackupStore> Atlas<B> {
             .is_some_and(|v| EpochId::of(&v.meta) == self.epoch)
     }
 
+    /// The current epoch's vertices of the active graph, oldest first.
+    pub fn current_epoch_nodes(&self) -> Vec<NodeId> {
+        self.active
+            .vertices()
+            .filter(|(id, _)| self.is_current_epoch(*id))
+            .map(|(id, _)| id)
+            .collect()
+    }
+
     /// The epoch of a vertex of any graph.
     pub fn epoch_of(&self, node: NodeId) -> Option<EpochId> {
         std::iter::once(&self.active)

@@ -452,12 +452,7 @@ impl<B: BackupStore> Atlas<B> {
         if self.merges.is_empty() {
             return Ok(Vec::new());
         }
-        let current: Vec<NodeId> = self
-            .active
-            .vertices()
-            .filter(|(id, _)| self.is_current_epoch(*id))
-            .map(|(id, _)| id)
-            .collect();
+        let current = self.current_epoch_nodes();
         let tried = current
             .get(current.len().saturating_sub(newest)..)
             .unwrap_or(&[]);
@@ -479,15 +474,17 @@ impl<B: BackupStore> Atlas<B> {
         Ok(loops)
     }
 
-    /// While a merge of inactive graph `map` is conditional: the keyframe `node` verified
-    /// against the nearest vertices of `map` in the conditionally merged graph `preview`
-    /// (G', from [`Atlas::preview_merge`]), as the overlap search does after a merge. Matches
-    /// within the overlap gate are loop edges that confirm the merge; none are added.
+    /// While a merge of inactive graph `map` is conditional: the keyframes `nodes` (oldest
+    /// first) verified against the nearest vertices of `map` in the conditionally merged
+    /// graph `preview` (G', from [`Atlas::preview_merge`]), as the overlap search does after
+    /// a merge (newest first, every `overlap.stride`-th when there are several, within its
+    /// limits). Matches within the overlap gate are loop edges that confirm the merge; none
+    /// are added.
     pub fn confirm_in_preview(
         &self,
         preview: &PoseGraph2,
         map: MapId,
-        node: NodeId,
+        nodes: &[NodeId],
         verifier: &dyn GeometricVerifier,
     ) -> Vec<LoopEdge> {
         let Some(inactive) = self.inactive.get(&map) else {
@@ -495,7 +492,7 @@ impl<B: BackupStore> Atlas<B> {
         };
         let ids: BTreeSet<NodeId> = inactive.vertices().map(|(id, _)| id).collect();
         let moved = preview.subgraph(&ids);
-        self.overlap_loops(preview, &[node], &moved, &BTreeSet::new(), verifier)
+        self.overlap_loops(preview, nodes, &moved, &BTreeSet::new(), verifier)
     }
 
     /// [`Atlas::confirm_in_preview`] for a merge not yet made: keyframe `node` verified
