@@ -719,9 +719,8 @@ impl Engine {
             else {
                 continue;
             };
-            let (_, _, covariance) = merge_match(map, edge);
             let travel_m = self.travel_before_epoch_m + travel_in_epoch_m;
-            accepted.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
+            accepted.extend(self.observe_merge_match(map, edge, &covariance_of(&edge), travel_m));
         }
         accepted
     }
@@ -1466,14 +1465,18 @@ impl Engine {
     }
 }
 
-/// A verified edge into map `map` as a merge observation: the map, the edge, its covariance
-/// (zero where the information cannot be inverted; the filter floors it).
+/// A verified edge into map `map` as a merge observation: the map, the edge and its
+/// covariance ([`covariance_of`]).
 fn merge_match(map: MapId, edge: LoopEdge) -> (MapId, LoopEdge, Matrix3<f64>) {
-    let covariance = edge
-        .information
+    (map, edge, covariance_of(&edge))
+}
+
+/// A loop edge's covariance (zero where its information cannot be inverted; the
+/// observation's floor is added to it).
+fn covariance_of(edge: &LoopEdge) -> Matrix3<f64> {
+    edge.information
         .try_inverse()
-        .unwrap_or_else(Matrix3::zeros);
-    (map, edge, covariance)
+        .unwrap_or_else(Matrix3::zeros)
 }
 
 /// The merge edges a merge hypothesis's observations carry.

@@ -187,6 +187,23 @@ impl Case {
             other: self.other.get(1..).unwrap_or(&[]),
         });
     }
+
+    /// A default detector merged again halfway ([`Case::merge_again_halfway`], beside a
+    /// fresh one) built the other epochs' data once (`builds` reads its count), `check`
+    /// then sees both; merged with other epochs ([`Case::merge_other_epochs`]) it builds
+    /// again.
+    pub fn builds_once_per_merged_epochs<D: crate::InvalidMergeDetector + Default>(
+        &self,
+        builds: impl Fn(&D) -> usize,
+        check: impl FnOnce(&D, &D),
+    ) {
+        let (mut restarted, mut fresh) = (D::default(), D::default());
+        self.merge_again_halfway(&mut restarted, &mut fresh);
+        assert_eq!(builds(&restarted), 1, "{}", restarted.name());
+        check(&restarted, &fresh);
+        self.merge_other_epochs(&mut restarted);
+        assert_eq!(builds(&restarted), 2, "{}", restarted.name());
+    }
 }
 
 /// The wrong merges of the tests: turned by 90° about the left room's centre, and shifted
