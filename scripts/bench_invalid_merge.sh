@@ -119,7 +119,11 @@ if [[ $calibrate == 1 ]]; then
   "$bin" eval calibrate --results "$work/results.jsonl" --report "$out/calibrate.md" > /dev/null
   # The same with re-registration among the learned model's inputs (docs/benchmarks.md §8,
   # session 2026-11-28 (iii)).
+  with_realign=change_detection,gridmap,histogram,sm,dm,better_hypothesis,realign
   "$bin" eval calibrate --results "$work/results.jsonl" --report "$out/calibrate-realign.md" \
-    --features change_detection,gridmap,histogram,sm,dm,better_hypothesis,realign > /dev/null
-  echo "wrote $out/calibrate.md and $out/calibrate-realign.md" >&2
+    --features "$with_realign" > /dev/null
+  # The random forest on the same features (session 2026-12-03; not the default, by its rule).
+  "$bin" eval calibrate --results "$work/results.jsonl" --report "$out/calibrate-realign-forest.md" \
+    --features "$with_realign" --model forest > /dev/null
+  echo "wrote $out/calibrate.md, $out/calibrate-realign.md and $out/calibrate-realign-forest.md" >&2
 fi

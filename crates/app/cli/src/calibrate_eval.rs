@@ -9,10 +9,12 @@
 //!   "unsupported" flag ([`LearnedModel`] with one component), so an unsupported merge is
 //!   placed where such merges fell in the other logs instead of at 0; its threshold is
 //!   probability 0.5 at equal priors;
-//! - the learned combination: the same regression on several detectors at once.
+//! - the learned combination: the same regression on several detectors at once, or with
+//!   `--model forest` a random forest on the same features (`mapmerge_verify::RandomForest`).
 //!
 //! The regressions' L2 weight is chosen inside each fold, by leave-one-log-out over its
-//! training logs only (nested), unless `--alpha` fixes it. Reported per held-out log: each single detector's AUC (calibrated), the best of them, the
+//! training logs only (nested), unless `--alpha` fixes it; the forest's settings are fixed
+//! (`--trees`, `--min-leaf`, `--seed`). Reported per held-out log: each single detector's AUC (calibrated), the best of them, the
 //! learned combination's AUC and its hit rates at the threshold; pooled over the held-out
 //! predictions: AUC per invalid kind. Finally the model fitted on every log is written
 //! (`-o`), the one the engine embeds (`mapmerge_verify::LearnedModel::calibrated`).
@@ -23,9 +25,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Context;
-use clap::Args;
+use clap::{Args, ValueEnum};
 use mapmerge_eval::roc_auc;
-use mapmerge_verify::{LearnedModel, LearnedSample};
+use mapmerge_verify::{ForestParams, LearnedModel, LearnedSample};
 use serde::Serialize;
 
 use crate::invalid_merge_eval::{log_name, Label, MergeResult};
@@ -52,6 +54,18 @@ pub struct CalibrateArgs {
     /// per fold from 0.01, 0.1, 1, 10, 100 by leave-one-log-out on its training logs.
     #[arg(long)]
     pub alpha: Option<f64>,
+    /// The learned combination's model (single detectors are always logistic).
+    #[arg(long, value_enum, default_value_t = ModelKind::Logistic)]
+    pub model: ModelKind,
+    /// Trees of `--model forest`.
+    #[arg(long, default_value_t = 200)]
+    pub trees: usize,
+    /// Fewest samples in a leaf of `--model forest`.
+    #[arg(long, default_value_t = 1)]
+    pub min_leaf: usize,
+    /// Seed of `--model forest` (bootstrap and feature sampling).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
     /// Sets the written model's threshold to the lowest probability (rounded up to 0.01)
     /// that at most this share of the valid cases exceed, in sample (default: 0.5, equal
     /// priors): a false-alarm budget for a decision that meets fewer invalid merges than
@@ -71,6 +85,49 @@ pub struct CalibrateArgs {
     /// One JSON object on stdout.
     #[arg(long)]
     pub json: bool,
+}
+
+/// The learned combination's model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ModelKind {
+    /// L2-regularised logistic regression (weights say what each detector is worth).
+    Logistic,
+    /// Random forest (per-split feature sampling, mean leaf share).
+    Forest,
+}
+
+/// How the learned combination is fitted: a logistic regression with its L2 weight, or a
+/// forest.
+#[derive(Clone, Debug)]
+enum Fit {
+    Logistic(f64),
+    Forest(ForestParams),
+}
+
+impl Fit {
+    fn model(
+        &self,
+        methods: &[String],
+        samples: &[LearnedSample],
+        fitted_on: String,
+    ) -> Option<LearnedModel> {
+        match self {
+            Fit::Logistic(alpha) => LearnedModel::fit(methods, samples, *alpha, fitted_on).ok(),
+            Fit::Forest(params) => {
+                LearnedModel::fit_forest(methods, samples, params.clone(), fitted_on).ok()
+            }
+        }
+    }
+
+    fn describe(&self) -> String {
+        match self {
+            Fit::Logistic(alpha) => format!("alpha {alpha}"),
+            Fit::Forest(p) => format!(
+                "random forest of {} trees, min leaf {}, seed {}",
+                p.trees, p.min_leaf, p.seed
+            ),
+        }
+    }
 }
 
 /// One labelled case with every method's score.
@@ -191,7 +248,8 @@ fn choose_alpha(methods: &[String], train: &[&Case], fixed: Option<f64>) -> f64 
         for log in &logs {
             let (test, inner): (Vec<&Case>, Vec<&Case>) =
                 train.iter().copied().partition(|c| &&c.log == log);
-            let Some((_, scores)) = fit_and_score(methods, &inner, &test, alpha) else {
+            let Some((_, scores)) = fit_and_score(methods, &inner, &test, &Fit::Logistic(alpha))
+            else {
                 continue;
             };
             let (invalid, valid) = by_label(&test, scores.iter().map(|s| Some(*s)));
@@ -213,10 +271,10 @@ fn fit_and_score(
     methods: &[String],
     train: &[&Case],
     test: &[&Case],
-    alpha: f64,
+    fit: &Fit,
 ) -> Option<(LearnedModel, Vec<f64>)> {
     let samples: Vec<LearnedSample> = train.iter().filter_map(|c| c.sample(methods)).collect();
-    let model = LearnedModel::fit(methods, &samples, alpha, "leave-one-log-out fold").ok()?;
+    let model = fit.model(methods, &samples, "leave-one-log-out fold".to_owned())?;
     let scores = test
         .iter()
         .map(|c| {
@@ -266,6 +324,12 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
             )));
         }
     }
+    if args.model == ModelKind::Forest && (args.trees == 0 || args.min_leaf == 0) {
+        return Err(bad_input(format!(
+            "--trees {} and --min-leaf {} must both be at least 1",
+            args.trees, args.min_leaf
+        )));
+    }
     let cases = read_cases(&args.results)?;
     if cases.is_empty() {
         return Err(bad_input("no labelled cases in the results".to_owned()));
@@ -289,6 +353,16 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         .cloned()
         .collect();
     let logs: BTreeSet<String> = cases.iter().map(|c| c.log.clone()).collect();
+    // The learned combination's fit on `train`.
+    let learned_fit = |train: &[&Case]| match args.model {
+        ModelKind::Logistic => Fit::Logistic(choose_alpha(&features, train, args.alpha)),
+        ModelKind::Forest => Fit::Forest(ForestParams {
+            trees: args.trees,
+            min_leaf: args.min_leaf,
+            seed: args.seed,
+            ..ForestParams::default()
+        }),
+    };
     let mut rows = Vec::new();
     // Held-out scores per method, pooled over the logs, with each case's kind and label.
     let mut pooled: BTreeMap<String, Vec<(String, bool, f64)>> = BTreeMap::new();
@@ -305,17 +379,17 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         let mut single_rows = Vec::new();
         for m in &singles {
             let methods = std::slice::from_ref(m);
-            let alpha = choose_alpha(methods, &train, args.alpha);
-            if let Some((model, scores)) = fit_and_score(methods, &train, &test, alpha) {
+            let fit = Fit::Logistic(choose_alpha(methods, &train, args.alpha));
+            if let Some((model, scores)) = fit_and_score(methods, &train, &test, &fit) {
                 record(m, &scores);
                 single_rows.push(held_out(m, &test, &scores, model.threshold));
             }
         }
-        let alpha = choose_alpha(&features, &train, args.alpha);
-        let learned = fit_and_score(&features, &train, &test, alpha).map(|(model, scores)| {
-            record("learned", &scores);
-            held_out("learned", &test, &scores, model.threshold)
-        });
+        let learned =
+            fit_and_score(&features, &train, &test, &learned_fit(&train)).map(|(model, scores)| {
+                record("learned", &scores);
+                held_out("learned", &test, &scores, model.threshold)
+            });
         let best_single = single_rows
             .iter()
             .filter_map(|h| Some((h.method.clone(), h.auc?)))
@@ -357,7 +431,7 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     // The model on every log.
     let all: Vec<LearnedSample> = cases.iter().filter_map(|c| c.sample(&features)).collect();
     let every: Vec<&Case> = cases.iter().collect();
-    let alpha = choose_alpha(&features, &every, args.alpha);
+    let fit = learned_fit(&every);
     let names: Vec<String> = args
         .results
         .iter()
@@ -369,12 +443,13 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         _ => names.join(", "),
     };
     let provenance = format!(
-        "mapmerge eval calibrate (alpha {alpha}) --features {} on {} cases of {} logs ({files})",
+        "mapmerge eval calibrate ({}) --features {} on {} cases of {} logs ({files})",
+        fit.describe(),
         features.join(","),
         all.len(),
         logs.len(),
     );
-    let mut model = LearnedModel::fit(&features, &all, alpha, provenance).ok();
+    let mut model = fit.model(&features, &all, provenance);
     if let (Some(model), Some(budget)) = (model.as_mut(), args.false_alarm_budget) {
         let valid: Vec<f64> = all
             .iter()
@@ -401,7 +476,7 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         let text = serde_json::to_string_pretty(model)?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
-    let markdown = calibrate_markdown(&rows, &auc_by_kind, model.as_ref(), alpha);
+    let markdown = calibrate_markdown(&rows, &auc_by_kind, model.as_ref(), &fit);
     if let Some(report) = &args.report {
         std::fs::write(report, &markdown)
             .with_context(|| format!("writing {}", report.display()))?;
@@ -442,7 +517,7 @@ fn calibrate_markdown(
     rows: &[LogRow],
     auc_by_kind: &BTreeMap<String, BTreeMap<String, Option<f64>>>,
     model: Option<&LearnedModel>,
-    alpha: f64,
+    fit: &Fit,
 ) -> String {
     let f3 = |v: Option<f64>| v.map_or("–".to_owned(), |v| format!("{v:.3}"));
     let mut md = String::new();
@@ -530,11 +605,20 @@ fn calibrate_markdown(
             .collect();
         let _ = writeln!(md, "| {method} | {} |", cells.join(" | "));
     }
-    if let Some(model) = model {
+    if let Some(model) = model.filter(|m| m.forest.is_some()) {
         let _ = writeln!(md);
         let _ = writeln!(
             md,
-            "Model on every log (alpha {alpha}): intercept {:.3}, threshold {}; {}",
+            "Model on every log ({}): threshold {}",
+            fit.describe(),
+            model.threshold
+        );
+    } else if let Some(model) = model {
+        let _ = writeln!(md);
+        let _ = writeln!(
+            md,
+            "Model on every log ({}): intercept {:.3}, threshold {}; {}",
+            fit.describe(),
             model.intercept,
             model.threshold,
             model

@@ -562,6 +562,44 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
         ],
         "--false-alarm-budget",
     );
+    // The forest on the same features: held out it separates too, and its model file holds
+    // the trees (and no weights); it reads back as the same model.
+    let forest_model = dir.join("forest.json");
+    let forest = ok_json(&[
+        "eval",
+        "calibrate",
+        "--results",
+        p(&results),
+        "--features",
+        "change_detection,gridmap",
+        "--model",
+        "forest",
+        "--trees",
+        "40",
+        "-o",
+        p(&forest_model),
+        "--json",
+    ]);
+    for row in forest["logs"].as_array().unwrap() {
+        assert!(row["learned"]["auc"].as_f64().unwrap() > 0.85, "{row}");
+    }
+    let text = std::fs::read_to_string(&forest_model).unwrap();
+    let fitted: mapmerge_verify::LearnedModel = serde_json::from_str(&text).unwrap();
+    assert_eq!(fitted.forest.as_ref().map(|f| f.trees.len()), Some(40));
+    assert!(fitted.ratio_weights.is_empty());
+    expect_bad(
+        &[
+            "eval",
+            "calibrate",
+            "--results",
+            p(&results),
+            "--model",
+            "forest",
+            "--trees",
+            "0",
+        ],
+        "--trees 0",
+    );
     // A feature the results lack, and a broken line, are bad input naming what is wrong.
     expect_bad(
         &[

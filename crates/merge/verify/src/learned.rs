@@ -14,29 +14,41 @@
 //! forced merges of the 13 public logs (odometry `none` and `default`) and of the simulator's
 //! tuning seeds (office-aliased 1–10); docs/benchmarks.md §8 gives the commands and the
 //! leave-one-log-out figures.
+//!
+//! The same features can instead feed a random forest ([`LearnedModel::fit_forest`],
+//! [`crate::RandomForest`]); it was measured and, by a rule fixed on the tuning logs, not made
+//! the default (docs/benchmarks.md §8, session 2026-12-03).
 
 use serde::{Deserialize, Serialize};
 use smartcore::linalg::basic::arrays::Array;
 use smartcore::linalg::basic::matrix::DenseMatrix;
 use smartcore::linear::logistic_regression::{LogisticRegression, LogisticRegressionParameters};
 
-use crate::{Evidence, InvalidMergeDetector, MergedMap};
+use crate::{Evidence, ForestParams, InvalidMergeDetector, MergedMap, RandomForest};
 
 /// The model of [`LearnedModel::calibrated`] (written by `mapmerge eval calibrate -o`).
 const CALIBRATED_MODEL: &str = include_str!("learned_calibrated.json");
 
-/// A fitted logistic regression over component detectors.
+/// A fitted decision over component detectors: a logistic regression, or a random forest
+/// when `forest` is set (then the weights are unused). Features, in order: each component's
+/// highest supported ratio since the merge, then each one's "never supported" flag (1 or 0).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LearnedModel {
     /// The component detectors by name (see [`crate::DETECTOR_NAMES`]).
     pub methods: Vec<String>,
     /// Weight of each component's highest supported ratio since the merge.
+    #[serde(default)]
     pub ratio_weights: Vec<f64>,
     /// Weight of "this component was never supported since the merge" (1 or 0).
+    #[serde(default)]
     pub unsupported_weights: Vec<f64>,
     /// The intercept (at equal priors of valid and invalid merges).
+    #[serde(default)]
     pub intercept: f64,
+    /// The random forest over the same features, in place of the weights.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub forest: Option<RandomForest>,
     /// Decision threshold on the probability: above it a merge is judged invalid.
     pub threshold: f64,
     /// What it was fitted on (provenance, free text).
@@ -106,6 +118,7 @@ impl LearnedModel {
             ratio_weights: Vec::new(),
             unsupported_weights: Vec::new(),
             intercept: 0.0,
+            forest: None,
             threshold: 0.5,
             fitted_on: "nothing".into(),
         }
@@ -115,6 +128,21 @@ impl LearnedModel {
     /// ratio and whether it was never supported (in the order of `methods`; missing entries
     /// count as 0 / supported).
     pub fn probability(&self, ratios: &[f64], unsupported: &[bool]) -> f64 {
+        if let Some(forest) = &self.forest {
+            let m = self.methods.len();
+            return forest.probability(|k| {
+                if k < m {
+                    finite_or_zero(ratios.get(k).copied().unwrap_or(0.0))
+                } else {
+                    let flag = unsupported.get(k - m).copied().unwrap_or(false);
+                    if flag {
+                        1.0
+                    } else {
+                        0.0
+                    }
+                }
+            });
+        }
         let mut z = self.intercept;
         for (k, w) in self.ratio_weights.iter().enumerate() {
             z += w * finite_or_zero(ratios.get(k).copied().unwrap_or(0.0));
@@ -141,28 +169,9 @@ impl LearnedModel {
         fitted_on: impl Into<String>,
     ) -> Result<Self, FitError> {
         let m = methods.len();
+        let rows = feature_rows(m, samples)?;
         let invalid = samples.iter().filter(|s| s.invalid).count();
         let valid = samples.len() - invalid;
-        if valid == 0 || invalid == 0 {
-            return Err(FitError::OneClass { valid, invalid });
-        }
-        let mut rows = Vec::with_capacity(samples.len());
-        for (index, s) in samples.iter().enumerate() {
-            if s.ratios.len() != m || s.unsupported.len() != m {
-                return Err(FitError::Shape {
-                    index,
-                    got: s.ratios.len().min(s.unsupported.len()),
-                    expected: m,
-                });
-            }
-            let row: Vec<f64> = s
-                .ratios
-                .iter()
-                .map(|r| finite_or_zero(*r))
-                .chain(s.unsupported.iter().map(|&u| if u { 1.0 } else { 0.0 }))
-                .collect();
-            rows.push(row);
-        }
         // Standardise (a constant column stays 0 and gets no weight).
         let n = rows.len() as f64;
         let width = 2 * m;
@@ -222,10 +231,60 @@ impl LearnedModel {
             ratio_weights: weights,
             unsupported_weights,
             intercept,
+            forest: None,
             threshold: 0.5,
             fitted_on: fitted_on.into(),
         })
     }
+
+    /// Grows a random forest on `samples` (features per `methods`), classes weighted to equal
+    /// priors.
+    pub fn fit_forest(
+        methods: &[String],
+        samples: &[LearnedSample],
+        params: ForestParams,
+        fitted_on: impl Into<String>,
+    ) -> Result<Self, FitError> {
+        let rows = feature_rows(methods.len(), samples)?;
+        let labels: Vec<bool> = samples.iter().map(|s| s.invalid).collect();
+        Ok(Self {
+            methods: methods.to_vec(),
+            ratio_weights: Vec::new(),
+            unsupported_weights: Vec::new(),
+            intercept: 0.0,
+            forest: Some(RandomForest::fit(&rows, &labels, params)),
+            threshold: 0.5,
+            fitted_on: fitted_on.into(),
+        })
+    }
+}
+
+/// The samples' feature rows (ratios, then "never supported" flags as 1 / 0), checked: both
+/// labels present, `m` components each.
+fn feature_rows(m: usize, samples: &[LearnedSample]) -> Result<Vec<Vec<f64>>, FitError> {
+    let invalid = samples.iter().filter(|s| s.invalid).count();
+    let valid = samples.len() - invalid;
+    if valid == 0 || invalid == 0 {
+        return Err(FitError::OneClass { valid, invalid });
+    }
+    samples
+        .iter()
+        .enumerate()
+        .map(|(index, s)| {
+            if s.ratios.len() != m || s.unsupported.len() != m {
+                return Err(FitError::Shape {
+                    index,
+                    got: s.ratios.len().min(s.unsupported.len()),
+                    expected: m,
+                });
+            }
+            Ok(s.ratios
+                .iter()
+                .map(|r| finite_or_zero(*r))
+                .chain(s.unsupported.iter().map(|&u| if u { 1.0 } else { 0.0 }))
+                .collect())
+        })
+        .collect()
 }
 
 /// The learned decision online: runs the model's component detectors after every vertex and
@@ -438,6 +497,35 @@ mod tests {
     }
 
     #[test]
+    fn a_forest_model_scores_through_the_same_features() {
+        let methods = vec!["change_detection".to_string(), "gridmap".to_string()];
+        let mut samples = Vec::new();
+        for k in 0..60 {
+            let noise = (k as f64 * 0.37).fract();
+            samples.push(sample(0.1 * noise, noise, false, false));
+            samples.push(sample(0.6 + 0.3 * noise, noise, false, true));
+            // Never supported: invalid.
+            samples.push(sample(0.0, 0.0, true, true));
+        }
+        let params = ForestParams {
+            trees: 50,
+            ..ForestParams::default()
+        };
+        let model = LearnedModel::fit_forest(&methods, &samples, params, "test").unwrap();
+        assert!(model.probability(&[0.05, 0.5], &[false, false]) < 0.2);
+        assert!(model.probability(&[0.8, 0.5], &[false, false]) > 0.8);
+        assert!(model.probability(&[0.0, 0.0], &[true, true]) > 0.8);
+        assert!(model.probability(&[0.0, 0.0], &[false, false]) < 0.5);
+        let back: LearnedModel =
+            serde_json::from_str(&serde_json::to_string(&model).unwrap()).unwrap();
+        assert_eq!(back, model);
+        assert!(matches!(
+            LearnedModel::fit_forest(&methods, &samples[..1], ForestParams::default(), "t"),
+            Err(FitError::OneClass { .. })
+        ));
+    }
+
+    #[test]
     fn bad_training_sets_are_errors() {
         let methods = vec!["change_detection".to_string(), "gridmap".to_string()];
         let one_class = vec![sample(0.1, 0.1, false, false); 5];
@@ -463,6 +551,7 @@ mod tests {
             ratio_weights: vec![1e300],
             unsupported_weights: vec![-1e300],
             intercept: f64::NAN,
+            forest: None,
             threshold: 0.5,
             fitted_on: String::new(),
         };
@@ -483,6 +572,7 @@ mod tests {
             ratio_weights: vec![10.0, 0.0],
             unsupported_weights: vec![0.0, 0.0],
             intercept: -2.0,
+            forest: None,
             threshold: 0.5,
             fitted_on: String::new(),
         };

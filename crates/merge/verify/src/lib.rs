@@ -26,6 +26,7 @@ mod change_detection;
 mod combined;
 mod common;
 mod entropy;
+mod forest;
 mod gridmap;
 mod histogram;
 mod learned;
@@ -44,6 +45,7 @@ pub use change_detection::{
 };
 pub use combined::{CombinedDetector, CombinedInfo, CombinedParams};
 pub use entropy::{EntropyDetector, EntropyParams};
+pub use forest::{ForestParams, RandomForest, Tree};
 pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
 pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample};

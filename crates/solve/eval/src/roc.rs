@@ -18,6 +18,40 @@ pub struct RocPoint {
 /// finite score, highest threshold first, starting at `(0, 0)` (threshold +∞). Non-finite
 /// scores are ignored. Empty when either class is empty.
 pub fn roc_curve(positive_scores: &[f64], negative_scores: &[f64]) -> Vec<RocPoint> {
+    let Some(RocCounts {
+        steps,
+        positives,
+        negatives,
+    }) = roc_counts(positive_scores, negative_scores)
+    else {
+        return Vec::new();
+    };
+    let rate = |count: usize, of: usize| count as f64 / of as f64;
+    std::iter::once(RocPoint {
+        threshold: f64::INFINITY,
+        false_positive_rate: 0.0,
+        true_positive_rate: 0.0,
+    })
+    .chain(steps.iter().map(|&(threshold, p, n)| RocPoint {
+        threshold,
+        false_positive_rate: rate(n, negatives),
+        true_positive_rate: rate(p, positives),
+    }))
+    .collect()
+}
+
+/// The ROC curve in counts.
+struct RocCounts {
+    /// Per distinct finite score, highest first: (threshold, positives ≥ it, negatives ≥ it).
+    steps: Vec<(f64, usize, usize)>,
+    /// Finite positive scores.
+    positives: usize,
+    /// Finite negative scores.
+    negatives: usize,
+}
+
+/// The curve in counts; `None` when either class has no finite score.
+fn roc_counts(positive_scores: &[f64], negative_scores: &[f64]) -> Option<RocCounts> {
     let finite = |scores: &[f64]| -> Vec<f64> {
         let mut kept: Vec<f64> = scores.iter().copied().filter(|s| s.is_finite()).collect();
         kept.sort_by(|a, b| b.total_cmp(a));
@@ -25,17 +59,13 @@ pub fn roc_curve(positive_scores: &[f64], negative_scores: &[f64]) -> Vec<RocPoi
     };
     let (positive, negative) = (finite(positive_scores), finite(negative_scores));
     if positive.is_empty() || negative.is_empty() {
-        return Vec::new();
+        return None;
     }
     let mut thresholds: Vec<f64> = positive.iter().chain(&negative).copied().collect();
     thresholds.sort_by(|a, b| b.total_cmp(a));
     thresholds.dedup();
     let (mut p, mut n) = (0usize, 0usize);
-    let mut curve = vec![RocPoint {
-        threshold: f64::INFINITY,
-        false_positive_rate: 0.0,
-        true_positive_rate: 0.0,
-    }];
+    let mut steps = Vec::with_capacity(thresholds.len());
     for threshold in thresholds {
         while positive.get(p).is_some_and(|s| *s >= threshold) {
             p += 1;
@@ -43,33 +73,33 @@ pub fn roc_curve(positive_scores: &[f64], negative_scores: &[f64]) -> Vec<RocPoi
         while negative.get(n).is_some_and(|s| *s >= threshold) {
             n += 1;
         }
-        curve.push(RocPoint {
-            threshold,
-            false_positive_rate: n as f64 / negative.len() as f64,
-            true_positive_rate: p as f64 / positive.len() as f64,
-        });
+        steps.push((threshold, p, n));
     }
-    curve
+    Some(RocCounts {
+        steps,
+        positives: positive.len(),
+        negatives: negative.len(),
+    })
 }
 
 /// Area under the ROC curve: the probability that a random positive scores above a random
 /// negative, ties counting half (Mann–Whitney). `None` when either class has no finite score.
+/// Counted in whole pairs and divided once, so two rankings that win the same pairs get the
+/// same value to the last bit (a ≥ comparison of AUCs is then a comparison of pair counts).
 pub fn roc_auc(positive_scores: &[f64], negative_scores: &[f64]) -> Option<f64> {
-    let curve = roc_curve(positive_scores, negative_scores);
-    if curve.is_empty() {
-        return None;
+    let RocCounts {
+        steps,
+        positives,
+        negatives,
+    } = roc_counts(positive_scores, negative_scores)?;
+    // Twice the area in pairs: trapezoids between consecutive steps count ties as half.
+    let mut twice_pairs: u128 = 0;
+    let (mut p_before, mut n_before) = (0usize, 0usize);
+    for &(_, p, n) in &steps {
+        twice_pairs += (n - n_before) as u128 * (p + p_before) as u128;
+        (p_before, n_before) = (p, n);
     }
-    // Trapezoids between consecutive points count ties as half.
-    Some(
-        curve
-            .windows(2)
-            .map(|w| {
-                (w[1].false_positive_rate - w[0].false_positive_rate)
-                    * (w[1].true_positive_rate + w[0].true_positive_rate)
-                    / 2.0
-            })
-            .sum(),
-    )
+    Some(twice_pairs as f64 / (2 * positives as u128 * negatives as u128) as f64)
 }
 
 #[cfg(test)]
@@ -101,14 +131,15 @@ mod tests {
         ) {
             let p: Vec<f64> = positive.iter().map(|&v| f64::from(v)).collect();
             let n: Vec<f64> = negative.iter().map(|&v| f64::from(v)).collect();
-            let mut wins = 0.0;
+            // Twice the pairs won (a tie is half a win), divided once: exact, to the bit.
+            let mut twice_wins = 0usize;
             for a in &p {
                 for b in &n {
-                    wins += if a > b { 1.0 } else if a == b { 0.5 } else { 0.0 };
+                    twice_wins += if a > b { 2 } else if a == b { 1 } else { 0 };
                 }
             }
-            let expected = wins / (p.len() * n.len()) as f64;
-            prop_assert!((roc_auc(&p, &n).unwrap() - expected).abs() < 1e-12);
+            let expected = twice_wins as f64 / (2 * p.len() * n.len()) as f64;
+            prop_assert_eq!(roc_auc(&p, &n).unwrap(), expected);
         }
     }
 }
