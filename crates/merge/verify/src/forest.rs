@@ -166,6 +166,7 @@ impl RandomForest {
                     rng,
                     tree: Tree::default(),
                     pairs: Vec::with_capacity(data.len()),
+                    order: Vec::with_capacity(width),
                 };
                 grower.push_leaf();
                 grower.grow(0, &mut sample, 0);
@@ -188,6 +189,8 @@ struct Grower<'a> {
     tree: Tree,
     /// Scratch: (feature value, row) pairs of a node.
     pairs: Vec<(f64, usize)>,
+    /// Scratch: the order in which a node tries the features.
+    order: Vec<usize>,
 }
 
 /// The best split found at a node.
@@ -250,7 +253,10 @@ impl Grower<'_> {
     /// (more are drawn while those drawn are constant here, as Breiman's and scikit-learn's
     /// forests do); `None` when no allowed split lowers the impurity.
     fn best_split(&mut self, rows: &[usize], w: [f64; 2]) -> Option<Split> {
-        let mut features: Vec<usize> = (0..self.width).collect();
+        // The same order as a fresh 0..width shuffled: the scratch only saves the allocation.
+        let mut features = std::mem::take(&mut self.order);
+        features.clear();
+        features.extend(0..self.width);
         features.shuffle(&mut self.rng);
         let gini = |a: f64, b: f64| {
             let t = a + b;
@@ -264,7 +270,7 @@ impl Grower<'_> {
         let min_leaf = self.params.min_leaf.max(1);
         let mut best: Option<Split> = None;
         let mut tried = 0;
-        for feature in features {
+        for &feature in &features {
             if tried >= self.per_split {
                 break;
             }
@@ -298,6 +304,7 @@ impl Grower<'_> {
                 }
             }
         }
+        self.order = features;
         best
     }
 }
