@@ -136,12 +136,15 @@ pub struct DoorReport {
     pub ms_per_scan: f64,
 }
 
+/// A true door passing the detector missed: (session, scan, door id).
+pub type MissedPassing = (usize, usize, u32);
+
 /// Scores one session: runs the detector and matches its detections.
 pub fn score_session(
     session: &SessionData,
     params: &DoorParams,
     scoring: &DoorScoring,
-) -> Result<(DoorCounts, Vec<FalseDetection>, Vec<(usize, usize, u32)>), AreasError> {
+) -> Result<(DoorCounts, Vec<FalseDetection>, Vec<MissedPassing>), AreasError> {
     let mut detector = DoorDetector::new(params.clone())?;
     let mut detections: Vec<DoorPassingDetection> = Vec::new();
     let started = Instant::now();
@@ -205,7 +208,7 @@ pub fn score_session(
             nearest_passing_scans: truth.iter().map(|(s, _)| s.abs_diff(*scan)).min(),
         })
         .collect();
-    let mut missed: Vec<(usize, usize, u32)> = passings
+    let mut missed: Vec<MissedPassing> = passings
         .iter()
         .enumerate()
         .filter(|(t, _)| !matched.contains(&Some(*t)))
