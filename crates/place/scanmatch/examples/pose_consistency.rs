@@ -11,7 +11,7 @@ use std::error::Error;
 use std::path::Path;
 
 use mapmerge_geometry::LieGroup;
-use mapmerge_scan::BeamFilter;
+use mapmerge_scan::{transform_points, BeamFilter};
 use mapmerge_scanmatch::{ScanMatcher, SearchWindow};
 
 fn main() -> Result<(), Box<dyn Error>> {
@@ -38,7 +38,7 @@ fn main() -> Result<(), Box<dyn Error>> {
     for k in range[0]..=range[1] {
         let (record, world_from_robot) = scan(k)?;
         let points = record.scan.points_in_robot(&filter);
-        points_in_world.extend(points.iter().map(|p| world_from_robot.transform_point(p)));
+        points_in_world.extend(transform_points(&world_from_robot, &points));
     }
     let target = matcher.target(&points_in_world)?;
     let window = SearchWindow {
