@@ -6,6 +6,7 @@
 # at a time, each on its own core (taskset + RAYON_NUM_THREADS=1): ROC AUC and mean ms per new
 # vertex per log and method. Usage: scripts/bench_invalid_merge.sh [--seed S] [--max-pairs N] [--methods a,b,…]
 # [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P]
+# [--engine-config ENGINE.json] (engine parameters for the second segments' runs, e.g. a variant)
 # Issue 15's protocol: --valid-at merge-place --segment-length-m 30 --odometry-noise none|default
 # (valid merges exact at the merge place; rotation, shift and careless invalid cases; AUC per kind).
 # Writes bench-out/invalid-merge.md (+ bench-out/invalid-merge/*, and the machine's memory
@@ -14,6 +15,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/bench_common.sh
 seed=0; max_pairs=15; methods=""; only=(); valid_at=start-frames; length_args=(); noise=default
+engine_args=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --seed) seed="$2"; shift 2 ;;
@@ -23,7 +25,8 @@ while [[ $# -gt 0 ]]; do
     --valid-at) valid_at="$2"; shift 2 ;;
     --segment-length-m) length_args=(--segment-length-m "$2"); shift 2 ;;
     --odometry-noise) noise="$2"; shift 2 ;;
-    *) echo "usage: $0 [--seed S] [--max-pairs N] [--methods a,b] [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P]" >&2; exit 2 ;;
+    --engine-config) engine_args=(--engine-config "$(realpath "$2")"); shift 2 ;;
+    *) echo "usage: $0 [--seed S] [--max-pairs N] [--methods a,b] [--only NAME]... [--valid-at start-frames|merge-place] [--segment-length-m M] [--odometry-noise P] [--engine-config ENGINE.json]" >&2; exit 2 ;;
   esac
 done
 data="${MAPMERGE_DATA:-../shared/data}"
@@ -61,7 +64,8 @@ worker() {
   for log in "$@"; do
     echo "invalid-merge $log ($(wc -l < "$work/$log.cases.jsonl") cases) …" >&2
     "${pin[@]}" "$bin" eval invalid-merge --cases "$work/$log.cases.jsonl" \
-      -o "$work/$log.results.jsonl" "${method_args[@]}" --report "$work/$log.table.md" > /dev/null
+      -o "$work/$log.results.jsonl" "${method_args[@]}" "${engine_args[@]}" \
+      --report "$work/$log.table.md" > /dev/null
   done
 }
 # The machine's memory latency beside the times (gridmap's update is bound by it, §8).
@@ -77,7 +81,7 @@ total_secs=$(( $(date +%s) - started ))
 {
   echo "# Invalid-merge detection on the public logs (Holoch et al., Table III)"
   echo
-  echo "Run $(date -u +%Y-%m-%dT%H:%M)Z by \`scripts/bench_invalid_merge.sh --seed $seed --max-pairs $max_pairs${methods:+ --methods $methods} --valid-at $valid_at ${length_args[*]} --odometry-noise $noise\`"
+  echo "Run $(date -u +%Y-%m-%dT%H:%M)Z by \`scripts/bench_invalid_merge.sh --seed $seed --max-pairs $max_pairs${methods:+ --methods $methods} --valid-at $valid_at ${length_args[*]} --odometry-noise $noise${engine_args[*]:+ ${engine_args[*]}}\`"
   echo "($(nproc) cores; cases made in ${made_secs} s, ${total_secs} s in all). Per log:"
   echo "\`mapmerge eval make-merge-cases --log L --corrected L -o L.cases.jsonl --seed $seed --max-pairs $max_pairs --valid-at $valid_at ${length_args[*]} --odometry-noise $noise\`,"
   echo "then \`mapmerge eval invalid-merge --cases L.cases.jsonl -o L.results.jsonl --report L.table.md\` on one core."

@@ -265,6 +265,12 @@ pub struct InvalidMergeArgs {
     /// colours (red change, green agree, grey no information), other scans by epoch.
     #[arg(long)]
     pub pictures: Option<PathBuf>,
+    /// Engine parameters for the run of each second segment (JSON,
+    /// `mapmerge_engine::EngineParams`; absent fields keep their defaults, and the evaluation
+    /// still turns the engine's own detector and merge search off), e.g.
+    /// `{"atlas": {"merge": {"overlap": {"local_loops": true}}}}`.
+    #[arg(long)]
+    pub engine_config: Option<PathBuf>,
 }
 
 /// `--detector-params`: parameters per detector name, the rest default.
@@ -1561,10 +1567,10 @@ struct TraceLine<'a> {
 
 /// The lifelong loop as the evaluation runs it: no verification of its own (the detectors
 /// under test look at its merged map), no merges by recognition (the case forces one).
-fn evaluation_engine() -> anyhow::Result<Engine> {
+fn evaluation_engine(params: &EngineParams) -> anyhow::Result<Engine> {
     let mut params = EngineParams {
         detector: NO_DETECTOR.into(),
-        ..EngineParams::default()
+        ..params.clone()
     };
     params.atlas.recognition.min_epoch_keyframes = usize::MAX;
     Ok(Engine::new(params)?)
@@ -1585,6 +1591,7 @@ fn evaluate_case(
     case: &MergeCase,
     detectors: &mut [Box<dyn InvalidMergeDetector>],
     pictures: Option<&Path>,
+    engine_params: &EngineParams,
 ) -> anyhow::Result<Vec<Outcome>> {
     let picture = |engine: &Engine, which: &str| -> anyhow::Result<()> {
         let Some(dir) = pictures else {
@@ -1593,7 +1600,7 @@ fn evaluate_case(
         let name = format!("{}-{which}.png", case.id.replace('/', "_"));
         crate::atlas::draw_graph(engine.map_graph(), engine, &[], &dir.join(name))
     };
-    let mut engine = evaluation_engine()?;
+    let mut engine = evaluation_engine(engine_params)?;
     let map = engine.import_inactive(&first.graph, |node| first.points.get(&node).cloned())?;
     let mut outcomes = vec![Outcome::default(); detectors.len()];
     let mut odometry = Se2::identity();
@@ -1758,6 +1765,7 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
         Some(path) => read_detector_params(path)?,
         None => DetectorParams::default(),
     };
+    let engine_params: EngineParams = crate::read_config(args.engine_config.as_deref())?;
     let mut cases = read_cases(&args.cases)?;
     if let Some(max) = args.max_cases {
         cases.truncate(max);
@@ -1839,6 +1847,7 @@ pub fn invalid_merge(args: &InvalidMergeArgs) -> anyhow::Result<()> {
             case,
             &mut detectors,
             args.pictures.as_deref(),
+            &engine_params,
         )
         .map_err(context)?;
         for (method, outcome) in methods.iter().zip(outcomes) {
@@ -2094,6 +2103,25 @@ fn summary_markdown(rows: &[SummaryRow], seconds: f64) -> String {
 mod tests {
     use super::*;
 
+    /// [`evaluate_case`] with the default engine, no truth and no pictures.
+    fn evaluate_with_defaults(
+        first: &FirstSegment,
+        log: &LaserLog,
+        case: &MergeCase,
+        detectors: &mut [Box<dyn InvalidMergeDetector>],
+    ) -> Vec<Outcome> {
+        evaluate_case(
+            first,
+            log,
+            None,
+            case,
+            detectors,
+            None,
+            &EngineParams::default(),
+        )
+        .unwrap()
+    }
+
     fn case() -> MergeCase {
         MergeCase {
             id: "x/s000-s001/valid".into(),
@@ -2285,13 +2313,11 @@ mod tests {
         c.merge_transform = array_of(&first_from_second);
         let mut detectors: Vec<Box<dyn InvalidMergeDetector>> =
             vec![Box::new(FirstDistance::default())];
-        let right =
-            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
+        let right = evaluate_with_defaults(&first_run, &session.log, &c, &mut detectors);
         assert!(right[0].vertices > 10, "{right:?}");
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         c.merge_transform = array_of(&first_from_second.compose(&Se2::new(-30.0, 0.0, 0.0)));
-        let wrong =
-            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
+        let wrong = evaluate_with_defaults(&first_run, &session.log, &c, &mut detectors);
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
 
         // At the merge place: the relative pose decides, whatever `merge_transform` says.
@@ -2316,8 +2342,7 @@ mod tests {
             first_scan: place.first_scan,
             relative: array_of(&true_relative),
         });
-        let right =
-            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
+        let right = evaluate_with_defaults(&first_run, &session.log, &c, &mut detectors);
         assert!(right[0].max_invalidity < 0.05, "{right:?}");
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let kinds = place.cases(&mut rng);
@@ -2346,8 +2371,7 @@ mod tests {
             relative: array_of(&true_relative.compose(&Se2::new(-30.0, 0.0, 0.0))),
         });
         c.merge_transform = array_of(&first_from_second);
-        let wrong =
-            evaluate_case(&first_run, &session.log, None, &c, &mut detectors, None).unwrap();
+        let wrong = evaluate_with_defaults(&first_run, &session.log, &c, &mut detectors);
         assert!(wrong[0].max_invalidity > 0.9, "{wrong:?}");
     }
 }

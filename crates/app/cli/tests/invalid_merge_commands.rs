@@ -196,6 +196,25 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
         &invalid_merge_args(&ok, &results, &["--detector-params", p(&params)]),
         "bad detector parameters",
     );
+    // So are engine parameters with an unknown field.
+    let engine = dir.join("engine.json");
+    std::fs::write(
+        &engine,
+        r#"{"atlas": {"merge": {"overlap": {"local_loopz": true}}}}"#,
+    )
+    .unwrap();
+    expect_bad(
+        &invalid_merge_args(&ok, &results, &["--engine-config", p(&engine)]),
+        "local_loopz",
+    );
+    // A known one runs.
+    std::fs::write(
+        &engine,
+        r#"{"atlas": {"merge": {"overlap": {"local_loops": true}}}}"#,
+    )
+    .unwrap();
+    let report = evaluate(&ok, &results, "histogram", &["--engine-config", p(&engine)]);
+    assert_eq!(report["cases"], 1);
 }
 
 #[test]

@@ -128,7 +128,7 @@ impl<B: BackupStore> Atlas<B> {
     /// An atlas with the given backup store (e.g. [`crate::DiskBackups`]); epoch 0 has started.
     pub fn with_backups(params: AtlasParams, backups: B) -> Result<Self, AtlasError> {
         Ok(Self {
-            constraints: ConstraintBuilder::new(&params.loops)?,
+            constraints: ConstraintBuilder::new(&params)?,
             map_from_local: Se2::identity(),
             params,
             epoch: EpochId(0),

@@ -22,8 +22,8 @@ use std::time::Instant;
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_place::{
     seen_from_beside, verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe,
-    KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, SignatureExtractor,
-    Verification,
+    KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, ScanMatchVerifier,
+    SignatureExtractor, Verification,
 };
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::Point2;
@@ -33,7 +33,7 @@ use mapmerge_solve::{chi2_quantile_99, OptimizerParams, RobustKernel};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
-use crate::atlas::Atlas;
+use crate::atlas::{Atlas, AtlasParams};
 use crate::backup::BackupStore;
 use crate::error::AtlasError;
 use crate::ids::MapId;
@@ -255,6 +255,9 @@ struct IndexedKeyframe {
 /// The constraint builder's state (owned by the atlas).
 pub(crate) struct ConstraintBuilder {
     matcher: ScanMatcher,
+    /// Verifies loops into merged data with `merge.overlap.local_loops` (see
+    /// [`crate::OverlapParams::local_loops`]).
+    pub(crate) merged_loop_verifier: Option<ScanMatchVerifier>,
     /// Describes keyframes for the index (`loops.place`'s descriptor and appearance).
     extractor: SignatureExtractor,
     index: PlaceIndex<PlaceSignature>,
@@ -285,10 +288,23 @@ pub(crate) struct ConstraintBuilder {
 }
 
 impl ConstraintBuilder {
-    pub(crate) fn new(params: &LoopClosureParams) -> Result<Self, AtlasError> {
+    pub(crate) fn new(atlas: &AtlasParams) -> Result<Self, AtlasError> {
+        let params = &atlas.loops;
+        let overlap = &atlas.merge.overlap;
+        let merged_loop_verifier = if overlap.local_loops {
+            // The epoch's loop matcher, searched within the gate only.
+            let window = SearchWindow::new(overlap.gate_m, overlap.gate_rad);
+            Some(
+                ScanMatchVerifier::new(params.matcher, window)
+                    .map_err(|e| AtlasError::Config(e.to_string()))?,
+            )
+        } else {
+            None
+        };
         Ok(Self {
             matcher: ScanMatcher::new(params.matcher)
                 .map_err(|e| AtlasError::Config(e.to_string()))?,
+            merged_loop_verifier,
             extractor: SignatureExtractor::new(&params.place),
             index: PlaceIndex::new(params.place.index.clone()),
             indexed: Vec::new(),

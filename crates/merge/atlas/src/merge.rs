@@ -77,6 +77,15 @@ pub struct OverlapParams {
     /// ... and this (rad) (default: 5°): the merge's transform is known now, so a match far
     /// from it is a look-alike.
     pub gate_rad: f64,
+    /// Loops into merged data after a merge are verified as the epoch's own loops are: the
+    /// epoch's loop matcher searched within the gate only, accepted from `loops.min_score`
+    /// (default: false: the merge search's verifier and `min_score`). The merge already
+    /// fixes where the robot is to within the gate; the place verifier asks for a place
+    /// unique within ±2 m and at 180°, which no corridor is (infinite corridor's right
+    /// merges score 0.02–0.95 there), so the tracker drifts along it unchecked. Off: on the
+    /// forced merges it raised the best single detector's AUC but lowered the learned one's
+    /// on intel (docs/benchmarks.md §8, session 2026-12-03 (iii)).
+    pub local_loops: bool,
 }
 
 impl Default for OverlapParams {
@@ -92,6 +101,7 @@ impl Default for OverlapParams {
             min_score: 0.95,
             gate_m: 0.5,
             gate_rad: 5f64.to_radians(),
+            local_loops: false,
         }
     }
 }
@@ -294,7 +304,14 @@ impl<B: BackupStore> Atlas<B> {
         let overlap = match verifier {
             Some(verifier) if self.params.merge.overlap.enabled => {
                 let joined: BTreeSet<NodeId> = request.loops.iter().map(|l| l.active).collect();
-                self.overlap_loops(&merged, &active_before, &moved, &joined, verifier)
+                self.overlap_loops(
+                    &merged,
+                    &active_before,
+                    &moved,
+                    &joined,
+                    verifier,
+                    self.params.merge.overlap.min_score,
+                )
             }
             _ => Vec::new(),
         };
@@ -355,6 +372,7 @@ impl<B: BackupStore> Atlas<B> {
         moved: &PoseGraph2,
         already_joined: &BTreeSet<NodeId>,
         verifier: &dyn GeometricVerifier,
+        min_score: f64,
     ) -> Vec<LoopEdge> {
         let p = &self.params.merge.overlap;
         let mut pairs = Vec::new();
@@ -419,7 +437,7 @@ impl<B: BackupStore> Atlas<B> {
                 continue;
             };
             let correction = guess_b_from_a.between(&found.candidate_from_query);
-            if found.score >= p.min_score
+            if found.score >= min_score
                 && correction.translation().norm() <= p.gate_m
                 && wrap_angle_rad(correction.theta_rad).abs() <= p.gate_rad
             {
@@ -463,7 +481,20 @@ impl<B: BackupStore> Atlas<B> {
             .map(|(id, _)| id)
             .collect();
         let others = self.active.subgraph(&other);
-        let loops = self.overlap_loops(&self.active, tried, &others, &BTreeSet::new(), verifier);
+        let (verifier, min_score) = match &self.constraints.merged_loop_verifier {
+            Some(local) if self.params.merge.overlap.local_loops => {
+                (local as &dyn GeometricVerifier, self.params.loops.min_score)
+            }
+            _ => (verifier, self.params.merge.overlap.min_score),
+        };
+        let loops = self.overlap_loops(
+            &self.active,
+            tried,
+            &others,
+            &BTreeSet::new(),
+            verifier,
+            min_score,
+        );
         if loops.is_empty() {
             return Ok(loops);
         }
@@ -492,7 +523,14 @@ impl<B: BackupStore> Atlas<B> {
         };
         let ids: BTreeSet<NodeId> = inactive.vertices().map(|(id, _)| id).collect();
         let moved = preview.subgraph(&ids);
-        self.overlap_loops(preview, nodes, &moved, &BTreeSet::new(), verifier)
+        self.overlap_loops(
+            preview,
+            nodes,
+            &moved,
+            &BTreeSet::new(),
+            verifier,
+            self.params.merge.overlap.min_score,
+        )
     }
 
     /// [`Atlas::confirm_in_preview`] for a merge not yet made: keyframe `node` verified
@@ -517,7 +555,14 @@ impl<B: BackupStore> Atlas<B> {
         if joined.union(&moved, &[]).is_err() {
             return Vec::new();
         }
-        self.overlap_loops(&joined, &[node], &moved, &BTreeSet::new(), verifier)
+        self.overlap_loops(
+            &joined,
+            &[node],
+            &moved,
+            &BTreeSet::new(),
+            verifier,
+            self.params.merge.overlap.min_score,
+        )
     }
 
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):

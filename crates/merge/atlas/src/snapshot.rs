@@ -263,7 +263,7 @@ impl<B: BackupStore> Atlas<B> {
         }
         let epoch = c.epoch;
         let mut atlas = Self {
-            constraints: ConstraintBuilder::new(&params.loops)?,
+            constraints: ConstraintBuilder::new(&params)?,
             map_from_local: c.map_from_local,
             params,
             epoch,

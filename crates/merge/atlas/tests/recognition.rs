@@ -4,9 +4,12 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
-use mapmerge_atlas::{default_verifier, Atlas, AtlasParams, EpochEndReason, MapId, UnmergeReason};
+use mapmerge_atlas::{
+    default_verifier, Atlas, AtlasParams, EpochEndReason, MapId, MergeRequest, UnmergeReason,
+};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, Vertex};
 use mapmerge_scan::Point2;
@@ -153,6 +156,66 @@ fn recognition_without_free_space_merges_as_well() {
 #[test]
 fn an_atlas_restored_between_epochs_recognises_the_place_as_well() {
     merges_onto_the_true_transform_after(AtlasParams::default(), true);
+}
+
+/// A straight corridor (two walls, nothing else): after a right merge the robot drives on
+/// through the old corridor. Place recognition's verifier refuses every match there (a
+/// corridor is not unique along its axis), so only `merge.overlap.local_loops` closes loops
+/// into the merged data, and their edges leave the corridor's axis free.
+#[test]
+fn loops_into_merged_data_in_a_corridor_need_the_local_verifier() {
+    let p = Point2::new;
+    let corridor = vec![(p(-5.0, -1.0), p(45.0, -1.0)), (p(-5.0, 1.0), p(45.0, 1.0))];
+    let loops = |local_loops: bool| {
+        let mut params = AtlasParams::default();
+        params.merge.overlap.local_loops = local_loops;
+        let mut atlas = Atlas::new(params).unwrap();
+        let old_path = along(&[(0.0, 0.0), (30.0, 0.0)]);
+        let old = add_epoch(&mut atlas, &corridor, &old_path, &Se2::identity());
+        atlas.end_epoch(EpochEndReason::Kidnap);
+        // Epoch 1 drives the same corridor from x = 5 m, slightly off its centre line.
+        let start = Se2::new(5.0, 0.2, 0.0);
+        let path = along(&[(5.0, 0.2), (20.0, 0.2)]);
+        let new = add_epoch(&mut atlas, &corridor, &path, &start);
+        let truth: HashMap<NodeId, Se2> = old
+            .into_iter()
+            .zip(old_path)
+            .chain(new.into_iter().zip(path.iter().copied()))
+            .collect();
+        let verifier = default_verifier().unwrap();
+        let merge = MergeRequest::forced(MapId(0), start.inverse(), "t");
+        atlas.merge(merge, Some(&verifier)).unwrap();
+        let found = atlas
+            .close_loops_into_merged(path.len(), &verifier)
+            .unwrap();
+        // Each loop's error against the true relative pose.
+        found
+            .iter()
+            .map(|l| {
+                truth[&l.inactive]
+                    .between(&truth[&l.active])
+                    .between(&l.inactive_from_active)
+            })
+            .collect::<Vec<Se2>>()
+    };
+    assert!(
+        loops(false).is_empty(),
+        "the place verifier refuses a corridor"
+    );
+    let errors = loops(true);
+    assert!(
+        !errors.is_empty(),
+        "the local verifier accepts the corridor"
+    );
+    for error in &errors {
+        // Across the corridor and in heading the loops are right; along it (x) they may be
+        // anywhere within the gate.
+        assert!(
+            error.y_m.abs() < 0.05 && error.theta_rad.abs() < 1f64.to_radians(),
+            "{error:?}"
+        );
+        assert!(error.x_m.abs() <= 0.5 + 1e-6, "{error:?}");
+    }
 }
 
 fn merges_onto_the_true_transform(params: AtlasParams) {
