@@ -161,7 +161,7 @@ fn an_atlas_restored_between_epochs_recognises_the_place_as_well() {
 /// A straight corridor (two walls, nothing else): after a right merge the robot drives on
 /// through the old corridor. Place recognition's verifier refuses every match there (a
 /// corridor is not unique along its axis), so only `merge.overlap.local_loops` closes loops
-/// into the merged data, and their edges leave the corridor's axis free.
+/// into the merged data; they are right across the corridor and in heading.
 #[test]
 fn loops_into_merged_data_in_a_corridor_need_the_local_verifier() {
     let p = Point2::new;

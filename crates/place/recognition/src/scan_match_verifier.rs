@@ -179,15 +179,11 @@ impl ScanMatchVerifier {
         );
         let params = self.evidence.unwrap_or_default();
         // A whole-circle search has already weighed the turned pose against the best one
-        // (it would find the same optimum again): no flip test then, nor when it weighs
-        // nothing (`flip_weight` 0). Only a turned fit
+        // (it would find the same optimum again): no flip test then. Only a turned fit
         // above `flip_tolerance` of the best lowers the score, so the search for it prunes
         // everything below (the same score, far fewer candidates); `flip_ratio` reads 0 for
         // a turned fit below the floor. The ratio is of correlative scores, so no ICP.
-        let flipped = if self.window.angular_rad >= std::f64::consts::PI
-            || found.score <= 0.0
-            || params.flip_weight <= 0.0
-        {
+        let flipped = if self.window.angular_rad >= std::f64::consts::PI || found.score <= 0.0 {
             None
         } else {
             let floor = (params.flip_tolerance * found.score)
