@@ -255,7 +255,8 @@ struct IndexedKeyframe {
 /// The constraint builder's state (owned by the atlas).
 pub(crate) struct ConstraintBuilder {
     matcher: ScanMatcher,
-    /// Verifies loops into merged data with `merge.overlap.local_loops` (see
+    /// Verifies loops into merged data; present exactly when `merge.overlap.local_loops` is
+    /// set (the atlas's parameters are fixed at construction; see
     /// [`crate::OverlapParams::local_loops`]).
     pub(crate) merged_loop_verifier: Option<ScanMatchVerifier>,
     /// Describes keyframes for the index (`loops.place`'s descriptor and appearance).

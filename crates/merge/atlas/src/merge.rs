@@ -482,10 +482,8 @@ impl<B: BackupStore> Atlas<B> {
             .collect();
         let others = self.active.subgraph(&other);
         let (verifier, min_score) = match &self.constraints.merged_loop_verifier {
-            Some(local) if self.params.merge.overlap.local_loops => {
-                (local as &dyn GeometricVerifier, self.params.loops.min_score)
-            }
-            _ => (verifier, self.params.merge.overlap.min_score),
+            Some(local) => (local as &dyn GeometricVerifier, self.params.loops.min_score),
+            None => (verifier, self.params.merge.overlap.min_score),
         };
         let loops = self.overlap_loops(
             &self.active,
