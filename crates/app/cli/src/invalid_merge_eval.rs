@@ -268,7 +268,7 @@ pub struct InvalidMergeArgs {
     /// Engine parameters for the run of each second segment (JSON,
     /// `mapmerge_engine::EngineParams`; absent fields keep their defaults, and the evaluation
     /// still turns the engine's own detector and merge search off), e.g.
-    /// `{"atlas": {"merge": {"overlap": {"local_loops": true}}}}`.
+    /// `{"atlas": {"merge": {"overlap": {"local_loops": false}}}}`.
     #[arg(long)]
     pub engine_config: Option<PathBuf>,
 }

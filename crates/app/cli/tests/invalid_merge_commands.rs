@@ -210,7 +210,7 @@ fn bad_case_files_exit_2_naming_the_file_and_line() {
     // A known one runs.
     std::fs::write(
         &engine,
-        r#"{"atlas": {"merge": {"overlap": {"local_loops": true}}}}"#,
+        r#"{"atlas": {"merge": {"overlap": {"local_loops": false}}}}"#,
     )
     .unwrap();
     let report = evaluate(&ok, &results, "histogram", &["--engine-config", p(&engine)]);
