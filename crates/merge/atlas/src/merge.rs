@@ -87,6 +87,12 @@ pub struct OverlapParams {
     /// the tuning logs' best single detector AUC under both odometry settings, and its
     /// public-log time is within noise (docs/benchmarks.md §8 and §10).
     pub local_loops: bool,
+    /// With `local_loops`: the tried vertices the local matcher did not join are verified
+    /// again by the merge search's verifier and `min_score` (default: false). The local
+    /// matcher refuses a loop under `loops.min_score` even when it measures the drift well
+    /// (fhw's later loops score 0.40–0.55), which the place verifier accepts where the
+    /// place is unique (docs/benchmarks.md §8, session 2026-12-03 (iv)).
+    pub place_verifier_too: bool,
 }
 
 impl Default for OverlapParams {
@@ -103,6 +109,7 @@ impl Default for OverlapParams {
             gate_m: 0.5,
             gate_rad: 5f64.to_radians(),
             local_loops: true,
+            place_verifier_too: false,
         }
     }
 }
@@ -482,18 +489,41 @@ impl<B: BackupStore> Atlas<B> {
             .map(|(id, _)| id)
             .collect();
         let others = self.active.subgraph(&other);
-        let (verifier, min_score) = match &self.constraints.merged_loop_verifier {
-            Some(local) => (local as &dyn GeometricVerifier, self.params.loops.min_score),
-            None => (verifier, self.params.merge.overlap.min_score),
+        let overlap = &self.params.merge.overlap;
+        let none_joined = BTreeSet::new();
+        let loops = match &self.constraints.merged_loop_verifier {
+            None => self.overlap_loops(
+                &self.active,
+                tried,
+                &others,
+                &none_joined,
+                verifier,
+                overlap.min_score,
+            ),
+            Some(local) => {
+                let mut loops = self.overlap_loops(
+                    &self.active,
+                    tried,
+                    &others,
+                    &none_joined,
+                    local,
+                    self.params.loops.min_score,
+                );
+                if overlap.place_verifier_too {
+                    let joined: BTreeSet<NodeId> = loops.iter().map(|l| l.active).collect();
+                    let more = self.overlap_loops(
+                        &self.active,
+                        tried,
+                        &others,
+                        &joined,
+                        verifier,
+                        overlap.min_score,
+                    );
+                    loops.extend(more);
+                }
+                loops
+            }
         };
-        let loops = self.overlap_loops(
-            &self.active,
-            tried,
-            &others,
-            &BTreeSet::new(),
-            verifier,
-            min_score,
-        );
         if loops.is_empty() {
             return Ok(loops);
         }
