@@ -158,6 +158,43 @@ fn an_atlas_restored_between_epochs_recognises_the_place_as_well() {
     merges_onto_the_true_transform_after(AtlasParams::default(), true);
 }
 
+/// Epoch 0 drives `old_corners` and epoch 1 `new_corners` (world frame) through `walls`;
+/// epoch 1 is merged onto the true transform and then closes loops into the merged data.
+/// Returns each loop's error against the true relative pose.
+fn loops_into_merged_data(
+    walls: &[Segment],
+    old_corners: &[(f64, f64)],
+    new_corners: &[(f64, f64)],
+    params: AtlasParams,
+) -> Vec<Se2> {
+    let mut atlas = Atlas::new(params).unwrap();
+    let old_path = along(old_corners);
+    let old = add_epoch(&mut atlas, walls, &old_path, &Se2::identity());
+    atlas.end_epoch(EpochEndReason::Kidnap);
+    let path = along(new_corners);
+    let start = path[0];
+    let new = add_epoch(&mut atlas, walls, &path, &start);
+    let truth: HashMap<NodeId, Se2> = old
+        .into_iter()
+        .zip(old_path)
+        .chain(new.into_iter().zip(path.iter().copied()))
+        .collect();
+    let verifier = default_verifier().unwrap();
+    let merge = MergeRequest::forced(MapId(0), start.inverse(), "t");
+    atlas.merge(merge, Some(&verifier)).unwrap();
+    let found = atlas
+        .close_loops_into_merged(path.len(), &verifier)
+        .unwrap();
+    found
+        .iter()
+        .map(|l| {
+            truth[&l.inactive]
+                .between(&truth[&l.active])
+                .between(&l.inactive_from_active)
+        })
+        .collect()
+}
+
 /// A straight corridor (two walls, nothing else): after a right merge the robot drives on
 /// through the old corridor. Place recognition's verifier refuses every match there (a
 /// corridor is not unique along its axis), so only `merge.overlap.local_loops` closes loops
@@ -169,34 +206,13 @@ fn loops_into_merged_data_in_a_corridor_need_the_local_verifier() {
     let loops = |local_loops: bool| {
         let mut params = AtlasParams::default();
         params.merge.overlap.local_loops = local_loops;
-        let mut atlas = Atlas::new(params).unwrap();
-        let old_path = along(&[(0.0, 0.0), (30.0, 0.0)]);
-        let old = add_epoch(&mut atlas, &corridor, &old_path, &Se2::identity());
-        atlas.end_epoch(EpochEndReason::Kidnap);
         // Epoch 1 drives the same corridor from x = 5 m, slightly off its centre line.
-        let start = Se2::new(5.0, 0.2, 0.0);
-        let path = along(&[(5.0, 0.2), (20.0, 0.2)]);
-        let new = add_epoch(&mut atlas, &corridor, &path, &start);
-        let truth: HashMap<NodeId, Se2> = old
-            .into_iter()
-            .zip(old_path)
-            .chain(new.into_iter().zip(path.iter().copied()))
-            .collect();
-        let verifier = default_verifier().unwrap();
-        let merge = MergeRequest::forced(MapId(0), start.inverse(), "t");
-        atlas.merge(merge, Some(&verifier)).unwrap();
-        let found = atlas
-            .close_loops_into_merged(path.len(), &verifier)
-            .unwrap();
-        // Each loop's error against the true relative pose.
-        found
-            .iter()
-            .map(|l| {
-                truth[&l.inactive]
-                    .between(&truth[&l.active])
-                    .between(&l.inactive_from_active)
-            })
-            .collect::<Vec<Se2>>()
+        loops_into_merged_data(
+            &corridor,
+            &[(0.0, 0.0), (30.0, 0.0)],
+            &[(5.0, 0.2), (20.0, 0.2)],
+            params,
+        )
     };
     assert!(
         loops(false).is_empty(),
@@ -215,6 +231,33 @@ fn loops_into_merged_data_in_a_corridor_need_the_local_verifier() {
             "{error:?}"
         );
         assert!(error.x_m.abs() <= 0.5 + 1e-6, "{error:?}");
+    }
+}
+
+/// In the irregular room, loops the local matcher refuses (here every one, by a score it
+/// cannot reach) are verified again by the place verifier with
+/// `merge.overlap.place_verifier_too`, and those it accepts are right.
+#[test]
+fn loops_the_local_matcher_refuses_are_verified_by_the_place_verifier_too() {
+    let loops = |place_verifier_too: bool| {
+        let mut params = AtlasParams::default();
+        params.loops.min_score = 1.01;
+        params.merge.overlap.place_verifier_too = place_verifier_too;
+        loops_into_merged_data(
+            &world(),
+            &[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)],
+            &[(1.0, 0.3), (11.0, 0.3), (11.5, 4.0)],
+            params,
+        )
+    };
+    assert!(loops(false).is_empty(), "the local matcher refuses all");
+    let errors = loops(true);
+    assert!(!errors.is_empty(), "the place verifier accepts the room");
+    for error in &errors {
+        assert!(
+            error.translation().norm() < 0.1 && error.theta_rad.abs() < 1f64.to_radians(),
+            "{error:?}"
+        );
     }
 }
 
