@@ -27,7 +27,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::{Args, ValueEnum};
 use mapmerge_eval::roc_auc;
-use mapmerge_verify::{ForestParams, LearnedModel, LearnedSample};
+use mapmerge_verify::{ForestParams, LearnedModel, LearnedSample, RatioTransform};
 use serde::Serialize;
 
 use crate::invalid_merge_eval::{log_name, Label, MergeResult};
@@ -57,6 +57,13 @@ pub struct CalibrateArgs {
     /// The learned combination's model (single detectors are always logistic).
     #[arg(long, value_enum, default_value_t = ModelKind::Logistic)]
     pub model: ModelKind,
+    /// How the ratios enter the learned logistic combination (single detectors always take
+    /// them as they are: a monotone transform of one ratio ranks the cases the same).
+    /// Logit by default since session 2026-12-03 (v): on the tuning logs it raised the
+    /// learned AUC under both odometry settings (docs/benchmarks.md §8). The engine's
+    /// embedded model was fitted with `identity`.
+    #[arg(long, value_enum, default_value_t = TransformKind::Logit)]
+    pub ratio_transform: TransformKind,
     /// Trees of `--model forest`.
     #[arg(long, default_value_t = 200)]
     pub trees: usize,
@@ -96,11 +103,29 @@ pub enum ModelKind {
     Forest,
 }
 
-/// How the learned combination is fitted: a logistic regression with its L2 weight, or a
-/// forest.
+/// How ratios enter the learned logistic combination ([`RatioTransform`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum TransformKind {
+    /// As they are.
+    Identity,
+    /// Their logit, clamped to [0.001, 0.999].
+    Logit,
+}
+
+impl From<TransformKind> for RatioTransform {
+    fn from(kind: TransformKind) -> Self {
+        match kind {
+            TransformKind::Identity => RatioTransform::Identity,
+            TransformKind::Logit => RatioTransform::Logit,
+        }
+    }
+}
+
+/// How the learned combination is fitted: a logistic regression with its L2 weight and
+/// ratio transform, or a forest.
 #[derive(Clone, Debug)]
 enum Fit {
-    Logistic(f64),
+    Logistic(f64, RatioTransform),
     Forest(ForestParams),
 }
 
@@ -112,7 +137,9 @@ impl Fit {
         fitted_on: String,
     ) -> Option<LearnedModel> {
         match self {
-            Fit::Logistic(alpha) => LearnedModel::fit(methods, samples, *alpha, fitted_on).ok(),
+            Fit::Logistic(alpha, transform) => {
+                LearnedModel::fit_transformed(methods, samples, *alpha, *transform, fitted_on).ok()
+            }
             Fit::Forest(params) => {
                 LearnedModel::fit_forest(methods, samples, params.clone(), fitted_on).ok()
             }
@@ -121,7 +148,8 @@ impl Fit {
 
     fn describe(&self) -> String {
         match self {
-            Fit::Logistic(alpha) => format!("alpha {alpha}"),
+            Fit::Logistic(alpha, RatioTransform::Identity) => format!("alpha {alpha}"),
+            Fit::Logistic(alpha, transform) => format!("alpha {alpha}, ratios {transform:?}"),
             Fit::Forest(p) => format!(
                 "random forest of {} trees, min leaf {}, seed {}",
                 p.trees, p.min_leaf, p.seed
@@ -237,7 +265,12 @@ const ALPHAS: [f64; 5] = [0.01, 0.1, 1.0, 10.0, 100.0];
 
 /// The L2 weight for `methods` on `train`: `fixed`, else the one of [`ALPHAS`] with the best
 /// mean AUC leaving one of `train`'s logs out at a time (logs with both labels).
-fn choose_alpha(methods: &[String], train: &[&Case], fixed: Option<f64>) -> f64 {
+fn choose_alpha(
+    methods: &[String],
+    train: &[&Case],
+    fixed: Option<f64>,
+    transform: RatioTransform,
+) -> f64 {
     if let Some(alpha) = fixed {
         return alpha;
     }
@@ -248,7 +281,8 @@ fn choose_alpha(methods: &[String], train: &[&Case], fixed: Option<f64>) -> f64 
         for log in &logs {
             let (test, inner): (Vec<&Case>, Vec<&Case>) =
                 train.iter().copied().partition(|c| &&c.log == log);
-            let Some((_, scores)) = fit_and_score(methods, &inner, &test, &Fit::Logistic(alpha))
+            let Some((_, scores)) =
+                fit_and_score(methods, &inner, &test, &Fit::Logistic(alpha, transform))
             else {
                 continue;
             };
@@ -355,7 +389,13 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
     let logs: BTreeSet<String> = cases.iter().map(|c| c.log.clone()).collect();
     // The learned combination's fit on `train`.
     let learned_fit = |train: &[&Case]| match args.model {
-        ModelKind::Logistic => Fit::Logistic(choose_alpha(&features, train, args.alpha)),
+        ModelKind::Logistic => {
+            let transform = RatioTransform::from(args.ratio_transform);
+            Fit::Logistic(
+                choose_alpha(&features, train, args.alpha, transform),
+                transform,
+            )
+        }
         ModelKind::Forest => Fit::Forest(ForestParams {
             trees: args.trees,
             min_leaf: args.min_leaf,
@@ -379,7 +419,11 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         let mut single_rows = Vec::new();
         for m in &singles {
             let methods = std::slice::from_ref(m);
-            let fit = Fit::Logistic(choose_alpha(methods, &train, args.alpha));
+            let identity = RatioTransform::Identity;
+            let fit = Fit::Logistic(
+                choose_alpha(methods, &train, args.alpha, identity),
+                identity,
+            );
             if let Some((model, scores)) = fit_and_score(methods, &train, &test, &fit) {
                 record(m, &scores);
                 single_rows.push(held_out(m, &test, &scores, model.threshold));

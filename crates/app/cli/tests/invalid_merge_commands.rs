@@ -546,6 +546,25 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
     );
     let weights = fitted["ratio_weights"].as_array().unwrap();
     assert!(weights[0].as_f64().unwrap() > weights[1].as_f64().unwrap().abs());
+    // The logistic takes the ratios' logit by default; `identity` writes no transform.
+    assert_eq!(fitted["ratio_transform"], "logit", "{fitted}");
+    let identity = dir.join("identity.json");
+    ok_json(&[
+        "eval",
+        "calibrate",
+        "--results",
+        p(&results),
+        "--features",
+        "change_detection,gridmap",
+        "--ratio-transform",
+        "identity",
+        "-o",
+        p(&identity),
+        "--json",
+    ]);
+    let plain: Value = serde_json::from_str(&std::fs::read_to_string(&identity).unwrap()).unwrap();
+    assert!(plain.get("ratio_transform").is_none(), "{plain}");
+    assert_ne!(plain["ratio_weights"], fitted["ratio_weights"]);
     assert!(std::fs::read_to_string(&report)
         .unwrap()
         .contains("| log |"));

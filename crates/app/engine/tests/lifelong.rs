@@ -303,6 +303,7 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
         ratio_weights: vec![0.0, 0.0],
         unsupported_weights: vec![0.0, 0.0],
         intercept: -50.0,
+        ratio_transform: Default::default(),
         forest: None,
         threshold: 0.5,
         fitted_on: "test".into(),

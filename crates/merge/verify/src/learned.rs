@@ -13,7 +13,8 @@
 //! default model, [`LearnedModel::calibrated`], was fitted by `mapmerge eval calibrate` on
 //! forced merges of the 13 public logs (odometry `none` and `default`) and of the simulator's
 //! tuning seeds (office-aliased 1–10); docs/benchmarks.md §8 gives the commands and the
-//! leave-one-log-out figures.
+//! leave-one-log-out figures. It takes the ratios as they are ([`RatioTransform::Identity`]);
+//! `eval calibrate` now fits their logit by default, which was not yet checked in the engine.
 //!
 //! The same features can instead feed a random forest ([`LearnedModel::fit_forest`],
 //! [`crate::RandomForest`]); it was measured and, by a rule fixed on the tuning logs, not made
@@ -46,6 +47,9 @@ pub struct LearnedModel {
     /// The intercept (at equal priors of valid and invalid merges).
     #[serde(default)]
     pub intercept: f64,
+    /// How each ratio enters the regression (default: as it is).
+    #[serde(default, skip_serializing_if = "RatioTransform::is_identity")]
+    pub ratio_transform: RatioTransform,
     /// The random forest over the same features, in place of the weights.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub forest: Option<RandomForest>,
@@ -54,6 +58,39 @@ pub struct LearnedModel {
     /// What it was fitted on (provenance, free text).
     #[serde(default)]
     pub fitted_on: String,
+}
+
+/// How a component's highest ratio enters the logistic regression.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RatioTransform {
+    /// The ratio itself.
+    #[default]
+    Identity,
+    /// `ln(r / (1 − r))` of the ratio clamped to `[0.001, 0.999]`: the detectors' ratios
+    /// are shares in [0, 1] that bunch near 0 (realign's valid merges: median 1e-5) or near
+    /// 1 (change detection's invalid ones), where a linear weight cannot tell them apart.
+    Logit,
+}
+
+impl RatioTransform {
+    /// Whether this is [`RatioTransform::Identity`].
+    pub fn is_identity(&self) -> bool {
+        *self == Self::Identity
+    }
+
+    /// The feature of `ratio` (non-finite ratios read as 0 first).
+    pub fn apply(&self, ratio: f64) -> f64 {
+        let ratio = finite_or_zero(ratio);
+        match self {
+            Self::Identity => ratio,
+            Self::Logit => {
+                const CLAMP: f64 = 1e-3;
+                let r = ratio.clamp(CLAMP, 1.0 - CLAMP);
+                (r / (1.0 - r)).ln()
+            }
+        }
+    }
 }
 
 /// One labelled merge for [`LearnedModel::fit`]: per component (in the model's order) its
@@ -118,6 +155,7 @@ impl LearnedModel {
             ratio_weights: Vec::new(),
             unsupported_weights: Vec::new(),
             intercept: 0.0,
+            ratio_transform: RatioTransform::Identity,
             forest: None,
             threshold: 0.5,
             fitted_on: "nothing".into(),
@@ -145,7 +183,9 @@ impl LearnedModel {
         }
         let mut z = self.intercept;
         for (k, w) in self.ratio_weights.iter().enumerate() {
-            z += w * finite_or_zero(ratios.get(k).copied().unwrap_or(0.0));
+            z += w * self
+                .ratio_transform
+                .apply(ratios.get(k).copied().unwrap_or(0.0));
         }
         for (k, w) in self.unsupported_weights.iter().enumerate() {
             if unsupported.get(k).copied().unwrap_or(false) {
@@ -168,8 +208,19 @@ impl LearnedModel {
         alpha: f64,
         fitted_on: impl Into<String>,
     ) -> Result<Self, FitError> {
+        Self::fit_transformed(methods, samples, alpha, RatioTransform::Identity, fitted_on)
+    }
+
+    /// [`LearnedModel::fit`] with the ratios entering as `ratio_transform` says.
+    pub fn fit_transformed(
+        methods: &[String],
+        samples: &[LearnedSample],
+        alpha: f64,
+        ratio_transform: RatioTransform,
+        fitted_on: impl Into<String>,
+    ) -> Result<Self, FitError> {
         let m = methods.len();
-        let rows = feature_rows(m, samples)?;
+        let rows = feature_rows(m, samples, ratio_transform)?;
         let invalid = samples.iter().filter(|s| s.invalid).count();
         let valid = samples.len() - invalid;
         // Standardise (a constant column stays 0 and gets no weight).
@@ -231,6 +282,7 @@ impl LearnedModel {
             ratio_weights: weights,
             unsupported_weights,
             intercept,
+            ratio_transform,
             forest: None,
             threshold: 0.5,
             fitted_on: fitted_on.into(),
@@ -245,13 +297,14 @@ impl LearnedModel {
         params: ForestParams,
         fitted_on: impl Into<String>,
     ) -> Result<Self, FitError> {
-        let rows = feature_rows(methods.len(), samples)?;
+        let rows = feature_rows(methods.len(), samples, RatioTransform::Identity)?;
         let labels: Vec<bool> = samples.iter().map(|s| s.invalid).collect();
         Ok(Self {
             methods: methods.to_vec(),
             ratio_weights: Vec::new(),
             unsupported_weights: Vec::new(),
             intercept: 0.0,
+            ratio_transform: RatioTransform::Identity,
             forest: Some(RandomForest::fit(&rows, &labels, params)),
             threshold: 0.5,
             fitted_on: fitted_on.into(),
@@ -261,7 +314,11 @@ impl LearnedModel {
 
 /// The samples' feature rows (ratios, then "never supported" flags as 1 / 0), checked: both
 /// labels present, `m` components each.
-fn feature_rows(m: usize, samples: &[LearnedSample]) -> Result<Vec<Vec<f64>>, FitError> {
+fn feature_rows(
+    m: usize,
+    samples: &[LearnedSample],
+    ratio_transform: RatioTransform,
+) -> Result<Vec<Vec<f64>>, FitError> {
     let invalid = samples.iter().filter(|s| s.invalid).count();
     let valid = samples.len() - invalid;
     if valid == 0 || invalid == 0 {
@@ -280,7 +337,7 @@ fn feature_rows(m: usize, samples: &[LearnedSample]) -> Result<Vec<Vec<f64>>, Fi
             }
             Ok(s.ratios
                 .iter()
-                .map(|r| finite_or_zero(*r))
+                .map(|r| ratio_transform.apply(*r))
                 .chain(s.unsupported.iter().map(|&u| if u { 1.0 } else { 0.0 }))
                 .collect())
         })
@@ -546,21 +603,68 @@ mod tests {
 
     #[test]
     fn probabilities_stay_in_the_unit_interval_for_any_input() {
-        let model = LearnedModel {
-            methods: vec!["a".into()],
-            ratio_weights: vec![1e300],
-            unsupported_weights: vec![-1e300],
-            intercept: f64::NAN,
-            forest: None,
-            threshold: 0.5,
-            fitted_on: String::new(),
-        };
-        for r in [f64::NAN, f64::INFINITY, -1.0, 0.0, 1.0] {
-            for u in [true, false] {
-                let p = model.probability(&[r], &[u]);
-                assert!((0.0..=1.0).contains(&p), "{p}");
+        for ratio_transform in [RatioTransform::Identity, RatioTransform::Logit] {
+            let model = LearnedModel {
+                methods: vec!["a".into()],
+                ratio_weights: vec![1e300],
+                unsupported_weights: vec![-1e300],
+                intercept: f64::NAN,
+                ratio_transform,
+                forest: None,
+                threshold: 0.5,
+                fitted_on: String::new(),
+            };
+            for r in [f64::NAN, f64::INFINITY, -1.0, 0.0, 1.0] {
+                for u in [true, false] {
+                    let p = model.probability(&[r], &[u]);
+                    assert!((0.0..=1.0).contains(&p), "{p}");
+                }
             }
         }
+    }
+
+    #[test]
+    fn the_logit_transform_is_finite_and_keeps_the_order_of_ratios() {
+        let logit = RatioTransform::Logit;
+        let ratios = [-1.0, 0.0, 1e-6, 1e-3, 0.01, 0.5, 0.99, 0.999, 1.0, 2.0];
+        for pair in ratios.windows(2) {
+            let (a, b) = (logit.apply(pair[0]), logit.apply(pair[1]));
+            assert!(
+                a.is_finite() && b.is_finite() && a <= b,
+                "{pair:?}: {a} {b}"
+            );
+        }
+        assert!(logit.apply(0.5).abs() < 1e-12);
+        assert_eq!(logit.apply(f64::NAN), logit.apply(0.0));
+    }
+
+    #[test]
+    fn a_logit_model_separates_ratios_bunched_near_zero_and_says_so_in_its_json() {
+        // Valid merges read 1e-5, invalid ones 1e-2 on the first component; the second
+        // is noise. On the raw scale both are ≈ 0.
+        let methods = vec!["realign".to_string(), "gridmap".to_string()];
+        let samples: Vec<LearnedSample> = (0..40)
+            .map(|i| LearnedSample {
+                ratios: vec![if i % 2 == 0 { 1e-5 } else { 1e-2 }, (i % 7) as f64 / 7.0],
+                unsupported: vec![false, false],
+                invalid: i % 2 == 1,
+            })
+            .collect();
+        let model =
+            LearnedModel::fit_transformed(&methods, &samples, 0.1, RatioTransform::Logit, "t")
+                .unwrap();
+        let valid = model.probability(&[1e-5, 0.5], &[false, false]);
+        let invalid = model.probability(&[1e-2, 0.5], &[false, false]);
+        assert!(invalid > 0.5 && valid < 0.5, "{valid} {invalid}");
+        let json = serde_json::to_string(&model).unwrap();
+        assert!(json.contains(r#""ratio_transform":"logit""#), "{json}");
+        let back: LearnedModel = serde_json::from_str(&json).unwrap();
+        assert_eq!(back, model);
+        // A model as it is writes no transform: older files read the same.
+        let plain = LearnedModel::fit(&methods, &samples, 0.1, "t").unwrap();
+        assert!(!serde_json::to_string(&plain)
+            .unwrap()
+            .contains("ratio_transform"));
     }
 
     #[test]
@@ -572,6 +676,7 @@ mod tests {
             ratio_weights: vec![10.0, 0.0],
             unsupported_weights: vec![0.0, 0.0],
             intercept: -2.0,
+            ratio_transform: RatioTransform::Identity,
             forest: None,
             threshold: 0.5,
             fitted_on: String::new(),

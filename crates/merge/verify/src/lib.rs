@@ -48,7 +48,7 @@ pub use entropy::{EntropyDetector, EntropyParams};
 pub use forest::{ForestParams, RandomForest, Tree};
 pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
-pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample};
+pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample, RatioTransform};
 pub use map::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
 pub use realign::{RealignDetector, RealignInfo, RealignParams};
 pub use registry::{all_detectors, detector, DetectorParams, DETECTOR_NAMES};
