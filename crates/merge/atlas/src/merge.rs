@@ -91,7 +91,8 @@ pub struct OverlapParams {
     /// again by the merge search's verifier and `min_score` (default: false). The local
     /// matcher refuses a loop under `loops.min_score` even when it measures the drift well
     /// (fhw's later loops score 0.40–0.55), which the place verifier accepts where the
-    /// place is unique (docs/benchmarks.md §8, session 2026-12-03 (iv)).
+    /// place is unique (docs/benchmarks.md §8, session 2026-12-03 (iv)). Off: it raised the
+    /// detectors' AUC by 0.0005 and cost 1.09× public-log time (§10, session 2026-12-03 (v)).
     pub place_verifier_too: bool,
 }
 
@@ -110,6 +111,22 @@ impl Default for OverlapParams {
             gate_rad: 5f64.to_radians(),
             local_loops: true,
             place_verifier_too: false,
+        }
+    }
+}
+
+/// A verifier and the score from which its matches are accepted.
+#[derive(Clone, Copy)]
+struct GatedVerifier<'a> {
+    verifier: &'a dyn GeometricVerifier,
+    min_score: f64,
+}
+
+impl<'a> GatedVerifier<'a> {
+    fn new(verifier: &'a dyn GeometricVerifier, min_score: f64) -> Self {
+        Self {
+            verifier,
+            min_score,
         }
     }
 }
@@ -317,8 +334,8 @@ impl<B: BackupStore> Atlas<B> {
                     &active_before,
                     &moved,
                     &joined,
-                    verifier,
-                    self.params.merge.overlap.min_score,
+                    GatedVerifier::new(verifier, self.params.merge.overlap.min_score),
+                    None,
                 )
             }
             _ => Vec::new(),
@@ -373,14 +390,17 @@ impl<B: BackupStore> Atlas<B> {
     /// Sec. III-A's search for more loops where the maps overlap: each tried active vertex
     /// (newest first, every `stride`-th) is verified against the nearest merged vertex from
     /// the guess the merge implies; matches that agree with the guess become loop edges.
+    ///
+    /// A pair that `first` does not join (or every pair, once `first` has `max_loops`) is
+    /// verified by `then` when given; `first`'s loops come first in the result.
     fn overlap_loops(
         &self,
         merged: &PoseGraph2,
         active_nodes: &[NodeId],
         moved: &PoseGraph2,
         already_joined: &BTreeSet<NodeId>,
-        verifier: &dyn GeometricVerifier,
-        min_score: f64,
+        first: GatedVerifier<'_>,
+        then: Option<GatedVerifier<'_>>,
     ) -> Vec<LoopEdge> {
         let p = &self.params.merge.overlap;
         let mut pairs = Vec::new();
@@ -429,9 +449,12 @@ impl<B: BackupStore> Atlas<B> {
             &moved_side,
             Some(&self.local_maps),
         ));
+        // Each verification's loops, capped at `max_loops` each.
         let mut loops = Vec::new();
+        let mut then_loops = Vec::new();
         for (a, b) in pairs {
-            if loops.len() >= p.max_loops {
+            let first_full = loops.len() >= p.max_loops;
+            if first_full && (then.is_none() || then_loops.len() >= p.max_loops) {
                 break;
             }
             let (Some(ka), Some(kb)) = (keyframes.get(&a), keyframes.get(&b)) else {
@@ -441,25 +464,29 @@ impl<B: BackupStore> Atlas<B> {
                 continue;
             };
             let guess_b_from_a = vb.pose.between(&va.pose);
-            let Some(found) = verifier.verify(ka, kb, &guess_b_from_a) else {
-                continue;
+            let gated = |by: GatedVerifier<'_>| {
+                let found = by.verifier.verify(ka, kb, &guess_b_from_a)?;
+                let correction = guess_b_from_a.between(&found.candidate_from_query);
+                (found.score >= by.min_score
+                    && correction.translation().norm() <= p.gate_m
+                    && wrap_angle_rad(correction.theta_rad).abs() <= p.gate_rad)
+                    .then(|| LoopEdge {
+                        active: a,
+                        inactive: b,
+                        inactive_from_active: found.candidate_from_query,
+                        information: information_from_covariance(
+                            &found.covariance,
+                            self.params.merge.loop_min_sigma,
+                        ),
+                    })
             };
-            let correction = guess_b_from_a.between(&found.candidate_from_query);
-            if found.score >= min_score
-                && correction.translation().norm() <= p.gate_m
-                && wrap_angle_rad(correction.theta_rad).abs() <= p.gate_rad
-            {
-                loops.push(LoopEdge {
-                    active: a,
-                    inactive: b,
-                    inactive_from_active: found.candidate_from_query,
-                    information: information_from_covariance(
-                        &found.covariance,
-                        self.params.merge.loop_min_sigma,
-                    ),
-                });
+            if let Some(edge) = (!first_full).then(|| gated(first)).flatten() {
+                loops.push(edge);
+            } else if let Some(then) = then.filter(|_| then_loops.len() < p.max_loops) {
+                then_loops.extend(gated(then));
             }
         }
+        loops.append(&mut then_loops);
         loops
     }
 
@@ -490,40 +517,15 @@ impl<B: BackupStore> Atlas<B> {
             .collect();
         let others = self.active.subgraph(&other);
         let overlap = &self.params.merge.overlap;
-        let none_joined = BTreeSet::new();
-        let loops = match &self.constraints.merged_loop_verifier {
-            None => self.overlap_loops(
-                &self.active,
-                tried,
-                &others,
-                &none_joined,
-                verifier,
-                overlap.min_score,
+        let place = GatedVerifier::new(verifier, overlap.min_score);
+        let (first, then) = match &self.constraints.merged_loop_verifier {
+            None => (place, None),
+            Some(local) => (
+                GatedVerifier::new(local, self.params.loops.min_score),
+                overlap.place_verifier_too.then_some(place),
             ),
-            Some(local) => {
-                let mut loops = self.overlap_loops(
-                    &self.active,
-                    tried,
-                    &others,
-                    &none_joined,
-                    local,
-                    self.params.loops.min_score,
-                );
-                if overlap.place_verifier_too {
-                    let joined: BTreeSet<NodeId> = loops.iter().map(|l| l.active).collect();
-                    let more = self.overlap_loops(
-                        &self.active,
-                        tried,
-                        &others,
-                        &joined,
-                        verifier,
-                        overlap.min_score,
-                    );
-                    loops.extend(more);
-                }
-                loops
-            }
         };
+        let loops = self.overlap_loops(&self.active, tried, &others, &BTreeSet::new(), first, then);
         if loops.is_empty() {
             return Ok(loops);
         }
@@ -557,8 +559,8 @@ impl<B: BackupStore> Atlas<B> {
             nodes,
             &moved,
             &BTreeSet::new(),
-            verifier,
-            self.params.merge.overlap.min_score,
+            GatedVerifier::new(verifier, self.params.merge.overlap.min_score),
+            None,
         )
     }
 
@@ -589,8 +591,8 @@ impl<B: BackupStore> Atlas<B> {
             &[node],
             &moved,
             &BTreeSet::new(),
-            verifier,
-            self.params.merge.overlap.min_score,
+            GatedVerifier::new(verifier, self.params.merge.overlap.min_score),
+            None,
         )
     }
 
