@@ -492,6 +492,26 @@ fn synthetic_results(path: &Path, logs: usize) {
     std::fs::write(path, text).unwrap();
 }
 
+/// `eval calibrate` of change detection and gridmap on `results` with `extra` arguments:
+/// its JSON report and the model it wrote to `model`.
+fn calibrate_model(results: &Path, extra: &[&str], model: &Path) -> (Value, Value) {
+    let mut args = vec![
+        "eval",
+        "calibrate",
+        "--results",
+        p(results),
+        "--features",
+        "change_detection,gridmap",
+        "-o",
+        p(model),
+        "--json",
+    ];
+    args.extend_from_slice(extra);
+    let report = ok_json(&args);
+    let text = std::fs::read_to_string(model).unwrap();
+    (report, serde_json::from_str(&text).unwrap())
+}
+
 #[test]
 fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
     let dir = scratch("invalid-merge-calibrate");
@@ -548,21 +568,11 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
     assert!(weights[0].as_f64().unwrap() > weights[1].as_f64().unwrap().abs());
     // The logistic takes the ratios' logit by default; `identity` writes no transform.
     assert_eq!(fitted["ratio_transform"], "logit", "{fitted}");
-    let identity = dir.join("identity.json");
-    ok_json(&[
-        "eval",
-        "calibrate",
-        "--results",
-        p(&results),
-        "--features",
-        "change_detection,gridmap",
-        "--ratio-transform",
-        "identity",
-        "-o",
-        p(&identity),
-        "--json",
-    ]);
-    let plain: Value = serde_json::from_str(&std::fs::read_to_string(&identity).unwrap()).unwrap();
+    let (_, plain) = calibrate_model(
+        &results,
+        &["--ratio-transform", "identity"],
+        &dir.join("identity.json"),
+    );
     assert!(plain.get("ratio_transform").is_none(), "{plain}");
     assert_ne!(plain["ratio_weights"], fitted["ratio_weights"]);
     assert!(std::fs::read_to_string(&report)
@@ -570,24 +580,11 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
         .contains("| log |"));
     // A false-alarm budget moves the written model's threshold; a share outside [0, 1) is
     // bad input.
-    let budgeted = dir.join("budgeted.json");
-    ok_json(&[
-        "eval",
-        "calibrate",
-        "--results",
-        p(&results),
-        "--features",
-        "change_detection,gridmap",
-        "--alpha",
-        "1",
-        "--false-alarm-budget",
-        "0",
-        "-o",
-        p(&budgeted),
-        "--json",
-    ]);
-    let budgeted: Value =
-        serde_json::from_str(&std::fs::read_to_string(&budgeted).unwrap()).unwrap();
+    let (_, budgeted) = calibrate_model(
+        &results,
+        &["--alpha", "1", "--false-alarm-budget", "0"],
+        &dir.join("budgeted.json"),
+    );
     assert_ne!(budgeted["threshold"], 0.5, "{budgeted}");
     expect_bad(
         &[
@@ -602,27 +599,15 @@ fn calibrate_fits_on_the_other_logs_and_writes_the_model() {
     );
     // The forest on the same features: held out it separates too, and its model file holds
     // the trees (and no weights); it reads back as the same model.
-    let forest_model = dir.join("forest.json");
-    let forest = ok_json(&[
-        "eval",
-        "calibrate",
-        "--results",
-        p(&results),
-        "--features",
-        "change_detection,gridmap",
-        "--model",
-        "forest",
-        "--trees",
-        "40",
-        "-o",
-        p(&forest_model),
-        "--json",
-    ]);
+    let (forest, fitted) = calibrate_model(
+        &results,
+        &["--model", "forest", "--trees", "40"],
+        &dir.join("forest.json"),
+    );
     for row in forest["logs"].as_array().unwrap() {
         assert!(row["learned"]["auc"].as_f64().unwrap() > 0.85, "{row}");
     }
-    let text = std::fs::read_to_string(&forest_model).unwrap();
-    let fitted: mapmerge_verify::LearnedModel = serde_json::from_str(&text).unwrap();
+    let fitted: mapmerge_verify::LearnedModel = serde_json::from_value(fitted).unwrap();
     assert_eq!(fitted.forest.as_ref().map(|f| f.trees.len()), Some(40));
     assert!(fitted.ratio_weights.is_empty());
     expect_bad(
