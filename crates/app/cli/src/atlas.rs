@@ -204,6 +204,9 @@ struct Report {
     merges: Vec<MergeReport>,
     unmerges: Vec<UnmergeReport>,
     hypotheses: mapmerge_engine::HypothesisSummary,
+    /// Every epoch: its merge hypotheses and how far they got (why a later epoch did or did
+    /// not merge).
+    epoch_outcomes: Vec<mapmerge_engine::EpochOutcome>,
     ambiguous_keyframes: usize,
     /// Views of inactive graphs searched for another placement of their own local map, those
     /// found self-similar (ambiguous), and the time it took.
@@ -609,6 +612,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
             epochs.saturating_sub(1)
         },
         hypotheses: engine.hypothesis_summary(),
+        epoch_outcomes: mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m()),
         ambiguous_keyframes: engine.ambiguous_keyframes(),
         self_similarity: SelfSimilarityReport {
             views: engine.view_self_similarity().len(),
@@ -701,6 +705,28 @@ fn print_text(report: &Report) {
         report.ambiguous_keyframes, report.self_similarity.self_similar, report.self_similarity.views,
         report.self_similarity.joint_unique, report.self_similarity.joint_searched
     );
+    // The first epoch has nothing to merge into unless the run continued a stored atlas.
+    let skip = usize::from(report.epochs_with_a_map < report.epochs);
+    for o in report.epoch_outcomes.iter().skip(skip) {
+        println!(
+            "  epoch {}: {:.0} m; merge hypotheses {} (most observations {}, weighted {:.1}), conditional {}, merged {}, undone {}: {}",
+            o.epoch.0,
+            o.travel_m,
+            o.hypotheses,
+            o.most_observations,
+            o.most_weighted_observations,
+            o.conditional_merges,
+            o.merges,
+            o.unmerges,
+            match o.end {
+                mapmerge_engine::EpochEnd::Merged => "ends merged",
+                mapmerge_engine::EpochEnd::MergeUndone => "its merge was undone",
+                mapmerge_engine::EpochEnd::ConditionalNeverFull => "a conditional merge never became full",
+                mapmerge_engine::EpochEnd::HypothesesNeverConditional => "no hypothesis became conditional",
+                mapmerge_engine::EpochEnd::NoHypothesis => "no merge hypothesis (place recognition verified no match)",
+            }
+        );
+    }
     if let (Some(w), Some(u), Some(c), Some(cu), Some(cr), Some(e)) = (
         report.wrong_merges,
         report.wrong_undone_within_10m,

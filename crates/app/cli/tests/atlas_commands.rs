@@ -126,6 +126,34 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
         "{searched}"
     );
     assert!(searched["seconds"].as_f64().unwrap() >= 0.0);
+    // Every epoch's merge hypotheses and how far they got: one entry per epoch; an epoch
+    // ending merged made a merge, and a merged epoch is one of those.
+    let outcomes = report["epoch_outcomes"].as_array().unwrap();
+    assert_eq!(outcomes.len(), started, "{report}");
+    let ends = [
+        "merged",
+        "merge_undone",
+        "conditional_never_full",
+        "hypotheses_never_conditional",
+        "no_hypothesis",
+    ];
+    let mut ended_merged = 0;
+    for (k, o) in outcomes.iter().enumerate() {
+        assert_eq!(o["epoch"].as_u64().unwrap() as usize, k, "{o}");
+        let end = o["end"].as_str().unwrap();
+        assert!(ends.contains(&end), "{o}");
+        if end == "merged" {
+            ended_merged += 1;
+            assert!(o["merges"].as_u64().unwrap() >= 1, "{o}");
+        }
+        if end == "no_hypothesis" {
+            assert_eq!(o["hypotheses"], 0, "{o}");
+        }
+    }
+    assert!(
+        ended_merged >= report["epochs_merged_correctly"].as_u64().unwrap(),
+        "{report}"
+    );
     // Every later epoch's revisit of earlier places, against the truth: one entry per epoch
     // after the first, the revisit part of its path, and the merged ones as counted above.
     let revisits = report["epoch_revisits"].as_array().unwrap();

@@ -18,6 +18,7 @@
 //! SLAM is the same loop with one epoch ([`run_slam`]).
 
 mod decisions;
+mod epochs;
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -47,6 +48,7 @@ use decisions::Conditional;
 pub use decisions::{
     Decision, DecisionParams, DetectorReading, EventKind, MergeRecord, MergeState, ObservedEdge,
 };
+pub use epochs::{epoch_outcomes, EpochEnd, EpochOutcome};
 /// Counters of the merge and recovery hypotheses (`created`, `merge`, `recovery`,
 /// `conditional`, `full`, `rejected_conditional`, `expired`).
 pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;

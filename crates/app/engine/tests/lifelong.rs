@@ -8,7 +8,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
-use mapmerge_engine::{Engine, EngineParams, EventKind, MergeState};
+use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_hypothesis::{FilterEvent, HypothesisId, Target};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
@@ -175,6 +175,32 @@ fn evidence_decides_merges_and_wrong_ones_do_not_stay() {
     );
     let summary = engine.hypothesis_summary();
     assert!(summary.merge > 0 && summary.conditional >= 1);
+    // Each epoch's outcome agrees with the merge log: an epoch with a full merge ended
+    // merged, its hypotheses got that far, and the first epoch had nothing to merge into.
+    let outcomes = mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m());
+    assert_eq!(
+        outcomes.first().map(|o| o.end),
+        Some(EpochEnd::NoHypothesis)
+    );
+    let merged_epochs: BTreeSet<u32> = log
+        .iter()
+        .filter(|r| r.state == MergeState::Full)
+        .map(|r| r.epoch)
+        .collect();
+    assert!(!merged_epochs.is_empty());
+    for outcome in &outcomes {
+        if merged_epochs.contains(&outcome.epoch.0) {
+            assert_eq!(outcome.end, EpochEnd::Merged, "{outcome:?}");
+            assert!(
+                outcome.hypotheses >= 1 && outcome.merges >= 1,
+                "{outcome:?}"
+            );
+            assert!(outcome.most_observations >= 2, "{outcome:?}");
+        }
+        assert!(outcome.travel_m >= 0.0);
+    }
+    let total_m: f64 = outcomes.iter().map(|o| o.travel_m).sum();
+    assert!((total_m - engine.travel_m()).abs() < 1e-6, "{total_m}");
 }
 
 #[test]

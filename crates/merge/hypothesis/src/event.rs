@@ -153,6 +153,33 @@ impl FilterEvent {
             | Self::Dropped { id, .. } => *id,
         }
     }
+
+    /// The hypothesis' target.
+    pub fn target(&self) -> Target {
+        match self {
+            Self::Created { target, .. }
+            | Self::Updated { target, .. }
+            | Self::Conditional { target, .. }
+            | Self::Full { target, .. }
+            | Self::Rejected { target, .. }
+            | Self::Expired { target, .. }
+            | Self::Dropped { target, .. } => *target,
+        }
+    }
+
+    /// The hypothesis' evidence after the event (none when it was just created: one
+    /// observation).
+    pub fn counts(&self) -> Option<&HypothesisCounts> {
+        match self {
+            Self::Created { .. } => None,
+            Self::Updated { counts, .. }
+            | Self::Conditional { counts, .. }
+            | Self::Full { counts, .. }
+            | Self::Rejected { counts, .. }
+            | Self::Expired { counts, .. }
+            | Self::Dropped { counts, .. } => Some(counts),
+        }
+    }
 }
 
 /// What one observation did.
