@@ -148,7 +148,6 @@ impl Fit {
 
     fn describe(&self) -> String {
         match self {
-            Fit::Logistic(alpha, RatioTransform::Identity) => format!("alpha {alpha}"),
             Fit::Logistic(alpha, transform) => format!("alpha {alpha}, ratios {transform:?}"),
             Fit::Forest(p) => format!(
                 "random forest of {} trees, min leaf {}, seed {}",

@@ -143,41 +143,42 @@ pub enum FilterEvent {
 impl FilterEvent {
     /// The hypothesis the event is about.
     pub fn id(&self) -> HypothesisId {
-        match self {
-            Self::Created { id, .. }
-            | Self::Updated { id, .. }
-            | Self::Conditional { id, .. }
-            | Self::Full { id, .. }
-            | Self::Rejected { id, .. }
-            | Self::Expired { id, .. }
-            | Self::Dropped { id, .. } => *id,
-        }
+        self.parts().0
     }
 
     /// The hypothesis' target.
     pub fn target(&self) -> Target {
-        match self {
-            Self::Created { target, .. }
-            | Self::Updated { target, .. }
-            | Self::Conditional { target, .. }
-            | Self::Full { target, .. }
-            | Self::Rejected { target, .. }
-            | Self::Expired { target, .. }
-            | Self::Dropped { target, .. } => *target,
-        }
+        self.parts().1
     }
 
     /// The hypothesis' evidence after the event (none when it was just created: one
     /// observation).
     pub fn counts(&self) -> Option<&HypothesisCounts> {
+        self.parts().2
+    }
+
+    /// The fields every variant has: id, target and (except `Created`) counts.
+    fn parts(&self) -> (HypothesisId, Target, Option<&HypothesisCounts>) {
         match self {
-            Self::Created { .. } => None,
-            Self::Updated { counts, .. }
-            | Self::Conditional { counts, .. }
-            | Self::Full { counts, .. }
-            | Self::Rejected { counts, .. }
-            | Self::Expired { counts, .. }
-            | Self::Dropped { counts, .. } => Some(counts),
+            Self::Created { id, target, .. } => (*id, *target, None),
+            Self::Updated {
+                id, target, counts, ..
+            }
+            | Self::Conditional {
+                id, target, counts, ..
+            }
+            | Self::Full {
+                id, target, counts, ..
+            }
+            | Self::Rejected {
+                id, target, counts, ..
+            }
+            | Self::Expired {
+                id, target, counts, ..
+            }
+            | Self::Dropped {
+                id, target, counts, ..
+            } => (*id, *target, Some(counts)),
         }
     }
 }
