@@ -1067,6 +1067,24 @@ impl Engine {
         }
     }
 
+    /// Rejects the conditional merge's hypothesis in the filter and drops G' with `note`;
+    /// with `refuse`, its estimate is refused for the rest of the epoch.
+    fn reject_conditional(&mut self, reason: RejectReason, note: String, refuse: bool) {
+        let Some(conditional) = &self.conditional else {
+            return;
+        };
+        let (id, map) = (conditional.hypothesis, conditional.map);
+        if refuse {
+            if let Some(r) = self.merge_log.get(conditional.record) {
+                let [x, y, theta] = r.active_from_inactive;
+                self.refused.push((map, Se2::new(x, y, theta)));
+            }
+        }
+        let event = self.filter.reject(id, reason);
+        self.log_filter_events(event.into_iter().collect());
+        self.drop_conditional(note);
+    }
+
     /// Drops the conditional merge (G' discarded) with its reason.
     fn drop_conditional(&mut self, reason: String) {
         let Some(conditional) = self.conditional.take() else {
@@ -1259,6 +1277,20 @@ impl Engine {
         if self.conditional.is_none() && !self.on_probation() {
             return Ok(());
         }
+        if let (Some(conditional), Some(max_m)) =
+            (&self.conditional, self.params.decisions.conditional_max_m)
+        {
+            let since_m = self
+                .merge_log
+                .get(conditional.record)
+                .and_then(|r| r.conditional_travel_m)
+                .map_or(0.0, |started_m| self.travel_m() - started_m);
+            if since_m >= max_m {
+                let note = format!("not made full within {max_m} m");
+                self.reject_conditional(RejectReason::Caller { note: note.clone() }, note, false);
+                return Ok(());
+            }
+        }
         let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
@@ -1290,27 +1322,10 @@ impl Engine {
         if let Some(record) = judged.and_then(|k| self.merge_log.get_mut(k)) {
             record.note_readings(&readings);
         }
-        if let Some(conditional) = &self.conditional {
+        if self.conditional.is_some() {
             if invalidity > self.params.decisions.conditional_reject_threshold {
-                let (id, map) = (conditional.hypothesis, conditional.map);
-                if let Some(estimate) = self.merge_log.get(conditional.record).map(|r| {
-                    Se2::new(
-                        r.active_from_inactive[0],
-                        r.active_from_inactive[1],
-                        r.active_from_inactive[2],
-                    )
-                }) {
-                    self.refused.push((map, estimate));
-                }
-                let event = self.filter.reject(
-                    id,
-                    RejectReason::Detector {
-                        name: name.clone(),
-                        invalidity,
-                    },
-                );
-                self.log_filter_events(event.into_iter().collect());
-                self.drop_conditional(format!("{name} invalidity {invalidity:.2}"));
+                let note = format!("{name} invalidity {invalidity:.2}");
+                self.reject_conditional(RejectReason::Detector { name, invalidity }, note, true);
             }
             return Ok(());
         }

@@ -10,7 +10,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
 use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
-use mapmerge_hypothesis::{FilterEvent, HypothesisId, Target};
+use mapmerge_hypothesis::{FilterEvent, HypothesisId, RejectReason, Target};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_sim::{simulate, SimParams};
 use mapmerge_verify::LearnedModel;
@@ -563,5 +563,49 @@ fn a_conditional_merge_confirmed_by_the_epochs_keyframes_is_made_full_when_the_e
             .find(|r| r.hypothesis == record.hypothesis)
             .unwrap_or_else(|| panic!("{record:?} not in the log without the option"));
         assert_eq!(before.state, MergeState::Conditional, "{before:?}");
+    }
+}
+
+#[test]
+fn a_conditional_merge_not_made_full_in_time_is_rejected() {
+    // Office fitting seed 9 with a bound far below the ~1.5 m a correct merge takes to
+    // become full (`decisions.conditional_max_m`): every conditional merge is made full
+    // within it or rejected, in the filter too, once the robot has travelled it.
+    let max_m = 0.3;
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.conditional_max_m = Some(max_m);
+    let (engine, _) = run_with(engine_params, "office", 9, 3, 120.0);
+    let log = engine.merge_log();
+    let is_timeout = |note: &str| note == format!("not made full within {max_m} m");
+    let timed_out: Vec<_> = log
+        .iter()
+        .filter(|r| r.reason.as_deref().is_some_and(is_timeout))
+        .collect();
+    assert!(
+        !timed_out.is_empty(),
+        "no conditional merge timed out: {log:?}"
+    );
+    for record in log.iter().filter(|r| r.conditional_travel_m.is_some()) {
+        let started_m = record.conditional_travel_m.unwrap();
+        let decided_m = match record.state {
+            MergeState::Full => record.full_travel_m,
+            MergeState::Rejected => record.ended_travel_m,
+            _ => continue,
+        };
+        assert!(decided_m.unwrap() - started_m < max_m + 1.0, "{record:?}");
+    }
+    for record in &timed_out {
+        assert!(record.ended_travel_m.unwrap() - record.conditional_travel_m.unwrap() >= max_m);
+        let rejected_in_filter = engine.events().iter().any(|e| {
+            matches!(
+                &e.event,
+                EventKind::Hypothesis(FilterEvent::Rejected {
+                    id,
+                    reason: RejectReason::Caller { note },
+                    ..
+                }) if Some(id.0) == record.hypothesis && is_timeout(note)
+            )
+        });
+        assert!(rejected_in_filter, "{record:?}");
     }
 }
