@@ -78,6 +78,14 @@ pub enum EngineError {
     /// A `learned_model` was given for another detector.
     #[error("learned_model is for detector `learned`, but the detector is `{0}`")]
     ModelWithoutLearned(String),
+    /// A parameter out of its range.
+    #[error("parameter {name}: {reason}")]
+    Parameter {
+        /// The parameter's path in the engine's parameters.
+        name: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
 }
 
 /// [`EngineParams::detector`] for no verification.
@@ -223,6 +231,14 @@ const JOINT_VIEWS_MAX: usize = 8;
 impl Engine {
     /// A new engine: epoch 0 starts.
     pub fn new(params: EngineParams) -> Result<Self, EngineError> {
+        if let Some(max_m) = params.decisions.conditional_max_m {
+            if !(max_m.is_finite() && max_m > 0.0) {
+                return Err(EngineError::Parameter {
+                    name: "decisions.conditional_max_m",
+                    reason: format!("{max_m} is not a positive distance (m); null turns it off"),
+                });
+            }
+        }
         let detector: Option<Box<dyn InvalidMergeDetector>> =
             match (params.detector.as_str(), &params.learned_model) {
                 ("learned", Some(model)) => Some(Box::new(LearnedDetector::new(model.clone()))),
@@ -1269,7 +1285,8 @@ impl Engine {
         }
     }
 
-    /// Steps 6 and 7. While a merge is conditional, the detector judges G': above `decisions.conditional_reject_threshold` the
+    /// Steps 6 and 7. A conditional merge older than `decisions.conditional_max_m` of travel
+    /// is rejected. While a merge is conditional, the detector judges G': above `decisions.conditional_reject_threshold` the
     /// conditional merge is rejected. Otherwise, while full merges can be undone, the
     /// detector judges the active graph: above `unmerge_threshold` every merge is undone.
     /// Rejected and undone merges are refused for the rest of the epoch.

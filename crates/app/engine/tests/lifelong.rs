@@ -609,3 +609,24 @@ fn a_conditional_merge_not_made_full_in_time_is_rejected() {
         assert!(rejected_in_filter, "{record:?}");
     }
 }
+
+#[test]
+fn a_conditional_bound_that_is_no_distance_is_refused() {
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        let mut engine_params = EngineParams::default();
+        engine_params.decisions.conditional_max_m = Some(bad);
+        assert!(
+            matches!(
+                Engine::new(engine_params),
+                Err(mapmerge_engine::EngineError::Parameter {
+                    name: "decisions.conditional_max_m",
+                    ..
+                })
+            ),
+            "{bad}"
+        );
+    }
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.conditional_max_m = None;
+    assert!(Engine::new(engine_params).is_ok());
+}
