@@ -6,7 +6,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::{traverse, GridError, GridGeometry, Point2, MAX_CELLS};
+use crate::{traverse, Cell, GridError, GridGeometry, Point2, MAX_CELLS};
 
 /// The cells crossed by rays (see the module documentation), in the rays' frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -99,8 +99,21 @@ impl FreeSpace {
 
     /// Whether a ray crossed the cell holding `p` (false outside the grid).
     pub fn is_free(&self, p: &Point2) -> bool {
+        self.crossed(self.geometry.cell_of(p))
+    }
+
+    /// Whether rays crossed the cell holding `p` and all eight around it: a return the map's
+    /// own beams later saw through (a person who walked on), not a wall grazed by its
+    /// neighbours' beams, whose far side no beam crosses (false outside the grid).
+    pub fn is_free_around(&self, p: &Point2) -> bool {
+        let centre = self.geometry.cell_of(p);
+        (-1..=1).all(|dy| (-1..=1).all(|dx| self.crossed(Cell::new(centre.x + dx, centre.y + dy))))
+    }
+
+    /// Whether a ray crossed `cell` (false outside the grid).
+    fn crossed(&self, cell: Cell) -> bool {
         self.geometry
-            .index_of(self.geometry.cell_of(p))
+            .index_of(cell)
             .and_then(|i| self.bits.get(i / 64).map(|word| word >> (i % 64) & 1 == 1))
             .unwrap_or(false)
     }
@@ -132,6 +145,36 @@ mod tests {
         assert!(!free.is_free(&Point2::new(1.0, 0.5)), "beside the ray");
         assert!(!free.is_free(&Point2::new(-5.0, 0.0)), "outside the grid");
         assert_eq!(free.free_cells(), 20);
+    }
+
+    /// A person seen at (2, 0) from the first pose and walked through by the later beams is
+    /// free around; a wall's return, grazed by beams to the wall further on, is not: no beam
+    /// crosses the wall's far side.
+    #[test]
+    fn a_return_walked_through_is_free_around_and_a_grazed_wall_is_not() {
+        let person = Point2::new(2.05, 0.05);
+        let mut rays = vec![(Point2::new(0.05, 0.05), person)];
+        for k in -10..=10 {
+            let end = Point2::new(4.05, 0.05 + 0.1 * k as f64);
+            rays.push((Point2::new(0.05, 0.05), end));
+        }
+        // A wall along y = 1.05 seen from below at grazing angles.
+        let wall: Vec<Point2> = (0..40)
+            .map(|i| Point2::new(0.05 + 0.1 * i as f64, 1.05))
+            .collect();
+        rays.extend(wall.iter().map(|end| (Point2::new(0.05, 0.55), *end)));
+        let free = FreeSpace::from_rays(0.1, rays).unwrap();
+        assert!(
+            free.is_free_around(&person),
+            "the person's cell and all around it"
+        );
+        for end in &wall[5..] {
+            assert!(!free.is_free_around(end), "wall at {end:?}");
+        }
+        assert!(
+            !free.is_free_around(&Point2::new(-5.0, 0.0)),
+            "outside the grid"
+        );
     }
 
     #[test]

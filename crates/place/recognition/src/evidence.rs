@@ -91,6 +91,11 @@ pub struct EvidenceParams {
     /// Distances that enter [`Evidence::distance_m`] are capped at this (m) (default: 1), so
     /// a few points far from everything do not outweigh the rest.
     pub distance_cap_m: f64,
+    /// With both keyframes' free space, a map's points that its own beams later saw through
+    /// (the point's cell and the eight around it crossed: a person who walked on, a door
+    /// that opened; [`FreeSpace::is_free_around`]) count for neither agreement nor
+    /// disagreement (default: false). The other map cannot be held to them.
+    pub skip_transient: bool,
     /// Radius of the neighbourhood that gives a point's normal (m) (default: 0.2).
     pub normal_radius_m: f64,
     /// Points whose neighbourhood is less line-like than this count as no structure
@@ -114,6 +119,7 @@ impl Default for EvidenceParams {
             agreement_z: 0.0,
             max_distance_m: None,
             distance_cap_m: 1.0,
+            skip_transient: false,
             normal_radius_m: 0.2,
             min_planarity: 0.5,
         }
@@ -373,33 +379,49 @@ pub fn evidence(
         // Of `points` against a map's returns (distances given) and free space: agreeing and
         // disagreeing points, and the points where that map knows the space with the sum of
         // their capped distances (DM).
-        let tally =
-            |points: &[Point2], distances_m: &mut dyn Iterator<Item = f64>, free: &FreeSpace| {
-                let mut t = Tally::default();
-                for (p, d) in points.iter().zip(distances_m) {
-                    // Near a return the other map knows the space; beyond the clearance only
-                    // its free space does (and then the point disagrees).
-                    if d <= params.inlier_m {
-                        t.agree += 1;
-                    } else if d > params.violation_clearance_m {
-                        if !free.is_free(p) {
-                            continue;
-                        }
-                        t.disagree += 1;
-                    }
-                    t.known += 1;
-                    t.distance_sum_m += d.min(params.distance_cap_m);
+        // Each map's own points its beams saw through (`skip_transient`; none when off).
+        let transient = |points: &[Point2], own_free: &FreeSpace| -> Vec<bool> {
+            if !params.skip_transient {
+                return Vec::new();
+            }
+            points.iter().map(|p| own_free.is_free_around(p)).collect()
+        };
+        let query_transient = transient(&query, query_free);
+        let candidate_transient = transient(&candidate, candidate_free);
+        let tally = |points: &[Point2],
+                     distances_m: &mut dyn Iterator<Item = f64>,
+                     transient: &[bool],
+                     free: &FreeSpace| {
+            let mut t = Tally::default();
+            for (i, (p, d)) in points.iter().zip(distances_m).enumerate() {
+                if transient.get(i).copied().unwrap_or(false) {
+                    continue;
                 }
-                t
-            };
+                // Near a return the other map knows the space; beyond the clearance only
+                // its free space does (and then the point disagrees).
+                if d <= params.inlier_m {
+                    t.agree += 1;
+                } else if d > params.violation_clearance_m {
+                    if !free.is_free(p) {
+                        continue;
+                    }
+                    t.disagree += 1;
+                }
+                t.known += 1;
+                t.distance_sum_m += d.min(params.distance_cap_m);
+            }
+            t
+        };
         let query_tally = tally(
             &query_in_candidate,
             &mut query_to_candidate_m.iter().copied(),
+            &query_transient,
             candidate_free,
         );
         let candidate_tally = tally(
             &candidate_in_query,
             &mut candidate_in_query.iter().map(|p| near_query.distance_m(p)),
+            &candidate_transient,
             query_free,
         );
         let agree = query_tally.agree + candidate_tally.agree;
@@ -515,6 +537,44 @@ mod tests {
         let none = against(&kf(room()));
         assert_eq!((none.agreement, none.overlap_points), (0.0, 0));
         assert!(!none.whole_map && same.whole_map);
+    }
+
+    /// A person the query saw from one pose and its later beams crossed disagrees with a
+    /// candidate that saw the room empty, unless points the own map saw through are skipped;
+    /// a wall the candidate's beams never crossed disagrees either way.
+    #[test]
+    fn points_the_own_map_saw_through_can_be_skipped_and_walls_still_disagree() {
+        let person: Vec<Point2> = (0..24)
+            .map(|i| {
+                let a = i as f64 * std::f64::consts::TAU / 24.0;
+                Point2::new(2.0 + 0.15 * a.cos(), 0.15 * a.sin())
+            })
+            .collect();
+        let mut rays: Vec<(Point2, Point2)> =
+            room().iter().map(|p| (Point2::zeros(), *p)).collect();
+        rays.extend(person.iter().map(|p| (Point2::new(-2.0, 0.5), *p)));
+        let mut points = room();
+        points.extend(person.iter().copied());
+        let query =
+            Keyframe::new(0, points).with_free_space(FreeSpace::from_rays(0.1, rays).unwrap());
+        let skipping = EvidenceParams {
+            skip_transient: true,
+            ..EvidenceParams::default()
+        };
+        let at_identity = |candidate: &Keyframe, params: &EvidenceParams| {
+            evidence(&query, candidate, &Se2::new(0.0, 0.0, 0.0), 0.0, params)
+        };
+        let empty_room = seen_from_origin(room());
+        let counted = at_identity(&empty_room, &EvidenceParams::default());
+        let skipped = at_identity(&empty_room, &skipping);
+        assert!(counted.agreement < 0.99, "{counted:?}");
+        assert!(skipped.agreement > 0.995, "{skipped:?}");
+        assert!(skipped.overlap_points < counted.overlap_points);
+        // A room with a wall across at x = 2, seen from its origin (nothing behind the wall).
+        let mut walled: Vec<Point2> = room().into_iter().filter(|p| p.x < 2.0).collect();
+        walled.extend(wall((2.0, -2.0), (2.0, 2.0)));
+        let wrong = at_identity(&seen_from_origin(walled), &skipping);
+        assert!(wrong.agreement < 0.95, "{wrong:?}");
     }
 
     #[test]
