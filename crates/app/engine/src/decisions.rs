@@ -93,9 +93,11 @@ pub struct DecisionParams {
     /// presents itself, the conditional merge becomes a full merge. Otherwise, we undo
     /// the conditional merge."): the robot acts on unconfirmed evidence for at most this
     /// far. Its estimate is not refused: later observations of the place may start a new
-    /// hypothesis. Default 9.5: keyframes are at most ~0.5 m apart, so an unconfirmed
-    /// merge ends within the 10 m the engine allows a wrong merge (issue 14); on the
-    /// fitting seeds 114 of 119 correct merges were made full within 5 m of becoming
+    /// hypothesis. It is checked at each keyframe, one step ahead: the merge is rejected
+    /// when the next keyframe, as far on as the longest of the last two keyframe steps, would
+    /// pass the bound, so it ends within it unless the robot's steps grow. Default 10: the
+    /// travel within which the engine must catch a wrong merge (issue 14). On the fitting
+    /// seeds 114 of 119 correct merges were made full within 5 m of becoming
     /// conditional. `null` keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
 }
@@ -120,7 +122,7 @@ impl Default for DecisionParams {
             joint_views: true,
             query_self_similarity: false,
             confirm_at_epoch_end: false,
-            conditional_max_m: Some(9.5),
+            conditional_max_m: Some(10.0),
         }
     }
 }

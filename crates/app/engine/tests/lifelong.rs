@@ -568,10 +568,10 @@ fn a_conditional_merge_confirmed_by_the_epochs_keyframes_is_made_full_when_the_e
 
 #[test]
 fn a_conditional_merge_not_made_full_in_time_is_rejected() {
-    // Office fitting seed 9 with a bound far below the ~1.5 m a correct merge takes to
-    // become full (`decisions.conditional_max_m`): every conditional merge is made full
-    // within it or rejected, in the filter too, once the robot has travelled it.
-    let max_m = 0.3;
+    // Office fitting seed 9 with a bound below the ~1.5 m a correct merge takes to become
+    // full (`decisions.conditional_max_m`): every conditional merge is made full within it
+    // or rejected, in the filter too, at the last keyframe before the robot would pass it.
+    let max_m = 1.0;
     let mut engine_params = EngineParams::default();
     engine_params.decisions.conditional_max_m = Some(max_m);
     let (engine, _) = run_with(engine_params, "office", 9, 3, 120.0);
@@ -595,7 +595,14 @@ fn a_conditional_merge_not_made_full_in_time_is_rejected() {
         assert!(decided_m.unwrap() - started_m < max_m + 1.0, "{record:?}");
     }
     for record in &timed_out {
-        assert!(record.ended_travel_m.unwrap() - record.conditional_travel_m.unwrap() >= max_m);
+        // The simulator's keyframe steps (at most ~0.5 m) are regular enough that looking
+        // one step ahead keeps every rejection within the bound, and none comes more than a
+        // step early.
+        let lived_m = record.ended_travel_m.unwrap() - record.conditional_travel_m.unwrap();
+        assert!(
+            (max_m - 0.6..=max_m).contains(&lived_m),
+            "{lived_m} m: {record:?}"
+        );
         let rejected_in_filter = engine.events().iter().any(|e| {
             matches!(
                 &e.event,
