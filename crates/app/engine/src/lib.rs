@@ -223,9 +223,6 @@ pub struct Engine {
     conditional: Option<Conditional>,
     /// The tracker's pose of the previous keyframe (the EKF's motion update).
     previous_keyframe_local: Option<Se2>,
-    /// Robot travel (m) at the epoch's last three keyframes, newest last: the bound on a
-    /// conditional merge looks one keyframe step ahead.
-    recent_keyframe_travel_m: [Option<f64>; 3],
 }
 
 /// At most this many views of a hypothesis are joined for `decisions.joint_views`.
@@ -281,7 +278,6 @@ impl Engine {
             self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
-            recent_keyframe_travel_m: [None; 3],
             tracker: LocalTracker::new(params.tracker.clone())?,
             atlas: Atlas::new(params.atlas.clone())?,
             params,
@@ -475,7 +471,6 @@ impl Engine {
         self.travel_before_epoch_m += self.tracker.travel_m();
         self.tracker = LocalTracker::new(self.params.tracker.clone())?;
         self.previous_keyframe_local = None;
-        self.recent_keyframe_travel_m = [None; 3];
         self.refused.clear();
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
@@ -522,8 +517,6 @@ impl Engine {
         // 2. Insert the keyframe.
         let loops_before = self.atlas.loops().len();
         let node = self.atlas.insert_keyframe(insertion, stamp_secs)?;
-        self.recent_keyframe_travel_m.rotate_left(1);
-        self.recent_keyframe_travel_m[2] = Some(self.travel_m());
         // 3. Search constraints.
         let found = self.atlas.search_constraints(node, &self.verifier)?;
         self.collect_events();
@@ -1312,10 +1305,7 @@ impl Engine {
                 .map_or(0.0, |started_m| self.travel_m() - started_m);
             // Rejected now if the next keyframe, as far on as the longest of the last two
             // steps, would pass the bound.
-            let [a, b, c] = self.recent_keyframe_travel_m;
-            let step_m =
-                |from: Option<f64>, to: Option<f64>| from.zip(to).map_or(0.0, |(f, t)| t - f);
-            let ahead_m = step_m(a, b).max(step_m(b, c));
+            let ahead_m = self.atlas.longest_recent_keyframe_step_m(2);
             if since_m + ahead_m > max_m {
                 let note = format!("not made full within {max_m} m");
                 self.reject_conditional(RejectReason::Caller { note: note.clone() }, note, false);

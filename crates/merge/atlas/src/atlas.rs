@@ -243,6 +243,28 @@ impl<B: BackupStore> Atlas<B> {
             .is_some_and(|v| EpochId::of(&v.meta) == self.epoch)
     }
 
+    /// The longest of the current epoch's last `steps` keyframe steps, in the tracker's
+    /// travel (m); 0 before the epoch has two keyframes.
+    pub fn longest_recent_keyframe_step_m(&self, steps: usize) -> f64 {
+        let Some(robot) = self.robot else {
+            return 0.0;
+        };
+        let (mut longest_m, mut later_m) = (0.0f64, None);
+        for (_, record) in self
+            .keyframes
+            .records_up_to(robot)
+            .rev()
+            .take_while(|(node, _)| self.is_current_epoch(*node))
+            .take(steps + 1)
+        {
+            if let Some(later_m) = later_m {
+                longest_m = longest_m.max(later_m - record.travel_m);
+            }
+            later_m = Some(record.travel_m);
+        }
+        longest_m
+    }
+
     /// The current epoch's vertices of the active graph, oldest first.
     pub fn current_epoch_nodes(&self) -> Vec<NodeId> {
         self.active

@@ -72,6 +72,14 @@ impl KeyframeStore {
         self.keyframes.iter().map(|(k, v)| (*k, v))
     }
 
+    /// The records of `node` and every keyframe before it, in id order (newest last).
+    pub fn records_up_to(
+        &self,
+        node: NodeId,
+    ) -> impl DoubleEndedIterator<Item = (NodeId, &KeyframeRecord)> + '_ {
+        self.keyframes.range(..=node).map(|(k, v)| (*k, v))
+    }
+
     pub(crate) fn insert(&mut self, node: NodeId, record: KeyframeRecord) {
         self.keyframes.insert(node, record);
     }
