@@ -1303,9 +1303,9 @@ impl Engine {
                 .get(conditional.record)
                 .and_then(|r| r.conditional_travel_m)
                 .map_or(0.0, |started_m| self.travel_m() - started_m);
-            // Rejected now if the next keyframe, as far on as the longest of the last two
-            // steps, would pass the bound.
-            let ahead_m = self.atlas.longest_recent_keyframe_step_m(2);
+            // Rejected now if the next keyframe, as far on as the epoch's longest step so
+            // far, would pass the bound.
+            let ahead_m = self.atlas.longest_recent_keyframe_step_m(usize::MAX);
             if since_m + ahead_m > max_m {
                 let note = format!("not made full within {max_m} m");
                 self.reject_conditional(RejectReason::Caller { note: note.clone() }, note, false);

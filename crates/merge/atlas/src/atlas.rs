@@ -243,8 +243,8 @@ impl<B: BackupStore> Atlas<B> {
             .is_some_and(|v| EpochId::of(&v.meta) == self.epoch)
     }
 
-    /// The longest of the current epoch's last `steps` keyframe steps, in the tracker's
-    /// travel (m); 0 before the epoch has two keyframes.
+    /// The longest of the current epoch's last `steps` keyframe steps (all of them with
+    /// `usize::MAX`), in the tracker's travel (m); 0 before the epoch has two keyframes.
     pub fn longest_recent_keyframe_step_m(&self, steps: usize) -> f64 {
         let Some(robot) = self.robot else {
             return 0.0;
@@ -255,7 +255,7 @@ impl<B: BackupStore> Atlas<B> {
             .records_up_to(robot)
             .rev()
             .take_while(|(node, _)| self.is_current_epoch(*node))
-            .take(steps + 1)
+            .take(steps.saturating_add(1))
         {
             if let Some(later_m) = later_m {
                 longest_m = longest_m.max(later_m - record.travel_m);
