@@ -494,8 +494,8 @@ mod tests {
     /// walks the near room and is merged correctly. Retrieval of one candidate finds the
     /// far room: a confident match elsewhere, but no better than where the merge puts the
     /// query, so it is no contradiction; without the check it is one.
-    #[test]
-    fn a_look_alike_room_is_no_better_hypothesis() {
+    /// Two identical closed rooms 20 m apart, and a walk through the near one.
+    fn two_rooms() -> (World, Vec<Se2>) {
         let mut world = World::default();
         for x in [0.0, 20.0] {
             world.rect(x, 0.0, x + 5.0, 6.0);
@@ -503,16 +503,23 @@ mod tests {
             world.wall(x, 2.0, x + 1.2, 2.0);
             world.wall(x + 3.5, 0.0, x + 3.5, 1.0);
         }
-        let walk = line(1.0, 1.0, 4.0, 3.0, 0.3, 10);
-        let shifted = |dx: f64, dy: f64| -> Vec<Se2> {
-            walk.iter()
-                .map(|p| Se2::new(p.x_m + dx, p.y_m + dy, p.theta_rad))
-                .collect()
-        };
-        let mut other = scans_along(&world, &shifted(20.0, 0.0), &Se2::identity(), 1, 0);
+        (world, line(1.0, 1.0, 4.0, 3.0, 0.3, 10))
+    }
+
+    fn shifted(poses: &[Se2], dx: f64, dy: f64) -> Vec<Se2> {
+        poses
+            .iter()
+            .map(|p| Se2::new(p.x_m + dx, p.y_m + dy, p.theta_rad))
+            .collect()
+    }
+
+    #[test]
+    fn a_look_alike_room_is_no_better_hypothesis() {
+        let (world, walk) = two_rooms();
+        let mut other = scans_along(&world, &shifted(&walk, 20.0, 0.0), &Se2::identity(), 1, 0);
         other.extend(scans_along(
             &world,
-            &shifted(0.3, 0.3),
+            &shifted(&walk, 0.3, 0.3),
             &Se2::identity(),
             1,
             100,
@@ -544,20 +551,7 @@ mod tests {
     /// saw the near room gives no look-alike to know, and the same matches contradict.
     #[test]
     fn an_unplaced_match_of_a_known_look_alike_is_no_contradiction() {
-        let mut world = World::default();
-        for x in [0.0, 20.0] {
-            world.rect(x, 0.0, x + 5.0, 6.0);
-            world.rect(x + 1.0, 4.0, x + 2.2, 4.8);
-            world.wall(x, 2.0, x + 1.2, 2.0);
-            world.wall(x + 3.5, 0.0, x + 3.5, 1.0);
-        }
-        let walk = line(1.0, 1.0, 4.0, 3.0, 0.3, 10);
-        let shifted = |poses: &[Se2], dx: f64, dy: f64| -> Vec<Se2> {
-            poses
-                .iter()
-                .map(|p| Se2::new(p.x_m + dx, p.y_m + dy, p.theta_rad))
-                .collect()
-        };
+        let (world, walk) = two_rooms();
         let far_room = scans_along(&world, &shifted(&walk, 20.0, 0.0), &Se2::identity(), 1, 0);
         let near_start = scans_along(
             &world,
