@@ -18,6 +18,7 @@ use mapmerge_geometry::Se2;
 use mapmerge_hypothesis::{AmbiguityParams, FilterEvent, HypothesisFilterParams, HypothesisId};
 use mapmerge_place::SelfSimilarityParams;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
+use mapmerge_verify::EpochAgreementParams;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -100,6 +101,19 @@ pub struct DecisionParams {
     /// seeds 114 of 119 correct merges were made full within 5 m of becoming
     /// conditional. `null` keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
+    /// While a merge is conditional, the whole current epoch is compared with the other
+    /// epochs' scans near it in G' (`mapmerge_verify::epoch_agreement`): at the first
+    /// keyframe after the merge, every `epoch_agreement_every_m` of travel, and before the
+    /// merge is made full. A contradicting reading rejects it, as a detector would, and
+    /// each reading `1 − agreement` is recorded among the merge's readings as
+    /// `epoch_disagreement`. The window detectors see a few metres, while an epoch that came
+    /// from where the look-alike differs carries the contradiction in its older scans
+    /// (default: `null`, off: on the simulator's tuning seeds 11–20 correct merges read as
+    /// low as 0.84 where the world changed between sessions, and the wrong merges no other
+    /// check caught read 0.95–0.98; docs/benchmarks.md §10, session 2026-12-05).
+    pub epoch_agreement: Option<EpochAgreementParams>,
+    /// See `epoch_agreement` (m) (default: 2).
+    pub epoch_agreement_every_m: f64,
 }
 
 impl Default for DecisionParams {
@@ -123,6 +137,8 @@ impl Default for DecisionParams {
             query_self_similarity: false,
             confirm_at_epoch_end: false,
             conditional_max_m: Some(10.0),
+            epoch_agreement: None,
+            epoch_agreement_every_m: 2.0,
         }
     }
 }
@@ -214,7 +230,8 @@ pub struct MergeRecord {
 /// One method's readings over a merge's judging (see [`MergeRecord::readings`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DetectorReading {
-    /// The detector (`mapmerge_verify::DETECTOR_NAMES`).
+    /// The detector (`mapmerge_verify::DETECTOR_NAMES`), or `epoch_disagreement`
+    /// ([`crate::EPOCH_DISAGREEMENT`]).
     pub method: String,
     /// Its highest ratio (0 when never supported: unsupported ratios are 0).
     pub peak_ratio: f64,
@@ -341,6 +358,8 @@ pub(crate) struct Conditional {
     pub edges: Vec<LoopEdge>,
     /// G': the active graph with the inactive one merged in.
     pub graph: PoseGraph2,
+    /// Robot travel (m) when the whole epoch was last compared in G', if it was.
+    pub epoch_agreement_at_m: Option<f64>,
 }
 
 #[cfg(test)]

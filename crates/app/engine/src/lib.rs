@@ -38,8 +38,8 @@ use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
 use mapmerge_verify::{
-    DetectorParams, DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector, LearnedModel,
-    MergedMap,
+    epoch_agreement, DetectorParams, DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector,
+    LearnedModel, MergedMap,
 };
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -90,6 +90,10 @@ pub enum EngineError {
 
 /// [`EngineParams::detector`] for no verification.
 pub const NO_DETECTOR: &str = "none";
+
+/// The reading `1 − agreement` of `decisions.epoch_agreement` among a merge's readings, and
+/// the name a conditional merge it rejects is rejected by.
+pub const EPOCH_DISAGREEMENT: &str = "epoch_disagreement";
 
 /// Parameters of the loop.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -1045,6 +1049,7 @@ impl Engine {
             record: self.merge_log.len() - 1,
             edges,
             graph: preview.graph,
+            epoch_agreement_at_m: None,
         });
         self.restart_detector();
         Ok(true)
@@ -1157,6 +1162,17 @@ impl Engine {
                     }
                     return Ok(false);
                 }
+                if let Some(graph) = self
+                    .conditional
+                    .as_ref()
+                    .filter(|c| c.hypothesis == id)
+                    .map(|c| &c.graph)
+                {
+                    let (current, other) = merged_map_scans(&self.atlas, graph);
+                    if self.conditional_contradicted_by_epoch(&current, &other) {
+                        return Ok(false);
+                    }
+                }
                 // Its edges: those G' had (observations and overlap loops) and any newer.
                 let conditional = self.conditional.take().filter(|c| c.hypothesis == id);
                 let mut edges = conditional
@@ -1228,6 +1244,54 @@ impl Engine {
 
     /// True while a full merge of this epoch can be undone and the newest is within its
     /// probation (`decisions.probation_m` of travel since it was made).
+    /// Whether the conditional merge's whole-epoch comparison is due: never made yet, or
+    /// `decisions.epoch_agreement_every_m` of travel ago.
+    fn epoch_agreement_due(&self) -> bool {
+        let Some(conditional) = &self.conditional else {
+            return false;
+        };
+        self.params.decisions.epoch_agreement.is_some()
+            && conditional.epoch_agreement_at_m.is_none_or(|at_m| {
+                self.travel_m() - at_m >= self.params.decisions.epoch_agreement_every_m
+            })
+    }
+
+    /// Compares the whole current epoch with the other epochs' scans near it
+    /// (`decisions.epoch_agreement`) in the conditional merge's G', whose scans are `current`
+    /// and `other`; a contradicting reading rejects the conditional merge. Returns whether
+    /// it did.
+    fn conditional_contradicted_by_epoch(
+        &mut self,
+        current: &[DetectorScan],
+        other: &[DetectorScan],
+    ) -> bool {
+        let travel_m = self.travel_m();
+        let (Some(params), Some(conditional)) = (
+            self.params.decisions.epoch_agreement.as_ref(),
+            self.conditional.as_mut(),
+        ) else {
+            return false;
+        };
+        conditional.epoch_agreement_at_m = Some(travel_m);
+        let Some(read) = epoch_agreement(&MergedMap { current, other }, params) else {
+            return false;
+        };
+        let disagreement = 1.0 - read.agreement;
+        if let Some(record) = self.merge_log.get_mut(conditional.record) {
+            record.note_readings(&[(EPOCH_DISAGREEMENT, disagreement, true)]);
+        }
+        if !read.contradicts(params) {
+            return false;
+        }
+        let note = format!("epoch agreement {:.3}", read.agreement);
+        let reason = RejectReason::Detector {
+            name: EPOCH_DISAGREEMENT.into(),
+            invalidity: disagreement,
+        };
+        self.reject_conditional(reason, note, true);
+        true
+    }
+
     fn on_probation(&self) -> bool {
         if !self.atlas.is_undoable() {
             return false;
@@ -1313,6 +1377,9 @@ impl Engine {
             }
         }
         let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
+        if self.epoch_agreement_due() && self.conditional_contradicted_by_epoch(&current, &other) {
+            return Ok(());
+        }
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
         };

@@ -8,12 +8,12 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
-use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState};
+use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState, EPOCH_DISAGREEMENT};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_hypothesis::{FilterEvent, HypothesisId, RejectReason, Target};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_sim::{simulate, SimParams};
-use mapmerge_verify::LearnedModel;
+use mapmerge_verify::{EpochAgreementParams, LearnedModel};
 
 /// Runs a simulated data set through the engine; checks the invariants after every scan and
 /// returns the engine and every keyframe's true pose.
@@ -611,6 +611,45 @@ fn a_conditional_merge_not_made_full_in_time_is_rejected() {
                     reason: RejectReason::Caller { note },
                     ..
                 }) if Some(id.0) == record.hypothesis && is_timeout(note)
+            )
+        });
+        assert!(rejected_in_filter, "{record:?}");
+    }
+}
+
+#[test]
+fn a_conditional_merge_the_whole_epoch_contradicts_is_rejected() {
+    // Office fitting seed 9 with `decisions.epoch_agreement` so strict that every reading
+    // over enough overlap contradicts: each conditional merge it reads is rejected before it
+    // can be made full, in the filter too, and its reading is recorded.
+    let mut engine_params = EngineParams::default();
+    assert_eq!(
+        engine_params.decisions.epoch_agreement, None,
+        "off by default"
+    );
+    engine_params.decisions.epoch_agreement = Some(EpochAgreementParams {
+        min_agreement: 1.01,
+        ..EpochAgreementParams::default()
+    });
+    let (engine, _) = run_with(engine_params, "office", 9, 3, 120.0);
+    let log = engine.merge_log();
+    let read: Vec<_> = log
+        .iter()
+        .filter(|r| r.readings.iter().any(|x| x.method == EPOCH_DISAGREEMENT))
+        .collect();
+    assert!(!read.is_empty(), "no conditional merge was read: {log:?}");
+    for record in &read {
+        assert_eq!(record.state, MergeState::Rejected, "{record:?}");
+        let note = record.reason.as_deref().unwrap_or_default();
+        assert!(note.starts_with("epoch agreement "), "{record:?}");
+        let rejected_in_filter = engine.events().iter().any(|e| {
+            matches!(
+                &e.event,
+                EventKind::Hypothesis(FilterEvent::Rejected {
+                    id,
+                    reason: RejectReason::Detector { name, .. },
+                    ..
+                }) if Some(id.0) == record.hypothesis && name == EPOCH_DISAGREEMENT
             )
         });
         assert!(rejected_in_filter, "{record:?}");

@@ -26,6 +26,7 @@ mod change_detection;
 mod combined;
 mod common;
 mod entropy;
+mod epoch_agreement;
 mod forest;
 mod gridmap;
 mod histogram;
@@ -45,6 +46,7 @@ pub use change_detection::{
 };
 pub use combined::{CombinedDetector, CombinedInfo, CombinedParams};
 pub use entropy::{EntropyDetector, EntropyParams};
+pub use epoch_agreement::{epoch_agreement, EpochAgreement, EpochAgreementParams};
 pub use forest::{ForestParams, RandomForest, Tree};
 pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
