@@ -1242,8 +1242,6 @@ impl Engine {
         }
     }
 
-    /// True while a full merge of this epoch can be undone and the newest is within its
-    /// probation (`decisions.probation_m` of travel since it was made).
     /// Whether the conditional merge's whole-epoch comparison is due: never made yet, or
     /// `decisions.epoch_agreement_every_m` of travel ago.
     fn epoch_agreement_due(&self) -> bool {
@@ -1292,6 +1290,8 @@ impl Engine {
         true
     }
 
+    /// True while a full merge of this epoch can be undone and the newest is within its
+    /// probation (`decisions.probation_m` of travel since it was made).
     fn on_probation(&self) -> bool {
         if !self.atlas.is_undoable() {
             return false;
