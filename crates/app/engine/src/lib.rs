@@ -1166,6 +1166,7 @@ impl Engine {
                     .conditional
                     .as_ref()
                     .filter(|c| c.hypothesis == id)
+                    .filter(|_| self.params.decisions.epoch_agreement.is_some())
                     .map(|c| &c.graph)
                 {
                     let (current, other) = merged_map_scans(&self.atlas, graph);

@@ -17,6 +17,7 @@ use mapmerge_place::{evidence, EvidenceParams, Keyframe};
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
+use crate::similarity::beams_in_map;
 use crate::{DetectorScan, MergedMap};
 
 /// Parameters of [`epoch_agreement`].
@@ -114,20 +115,12 @@ fn spread<'a>(scans: impl Iterator<Item = &'a DetectorScan>, max: usize) -> Vec<
 /// `scans` as one keyframe in the map frame, with the free space their beams crossed;
 /// `None` without returns.
 fn joined(scans: &[&DetectorScan], params: &EpochAgreementParams) -> Option<Keyframe> {
-    let mut points = Vec::new();
-    let mut rays = Vec::new();
-    for scan in scans.iter().filter(|s| s.map_from_robot.is_finite()) {
-        let origin = scan.map_from_robot.translation();
-        for p in scan.points_in_robot.iter() {
-            let range_m = p.norm();
-            if range_m > 0.0 && range_m <= params.max_range_m && p.x.is_finite() && p.y.is_finite()
-            {
-                let end: Point2 = scan.map_from_robot.transform_point(p);
-                points.push(end);
-                rays.push((origin, end));
-            }
-        }
-    }
+    let beams = beams_in_map(scans.iter().copied(), params.max_range_m);
+    let rays: Vec<(Point2, Point2)> = beams
+        .iter()
+        .flat_map(|(origin, ends)| ends.iter().map(move |end| (*origin, *end)))
+        .collect();
+    let points: Vec<Point2> = rays.iter().map(|(_, end)| *end).collect();
     (!points.is_empty()).then(|| Keyframe::new(0, points).with_rays(params.free_space_m, rays))
 }
 
