@@ -10,7 +10,7 @@
 # Usage: scripts/bench_lifelong.sh [--jobs N] [--only sim|logs] [--config ENGINE.json]
 #        [--fitting-seeds].
 # Writes bench-out/lifelong.md (OUT_DIR=… elsewhere). MAPMERGE_BIN=PATH runs another build;
-# --config passes engine parameters to every run (e.g. {"detector": "learned"}).
+# --config passes engine parameters to every run (e.g. {"detector": "combined"}).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 source scripts/bench_common.sh

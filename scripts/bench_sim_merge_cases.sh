@@ -12,18 +12,25 @@
 # --place-only: only the `place` kind (make-merge-cases --place-kind: careless place
 # recognition over the whole first segment, so wrong places in look-alike rooms, the engine's
 # own failure), to add to an earlier run's results; written to place-NOISE/.
-# Usage: scripts/bench_sim_merge_cases.sh [--seeds "1 2 …"] [--world W] [--noise "default …"] [--place-only]
+# --world "W1 W2 …": one or more worlds (default office-aliased); --methods M1,M2,…: the
+# detectors scored (default: every one; SM and DM take most of the time).
+# --group-by-world: in the pooled results.jsonl every case's log is its world's, not its seed's,
+# so that `eval calibrate` leaves out one world at a time (a world's seeds share its rooms).
+# Usage: scripts/bench_sim_merge_cases.sh [--seeds "1 2 …"] [--world "W …"] [--noise "default …"] [--methods M,…] [--group-by-world] [--place-only]
 # Writes bench-out/sim-merge-cases/NOISE/*.results.jsonl; OUT_DIR=… elsewhere.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-seeds="$(seq 1 10)"; world=office-aliased; noises=default; place_only=0
+seeds="$(seq 1 10)"; worlds=office-aliased; noises=default; place_only=0; by_world=0
+methods=change_detection,gridmap,entropy,histogram,sm,dm,better_hypothesis,realign,combined
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --seeds) seeds="$2"; shift 2 ;;
-    --world) world="$2"; shift 2 ;;
+    --world) worlds="$2"; shift 2 ;;
+    --methods) methods="$2"; shift 2 ;;
     --noise) noises="$2"; shift 2 ;;
     --place-only) place_only=1; shift ;;
-    *) echo "usage: $0 [--seeds \"1 2 …\"] [--world W] [--noise \"default …\"]" >&2; exit 2 ;;
+    --group-by-world) by_world=1; shift ;;
+    *) echo "usage: $0 [--seeds \"1 2 …\"] [--world \"W …\"] [--noise \"default …\"] [--methods M,…] [--group-by-world] [--place-only]" >&2; exit 2 ;;
   esac
 done
 out="$(realpath -m "${OUT_DIR:-bench-out}")/sim-merge-cases"
@@ -33,9 +40,8 @@ for noise in $noises; do mkdir -p "$out/$prefix$noise"; done
 cargo build --release -q -p mapmerge-cli
 cp target/release/mapmerge "$out/mapmerge"
 bin="$out/mapmerge"
-methods=change_detection,gridmap,entropy,histogram,sm,dm,better_hypothesis,realign,combined
-one_seed() { # core seed
-  local core="$1" seed="$2" name="$world-$2"
+one_seed() { # core world seed
+  local core="$1" world="$2" seed="$3" name="$2-$3"
   local pin=(env RAYON_NUM_THREADS=1)
   command -v taskset >/dev/null && pin+=(taskset -c "$core")
   "$bin" sim --world "$world" --seed "$seed" --duration 120 --corrected-log --no-pictures \
@@ -57,23 +63,32 @@ one_seed() { # core seed
       -o "$dir/$name.results.jsonl" --methods "$methods" \
       --report "$dir/$name.table.md" > /dev/null
   done
-  echo "seed $seed done" >&2
+  echo "$name done" >&2
 }
 # Two workers, each on its own core (timings stay one-core timings).
-worker() { # core seeds...
+worker() { # core world:seed...
   local core="$1"; shift
-  for seed in "$@"; do one_seed "$core" "$seed"; done
+  for job in "$@"; do one_seed "$core" "${job%%:*}" "${job##*:}"; done
 }
 even=(); odd=(); k=0
-for seed in $seeds; do
-  if (( k % 2 == 0 )); then even+=("$seed"); else odd+=("$seed"); fi
+for world in $worlds; do for seed in $seeds; do
+  if (( k % 2 == 0 )); then even+=("$world:$seed"); else odd+=("$world:$seed"); fi
   k=$(( k + 1 ))
-done
+done; done
 worker 0 "${even[@]}" & first=$!
 [[ ${#odd[@]} -gt 0 ]] && { worker 1 "${odd[@]}" & second=$!; wait "$second"; }
 wait "$first"
 for noise in $noises; do
   dir="$out/$prefix$noise"
-  cat "$dir/$world"-*.results.jsonl > "$dir/results.jsonl"
+  : > "$dir/results.jsonl"
+  for world in $worlds; do for seed in $seeds; do
+    f="$dir/$world-$seed.results.jsonl"
+    if [[ ! -f "$f" ]]; then continue; fi
+    if (( by_world )); then
+      sed "s#/$world-$seed-corrected\.log\"#/$world-corrected.log\"#" "$f" >> "$dir/results.jsonl"
+    else
+      cat "$f" >> "$dir/results.jsonl"
+    fi
+  done; done
   echo "$prefix$noise: $(wc -l < "$dir/results.jsonl") results" >&2
 done

@@ -29,7 +29,14 @@ bin="$(realpath "${MAPMERGE_BIN:-target/release/mapmerge}")"
 out="$(realpath -m "${OUT_DIR:-bench-out/engine-fit}")"
 mkdir -p "$out/runs"
 shadow="$out/shadow.json"
-echo '{"detector": "learned", "unmerge_threshold": 2.0, "decisions": {"conditional_reject_threshold": 2.0}}' > "$shadow"
+# The shadow model only reads: six components (the default model has two and better
+# hypothesis), weights 0, so every merge's readings hold each detector eval calibrate fits on.
+cat > "$shadow" <<'JSON'
+{"detector": "learned", "unmerge_threshold": 2.0, "decisions": {"conditional_reject_threshold": 2.0},
+ "learned_model": {"methods": ["change_detection", "gridmap", "histogram", "sm", "dm", "better_hypothesis"],
+  "ratio_weights": [0, 0, 0, 0, 0, 0], "unsupported_weights": [0, 0, 0, 0, 0, 0], "intercept": 0,
+  "threshold": 0.5, "fitted_on": "scripts/fit_engine_decision.sh: reads only"}}
+JSON
 for world in office office-aliased corridor-loop warehouse symmetric-hall; do
   for seed in $(seq 1 20); do
     name="$world-$seed"

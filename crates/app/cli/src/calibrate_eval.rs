@@ -60,8 +60,8 @@ pub struct CalibrateArgs {
     /// How the ratios enter the learned logistic combination (single detectors always take
     /// them as they are: a monotone transform of one ratio ranks the cases the same).
     /// Logit by default since session 2026-12-03 (v): on the tuning logs it raised the
-    /// learned AUC under both odometry settings (docs/benchmarks.md §8). The engine's
-    /// embedded model was fitted with `identity`.
+    /// learned AUC under both odometry settings (docs/benchmarks.md §8). The embedded model,
+    /// the engine's default decision, is fitted on it.
     #[arg(long, value_enum, default_value_t = TransformKind::Logit)]
     pub ratio_transform: TransformKind,
     /// Trees of `--model forest`.
@@ -83,6 +83,11 @@ pub struct CalibrateArgs {
     /// invalid cases.
     #[arg(long, default_value_t = 10)]
     pub min_cases: usize,
+    /// The written model joins its probability with better hypothesis's ratio by a noisy-or
+    /// (`LearnedModel::or_better_hypothesis`), as the engine's default decision does; the
+    /// tables score the fitted model alone.
+    #[arg(long)]
+    pub or_better_hypothesis: bool,
     /// Writes the model fitted on every log (JSON).
     #[arg(short = 'o', long)]
     pub output: Option<PathBuf>,
@@ -513,10 +518,11 @@ pub fn calibrate(args: &CalibrateArgs) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.output {
-        let model = model
-            .as_ref()
+        let mut model = model
+            .clone()
             .ok_or_else(|| anyhow::anyhow!("the model could not be fitted on every case"))?;
-        let text = serde_json::to_string_pretty(model)?;
+        model.or_better_hypothesis = args.or_better_hypothesis;
+        let text = serde_json::to_string_pretty(&model)?;
         std::fs::write(path, text + "\n").with_context(|| format!("writing {}", path.display()))?;
     }
     let markdown = calibrate_markdown(&rows, &auc_by_kind, model.as_ref(), &fit);

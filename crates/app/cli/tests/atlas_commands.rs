@@ -215,7 +215,7 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
             ));
         }
         if let Some(first) = m["readings"].as_array().unwrap().first() {
-            assert_eq!(first["method"], "combined", "{m}");
+            assert_eq!(first["method"], "learned", "{m}");
         }
     }
     let got: Vec<_> = lines

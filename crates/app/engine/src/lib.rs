@@ -108,16 +108,18 @@ pub struct EngineParams {
     pub decisions: DecisionParams,
     /// The invalid-merge detector (a name of `mapmerge_verify::DETECTOR_NAMES`, or `none`
     /// for no verification, as in an evaluation that runs its own detectors; default
-    /// `combined`). `learned` is the logistic regression calibrated on forced merges of the
-    /// public logs and the simulator's tuning seeds (`mapmerge_verify::LearnedModel::
-    /// calibrated`: the probability that the merge is invalid at equal priors, threshold
-    /// 0.5); it is not the default because it caught fewer wrong merges than `combined` on
-    /// the tuning seeds (1 of 2) and on the held-out worlds (12 of 42 against 30 of 51),
-    /// though it undid fewer correct ones. A model fitted on the engine's own merges
-    /// (`learned_model`, `scripts/fit_engine_decision.sh`) caught more wrong merges than
-    /// `combined` on its fitting seeds but also undid more correct ones (17 against 10), so
-    /// by the rule fixed beforehand it is not the default either (docs/benchmarks.md §8,
-    /// issue 15 part 4).
+    /// `learned`, the calibrated decision of `mapmerge_verify::LearnedModel::calibrated`: a
+    /// logistic regression on change detection and gridmap fitted on forced merges of the
+    /// public logs and of the simulator's fitting seeds, joined with better hypothesis by a
+    /// noisy-or; the probability that the merge is invalid at equal priors, threshold 0.5; its
+    /// components keep the parameters it was fitted with, so `detector_params` does not reach
+    /// them). On the fitting seeds it makes every decision `combined` (the hand-calibrated
+    /// default before session 2026-12-05 (iv)) makes, on the held-out seeds every count is
+    /// the same, and on the public logs it takes the same time (docs/benchmarks.md §8, rule
+    /// 33). A model fitted on the engine's own merges (`learned_model`,
+    /// `scripts/fit_engine_decision.sh`) caught more wrong merges than `combined` on its
+    /// fitting seeds but also undid more correct ones (17 against 10), so by the rule fixed
+    /// beforehand it is not the default (§8, issue 15 part 4).
     pub detector: String,
     /// The model of detector `learned` (default: none, `LearnedModel::calibrated`); e.g. one
     /// fitted by `mapmerge eval calibrate` on the engine's own merges. An error with any
@@ -142,7 +144,7 @@ impl Default for EngineParams {
             tracker: TrackerParams::default(),
             atlas: AtlasParams::default(),
             decisions: DecisionParams::default(),
-            detector: "combined".into(),
+            detector: "learned".into(),
             learned_model: None,
             detector_params: DetectorParams::default(),
             unmerge_threshold: 0.5,

@@ -331,11 +331,13 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
         intercept: -50.0,
         ratio_transform: Default::default(),
         forest: None,
+        or_better_hypothesis: false,
         threshold: 0.5,
         fitted_on: "test".into(),
     };
     // A model for another detector is a mistake, not something to ignore.
     let misplaced = Engine::new(EngineParams {
+        detector: "combined".into(),
         learned_model: Some(never.clone()),
         ..EngineParams::default()
     });

@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::common::{logistic, unit};
+use crate::common::{logistic, noisy_or, unit};
 use crate::{
     BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
     ChangeDetectionParams, Evidence, GridmapDetector, GridmapParams, InvalidMergeDetector,
@@ -130,7 +130,7 @@ impl CombinedDetector {
                 p.change_detection_threshold,
                 p.calibration_spread,
             ) + calibrate(gridmap, p.gridmap_threshold, p.calibration_spread));
-        unit(1.0 - (1.0 - appearance) * (1.0 - unit(better_hypothesis)))
+        noisy_or(appearance, better_hypothesis)
     }
 }
 
@@ -203,10 +203,8 @@ impl InvalidMergeDetector for CombinedDetector {
 
 #[cfg(test)]
 mod tests {
-    use mapmerge_geometry::{LieGroup, Se2};
-
     use super::*;
-    use crate::testworld::{wrong_shifted, wrong_turned, Case, World};
+    use crate::testworld::Case;
 
     /// AUC by the Mann–Whitney statistic (ties count half).
     fn auc(valid: &[f64], invalid: &[f64]) -> f64 {
@@ -239,19 +237,7 @@ mod tests {
 
     #[test]
     fn combined_is_at_least_as_good_as_each_single_method() {
-        let (open, closed) = (World::office(false), World::office(true));
-        let valid_cases = [
-            Case::office(&open, &open, &Se2::identity()),
-            Case::office(&open, &closed, &Se2::identity()),
-            Case::office(&closed, &open, &Se2::identity()),
-        ];
-        let invalid_cases = [
-            Case::office(&open, &open, &wrong_turned()),
-            Case::office(&open, &closed, &wrong_shifted()),
-            // The place at two locations: no overlap, appearance is blind.
-            Case::office(&open, &open, &Se2::new(20.0, 0.0, 0.0)),
-            Case::office(&open, &open, &Se2::new(0.0, 0.8, 0.0)),
-        ];
+        let (valid_cases, invalid_cases) = Case::office_valid_and_invalid();
         let names = [
             "change_detection",
             "gridmap",

@@ -176,6 +176,12 @@ pub(crate) fn unit(v: f64) -> f64 {
     }
 }
 
+/// Holoch's two kinds of evidence joined by a noisy-or, `1 − (1 − a)(1 − b)`: either alone can
+/// flag a merge, both together flag it more surely (see [`crate::CombinedDetector`]).
+pub(crate) fn noisy_or(a: f64, b: f64) -> f64 {
+    unit(1.0 - (1.0 - unit(a)) * (1.0 - unit(b)))
+}
+
 #[cfg(test)]
 mod tests {
     use std::sync::Arc;

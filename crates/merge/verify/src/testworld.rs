@@ -134,6 +134,25 @@ impl Case {
         Self { other, current }
     }
 
+    /// The office's right merges (the door open in both epochs, or closed in one of them) and
+    /// its wrong ones: turned, shifted by a room with the door closed, placed 20 m off (no
+    /// overlap, appearance is blind: the place at two locations) and shifted by 0.8 m.
+    pub fn office_valid_and_invalid() -> ([Self; 3], [Self; 4]) {
+        let (open, closed) = (World::office(false), World::office(true));
+        let valid = [
+            Self::office(&open, &open, &Se2::identity()),
+            Self::office(&open, &closed, &Se2::identity()),
+            Self::office(&closed, &open, &Se2::identity()),
+        ];
+        let invalid = [
+            Self::office(&open, &open, &wrong_turned()),
+            Self::office(&open, &closed, &wrong_shifted()),
+            Self::office(&open, &open, &Se2::new(20.0, 0.0, 0.0)),
+            Self::office(&open, &open, &Se2::new(0.0, 0.8, 0.0)),
+        ];
+        (valid, invalid)
+    }
+
     /// Runs a detector as the atlas would: merge after the first current scan, then one call
     /// per new vertex; returns the largest ratio.
     pub fn max_ratio(&self, detector: &mut dyn crate::InvalidMergeDetector) -> f64 {
