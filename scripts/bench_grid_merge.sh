@@ -25,5 +25,5 @@ for log in "${logs[@]}"; do paths+=("$data/carmen/$log-corrected.log.xz"); done
 target/release/mapmerge eval grid-merge "${paths[@]}" --merges "$merges" --seed "$seed" \
   -o "$out/grid-merge.md" --json > "$out/grid-merge.json"
 echo "wrote $out/grid-merge.md"
-MAPMERGE_DATA="$data" cargo run --release -q -p mapmerge-gridmatch --example match_benchmark -- \
+MAPMERGE_DATA="$data" cargo run --release -q -p mapmerge-lab --example match_benchmark -- \
   --pairs 30 --seed 1 | tee "$out/grid-match.md"

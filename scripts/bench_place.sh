@@ -2,7 +2,7 @@
 # Place recognition (issue 4, part 5): precision and recall of verified loops, one default
 # configuration, on the 13 public corrected logs (intra-log, no pose guess) and on the
 # simulator's look-alike office (sessions 1 and 2 against session 0).
-# Definitions: crates/place/recognition/examples/support/place_eval.rs.
+# Definitions: crates/lab/lab/examples/support/place_eval.rs.
 # Usage: scripts/bench_place.sh [--only NAME]... (NAME = a log, or `sim`)
 # Writes bench-out/place.md (+ bench-out/place/runs.jsonl).
 set -euo pipefail
@@ -19,7 +19,7 @@ data="${MAPMERGE_DATA:-../shared/data}"
 out="${OUT_DIR:-bench-out}"
 mkdir -p "$out/place"
 if [[ -z "${PLACE_BENCH_BIN:-}" ]]; then
-  cargo build --release -q -p mapmerge-place --example place_benchmark
+  cargo build --release -q -p mapmerge-lab --example place_benchmark
   bin=target/release/examples/place_benchmark
 else
   bin="$PLACE_BENCH_BIN"   # a copy, so that builds during the run do not replace it
@@ -39,7 +39,7 @@ python3 - "$results" "$*" "${HELD_OUT_LOGS[*]}" "${TUNING_LOGS[*]}" > "$out/plac
 import json, sys
 runs = [json.loads(l) for l in open(sys.argv[1])]
 print("Place recognition with the default configuration (`BenchConfig::default()` in")
-print("crates/place/recognition/examples/support/place_eval.rs), measured by")
+print("crates/lab/lab/examples/support/place_eval.rs), measured by")
 print("`scripts/bench_place.sh" + (" " + sys.argv[2] if sys.argv[2] else "") + "`.\n")
 print("Public logs: intra-log, each keyframe against the keyframes ≥ 10 m of travel earlier, no pose")
 print("guess. sim: sessions 1 and 2 of testdata/sim/office-aliased against session 0. A loop is true")

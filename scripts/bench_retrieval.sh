@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 16, part 2: retrieval alone, stage one of place recognition. Per public log, how many
 # revisits get a true candidate within the top k of Scan Context, of the ring spectrum, and of
-# the union of both lists (crates/place/recognition/examples/retrieval_study.rs; keyframes and
+# the union of both lists (crates/lab/lab/examples/retrieval_study.rs; keyframes and
 # revisits as in scripts/bench_place.sh), with the totals of the tuning and the held-out logs
 # (scripts/log_split.sh).
 # Usage: scripts/bench_retrieval.sh [--config JSON] [--spectrum JSON]
@@ -19,7 +19,7 @@ done
 data="${MAPMERGE_DATA:-../shared/data}"
 out="${OUT_DIR:-bench-out}"
 mkdir -p "$out/retrieval"
-cargo build --release -q -p mapmerge-place --example retrieval_study
+cargo build --release -q -p mapmerge-lab --example retrieval_study
 bin=target/release/examples/retrieval_study
 results="$out/retrieval/runs.jsonl"; : > "$results"
 for log in "${ALL_LOGS[@]}"; do

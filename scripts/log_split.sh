@@ -2,7 +2,7 @@
 # scripts. Parameters are tuned on TUNING_LOGS only; every headline number is reported on
 # HELD_OUT_LOGS with the tuning-set figure beside it. Never move a log between the two sets:
 # a log that has been looked at while tuning cannot become held-out again.
-# The choice (docs/benchmarks.md, "The split of the public logs"): the three buildings of the
+# The choice (docs/benchmarks.md, "How to reproduce"): the three buildings of the
 # issue's failure report (intel, aces, freiburg-079) and the worst repeated corridor
 # (infinite-corridor) are tuning logs; each side gets small offices and one large or outdoor
 # site (held out: acapulco's hall, freiburg-campus outdoors).

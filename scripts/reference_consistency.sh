@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 (( $# > 0 )) || { echo "usage: $0 L.cases.jsonl..." >&2; exit 2; }
-cargo build --release -q -p mapmerge-scanmatch --example pose_consistency
+cargo build --release -q -p mapmerge-lab --example pose_consistency
 bin=target/release/examples/pose_consistency
 lines="$(mktemp)"; trap 'rm -f "$lines"' EXIT
 for cases in "$@"; do

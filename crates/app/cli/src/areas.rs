@@ -19,9 +19,9 @@ use mapmerge_scan::{LaserLog, Point2};
 use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 use serde::Serialize;
 
-use crate::grid::{build_grid, PosedLog};
 use crate::slam::write_map_outputs;
 use crate::{bad_file, bad_input, check_resolution, print_json};
+use crate::{build_posed_grid as build_grid, PosedLog};
 
 /// Arguments of `mapmerge areas`.
 #[derive(Args, Debug)]

@@ -12,15 +12,18 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_assemble::{Arrival, AssembleParams, Assembler, GroupSolution};
+use mapmerge_assemble::{Arrival, Assembler, GroupSolution};
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid};
 use mapmerge_render::{session_color, Picture, PictureStyle};
 use serde::Serialize;
 
-pub use mapmerge_jobs::{arrival_order, segment_name, LoadedSegment, Order, TrajectorySource};
+pub use mapmerge_jobs::{arrival_order, LoadedSegment, Order, TrajectorySource};
 
-use crate::{check_resolution, print_json, progress_bar};
+use crate::{
+    check_resolution, load_assemble_params as load_params,
+    load_segments_with_progress as load_segments, print_json,
+};
 
 #[derive(Args, Debug)]
 pub struct AssembleArgs {
@@ -55,28 +58,6 @@ pub struct AssembleArgs {
     /// Print one JSON summary instead of text.
     #[arg(long)]
     pub json: bool,
-}
-
-/// Reads the segments ([`mapmerge_jobs::load_segments`]) with a progress bar.
-pub fn load_segments(
-    paths: &[PathBuf],
-    topics: &crate::BagTopics,
-    source: TrajectorySource,
-    progress: bool,
-) -> anyhow::Result<Vec<LoadedSegment>> {
-    let bar = progress_bar(paths.len(), "segments", "trajectories", progress);
-    let loaded = mapmerge_jobs::load_segments(paths, &topics.choice(), source, || bar.inc(1));
-    bar.finish_and_clear();
-    loaded.map_err(crate::job_error)
-}
-
-/// Reads `--config`; without one, [`mapmerge_jobs::default_params`] (3D segments get the
-/// paper's outdoor submaps, 5 m / 50 m).
-pub fn load_params(config: Option<&Path>, spatial: bool) -> anyhow::Result<AssembleParams> {
-    match config {
-        None => Ok(mapmerge_jobs::default_params(spatial)),
-        config => crate::read_config(config),
-    }
 }
 
 #[derive(Serialize)]

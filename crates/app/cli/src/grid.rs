@@ -6,14 +6,12 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::Args;
-use mapmerge_geometry::Se2;
-use mapmerge_grid::{CellClass, ClassThresholds, InsertParams, OccupancyGrid};
+use mapmerge_grid::{CellClass, ClassThresholds, InsertParams};
 use mapmerge_io::{MapMode, RosMap};
 use mapmerge_render::{Picture, PictureStyle, Rgb};
-use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
-use crate::{bad_file, bad_input, check_resolution, print_json};
+use crate::{build_posed_grid as build_grid, check_resolution, load_posed_log, print_json};
 
 /// Arguments of `mapmerge grid`.
 #[derive(Args, Debug)]
@@ -63,86 +61,6 @@ struct GridReport<'a> {
     build_secs: f64,
     map_yaml: &'a Path,
     png: Option<&'a Path>,
-}
-
-/// A log and one pose per scan (`map_from_robot`).
-pub struct PosedLog {
-    /// The log.
-    pub log: LaserLog,
-    /// One pose per scan, in scan order.
-    pub poses: Vec<Se2>,
-}
-
-/// Reads `log` and the poses of its scans: from `poses` (TUM, or a CARMEN log's scan poses)
-/// or from the log itself. Scans are paired with poses by order, not by stamp (some public
-/// logs have broken stamps).
-pub fn load_posed_log(
-    log: &Path,
-    poses_path: Option<&Path>,
-    topics: &crate::BagTopics,
-) -> anyhow::Result<PosedLog> {
-    let laser_log = crate::read_log(log, topics)?;
-    let scan_count = laser_log.scans.len();
-    let poses = match poses_path {
-        None => poses_of(&laser_log, log)?,
-        Some(path) if is_tum(path) => mapmerge_io::read_tum_planar(path)
-            .map_err(bad_file)?
-            .into_iter()
-            .map(|(_, pose)| pose)
-            .collect(),
-        Some(path) => poses_of(&crate::read_log(path, topics)?, path)?,
-    };
-    if poses.len() != scan_count {
-        return Err(bad_input(format!(
-            "{}: {} poses for the {scan_count} scans of {} (poses pair with scans by order)",
-            poses_path.unwrap_or(log).display(),
-            poses.len(),
-            log.display()
-        )));
-    }
-    Ok(PosedLog {
-        log: laser_log,
-        poses,
-    })
-}
-
-fn is_tum(path: &Path) -> bool {
-    let name = path.to_string_lossy();
-    let name = name.strip_suffix(".xz").unwrap_or(&name);
-    name.ends_with(".tum") || name.ends_with(".txt")
-}
-
-/// The poses a log attaches to its scans; an error names the first scan without one.
-fn poses_of(log: &LaserLog, path: &Path) -> anyhow::Result<Vec<Se2>> {
-    log.scans
-        .iter()
-        .enumerate()
-        .map(|(k, record)| {
-            record.odom_from_robot.ok_or_else(|| {
-                bad_input(format!(
-                    "{}: scan {k} ({}) carries no pose; give --poses",
-                    path.display(),
-                    record.source_tag
-                ))
-            })
-        })
-        .collect()
-}
-
-/// Builds the grid of a posed log, with a progress bar on stderr when it is a terminal (and
-/// `progress` is set).
-pub fn build_grid(
-    posed: &PosedLog,
-    resolution_m: f64,
-    params: &InsertParams,
-    progress: bool,
-) -> anyhow::Result<(OccupancyGrid, mapmerge_grid::InsertInfo)> {
-    let bar = crate::progress_bar(posed.poses.len(), "scans", "grid", progress);
-    let built = mapmerge_jobs::build_grid(&posed.log, &posed.poses, resolution_m, params, || {
-        bar.inc(1)
-    });
-    bar.finish_and_clear();
-    built.map_err(crate::job_error)
 }
 
 /// Runs `mapmerge grid`.

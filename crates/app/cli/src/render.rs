@@ -10,8 +10,8 @@ use mapmerge_io::AnyGraph;
 use mapmerge_render::{session_color, GraphStyle, Picture, PictureStyle};
 use serde::Serialize;
 
-use crate::grid::{build_grid, load_posed_log};
 use crate::{bad_file, bad_input, check_resolution, load_graph, print_json};
+use crate::{build_posed_grid as build_grid, load_posed_log};
 
 /// Arguments of `mapmerge render`.
 #[derive(Args, Debug)]

@@ -110,7 +110,7 @@ struct SessionSummary<'a> {
     slips: &'a [mapmerge_sim::SlipEvent],
     world_changes: &'a [mapmerge_sim::WorldChange],
     motion: &'a mapmerge_sim::MotionInfo,
-    /// Every passing of a door, for scoring door detection (issue 18).
+    /// Every passing of a door, for scoring door detection.
     door_passings: Vec<mapmerge_sim::DoorPassing>,
 }
 

@@ -21,8 +21,8 @@ use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
 use mapmerge_scan::LaserLog;
 use serde::Serialize;
 
-use crate::grid::{build_grid, PosedLog};
 use crate::{bad_input, check_resolution, print_json};
+use crate::{build_posed_grid as build_grid, PosedLog};
 
 /// Arguments of `mapmerge slam`.
 #[derive(Args, Debug)]

@@ -1,6 +1,6 @@
-//! `mapmerge store`: inspect, check, roll back and export a lifelong store (issue 17;
-//! `mapmerge atlas --store` writes it). Every refused store (in use, newer schema, not a store,
-//! corrupt) is bad input: exit code 2, the file untouched.
+//! `mapmerge store`: inspect, check, roll back and export a lifelong store (written by
+//! `mapmerge atlas --store`). Every refused store (in use, newer schema, not a store, corrupt)
+//! is bad input: exit code 2, the file untouched.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;

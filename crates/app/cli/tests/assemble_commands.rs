@@ -373,9 +373,8 @@ fn bad_segments_exit_with_code_2_and_name_the_file() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Issue 16, part 3: segments of two buildings that share no place, pooled in one assembly,
-/// are never joined: no edge between the logs, no group mixing them, and each log's own
-/// overlaps are still found.
+/// Segments of two buildings that share no place, pooled in one assembly, are never joined: no
+/// edge between the logs, no group mixing them, and each log's own overlaps are still found.
 #[test]
 fn pooled_segments_of_two_buildings_are_never_joined() {
     let dir = scratch("assemble-pool");

@@ -1,5 +1,5 @@
-//! ROS 2 bags wherever a LOG goes (issue 19): `sim --bag`, `convert`, and `slam`, `grid`,
-//! `split`, `atlas`, `assemble` on bags give what they give on the CARMEN logs.
+//! ROS 2 bags wherever a LOG goes: `sim --bag`, `convert`, and `slam`, `grid`, `split`,
+//! `atlas`, `assemble` on bags give what they give on the CARMEN logs.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

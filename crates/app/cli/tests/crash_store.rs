@@ -1,11 +1,11 @@
-//! Crash safety of the lifelong store (issue 17, part 4): `mapmerge atlas --store` is killed
-//! with SIGKILL at random moments, session after session. After every kill the store opens,
-//! `store check` passes, every version committed before the kill is still there exactly as
-//! it was committed, and a version either is complete or does not exist (no half-written
-//! session).
+//! Crash safety of the lifelong store: `mapmerge atlas --store` is killed with SIGKILL at
+//! random moments, session after session. After every kill the store opens, `store check`
+//! passes, every version committed before the kill is still there exactly as it was committed,
+//! and a version either is complete or does not exist (no half-written session).
 //!
-//! CI runs 12 kills (and the sessions between them that run to their end); `MAPMERGE_CRASH_KILLS=100` runs the benchmark's hundred
-//! (docs/benchmarks.md, "The lifelong store").
+//! CI runs 12 kills (and the sessions between them that run to their end);
+//! `MAPMERGE_CRASH_KILLS=100` runs the benchmark's hundred (docs/benchmarks.md, "The lifelong
+//! store").
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 

@@ -1,7 +1,7 @@
-//! Integration tests of `mapmerge eval make-merge-cases`, `mapmerge eval invalid-merge`
-//! (issue 6, part 5) and `mapmerge eval calibrate` (issue 15, part 4): the case and result
-//! formats, bad case files (exit code 2 naming the line), cases made from intel with both
-//! labels, the detectors telling them apart, and leave-one-log-out calibration.
+//! Integration tests of `mapmerge eval make-merge-cases`, `mapmerge eval invalid-merge` and
+//! `mapmerge eval calibrate`: the case and result formats, bad case files (exit code 2 naming
+//! the line), cases made from intel with both labels, the detectors telling them apart, and
+//! leave-one-log-out calibration.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
@@ -326,9 +326,9 @@ fn the_place_kind_adds_wrong_places_and_changes_nothing_else() {
     }
 }
 
-/// Issue 15's protocol: merges defined at the merge place, 30 m segments, the log's own
-/// odometry; every case carries its merge place and kind, the invalid kinds are there, and
-/// the summary reports AUC per kind.
+/// The merge-place protocol: merges defined at the merge place, 30 m segments, the log's own
+/// odometry; every case carries its merge place and kind, the invalid kinds are there, and the
+/// summary reports AUC per kind.
 #[test]
 fn merge_place_cases_carry_their_place_and_kind_and_are_scored_per_kind() {
     let Some(intel) = intel() else {

@@ -1,4 +1,4 @@
-//! Issue 19, part 3: results the field's tools agree with.
+//! Results the field's tools agree with.
 //! - evo (`evo_ape tum --align`) reports the ATE `mapmerge eval ate` reports on the TUM files
 //!   `mapmerge slam` writes, within 1 mm, on every public log. `MAPMERGE_EVO_APE` names the
 //!   `evo_ape` to run (`.ci/run` installs evo); without it the test skips, except under CI.

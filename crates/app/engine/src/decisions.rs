@@ -97,9 +97,9 @@ pub struct DecisionParams {
     /// hypothesis. It is checked at each keyframe, one step ahead: the merge is rejected
     /// when the next keyframe, as far on as the epoch's longest keyframe step so far, would
     /// pass the bound, so it ends within it unless a step is the longest yet. Default 10: the
-    /// travel within which the engine must catch a wrong merge (issue 14). On the fitting
-    /// seeds 114 of 119 correct merges were made full within 5 m of becoming
-    /// conditional. `null` keeps it until a detector, a competitor or the epoch's end drops it.
+    /// travel within which the engine is meant to catch a wrong merge. On the fitting seeds
+    /// 114 of 119 correct merges were made full within 5 m of becoming conditional. `null`
+    /// keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
     /// While a merge is conditional, the whole current epoch is compared with the other
     /// epochs' scans near it in G' (`mapmerge_verify::epoch_agreement`): at the first
@@ -110,7 +110,7 @@ pub struct DecisionParams {
     /// from where the look-alike differs carries the contradiction in its older scans
     /// (default: `null`, off: on the simulator's tuning seeds 11–20 correct merges read as
     /// low as 0.84 where the world changed between sessions, and the wrong merges no other
-    /// check caught read 0.95–0.98; docs/benchmarks.md §10, session 2026-12-05).
+    /// check caught read 0.95–0.98).
     pub epoch_agreement: Option<EpochAgreementParams>,
     /// See `epoch_agreement` (m) (default: 2).
     pub epoch_agreement_every_m: f64,

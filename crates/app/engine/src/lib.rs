@@ -114,12 +114,12 @@ pub struct EngineParams {
     /// noisy-or; the probability that the merge is invalid at equal priors, threshold 0.5; its
     /// components keep the parameters it was fitted with, so `detector_params` does not reach
     /// them). On the fitting seeds it makes every decision `combined` (the hand-calibrated
-    /// default before session 2026-12-05 (iv)) makes, on the held-out seeds every count is
-    /// the same, and on the public logs it takes the same time (docs/benchmarks.md §8, rule
-    /// 33). A model fitted on the engine's own merges (`learned_model`,
+    /// decision) makes, on the held-out seeds every count is the same, and on the public
+    /// logs it takes the same time (docs/benchmarks.md, "Invalid-merge detection").
+    /// A model fitted on the engine's own merges (`learned_model`,
     /// `scripts/fit_engine_decision.sh`) caught more wrong merges than `combined` on its
-    /// fitting seeds but also undid more correct ones (17 against 10), so by the rule fixed
-    /// beforehand it is not the default (§8, issue 15 part 4).
+    /// fitting seeds but also undid more correct ones (17 against 10), so it is not the
+    /// default.
     pub detector: String,
     /// The model of detector `learned` (default: none, `LearnedModel::calibrated`); e.g. one
     /// fitted by `mapmerge eval calibrate` on the engine's own merges. An error with any

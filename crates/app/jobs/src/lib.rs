@@ -27,6 +27,9 @@
 //! ```
 
 mod assemble;
+mod atlas;
+#[cfg(feature = "cli")]
+pub mod cli;
 mod error;
 mod grid_merge;
 mod optimize;
@@ -36,6 +39,7 @@ pub use assemble::{
     arrival_order, assemble, default_params, load_segments, segment_name, Assembled, LoadedSegment,
     LoopLine, Order, ScanRef, TrajectorySource,
 };
+pub use atlas::{draw_graph, write_atlas};
 pub use error::{error_chain, JobError};
 pub use grid_merge::{
     grid_merge, load_map, GridMergeReport, GridMerged, Hypothesis, Transform, DEFAULT_HYPOTHESES,

@@ -1,5 +1,5 @@
 //! Reading a laser session from a bag against reading the same log as CARMEN text, in one
-//! process (issue 19: "reading a bag is at least as fast as reading the CARMEN log"). Each
+//! process (the target: reading a bag is at least as fast as reading the CARMEN log). Each
 //! public log is written to a temporary folder as plain CARMEN text, `.mcap` and `.db3`;
 //! throughput is the file's bytes.
 //!

@@ -1,7 +1,7 @@
-//! One route query on a hybrid map of 1,000 areas (issue 18's time target: ≤ 1 ms): areas on a
-//! 40 × 25 grid of 10 m rooms, a door between each room and its right and upper neighbours
-//! (1,935 link points, each room's link points fully connected), a query between opposite
-//! corners; and door detection per scan on a simulated session.
+//! One route query on a hybrid map of 1,000 areas (target: ≤ 1 ms): areas on a 40 × 25 grid of
+//! 10 m rooms, a door between each room and its right and upper neighbours (1,935 link points,
+//! each room's link points fully connected), a query between opposite corners; and door
+//! detection per scan on a simulated session.
 //!
 //! `cargo bench -p mapmerge-areas --bench route`
 

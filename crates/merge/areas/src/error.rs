@@ -24,7 +24,4 @@ pub enum AreasError {
     /// An area could not be mapped, or its map does not fit its scans.
     #[error("mapping: {0}")]
     Mapping(String),
-    /// The simulator refused.
-    #[error(transparent)]
-    Sim(#[from] mapmerge_sim::SimError),
 }

@@ -4,8 +4,8 @@
 //!
 //! - Sec. II-B: detecting door passings from laser scans ([`DoorDetector`], three criteria of
 //!   which two must hold) and choosing the next map's configuration from the scans' extents
-//!   ([`Environment`], the presets `indoor` and `large`), scored against the simulator's
-//!   doors ([`eval`]);
+//!   ([`Environment`], the presets `indoor` and `large`); `mapmerge-lab` scores both against
+//!   the simulator's doors;
 //! - Sec. II-A and II-C: splitting a log into areas at its door passings ([`segment`]) and the
 //!   hybrid map of their maps, link points and edges ([`HybridMap`]), with routes by Dijkstra
 //!   and the transform chain along them ([`HybridMap::route`]);
@@ -18,7 +18,6 @@
 mod door;
 mod environment;
 mod error;
-pub mod eval;
 mod hybrid;
 mod manager;
 mod session;

@@ -1,6 +1,6 @@
 //! A session as the map manager keeps it: the log, its split at door passings and each area
-//! span's SLAM result. The lifelong store holds these (issue 17's store), so a later run can
-//! add sessions to a site's areas and rebuild its hybrid map.
+//! span's SLAM result. The lifelong store holds these, so a later run can add sessions to a
+//! site's areas and rebuild its hybrid map.
 
 use mapmerge_geometry::Se2;
 use mapmerge_posegraph::PoseGraph2;

@@ -1,5 +1,5 @@
-//! Issue 16, part 3: a pair that no triangle of pairs confirms needs more loop edges of its
-//! own (`AssembleParams::unconfirmed_min_loops`) than one a triangle confirms. The pairs'
+//! A pair that no triangle of pairs confirms needs more loop edges of its own
+//! (`AssembleParams::unconfirmed_min_loops`) than one a triangle confirms. The pairs'
 //! associations are given (`Assembler::add_segment_reusing`), so only the group checks run.
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]

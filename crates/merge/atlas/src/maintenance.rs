@@ -43,7 +43,7 @@ pub struct MaintenanceParams {
     pub resolution_m: f64,
     /// A view is redundant when a kept view of its graph lies within this distance (m)
     /// (default: 0.75, chosen on the simulator's tuning seed 3: over 22 sessions 16 of 34
-    /// epochs merged, against 10 at 1.5 m and 24 of 32 unpruned; docs/benchmarks.md §12)…
+    /// epochs merged, against 10 at 1.5 m and 24 of 32 unpruned)…
     pub view_radius_m: f64,
     /// … and heading (rad) (default: π, any heading: a 360° scan relocalises from any
     /// direction; use π/2 for lasers of 180°).

@@ -79,20 +79,19 @@ pub struct OverlapParams {
     pub gate_rad: f64,
     /// Loops into merged data after a merge are verified as the epoch's own loops are: the
     /// epoch's loop matcher searched within the gate only, accepted from `loops.min_score`
-    /// (default: true; false verifies them by the merge search's verifier and `min_score`).
-    /// The merge already fixes where the robot is to within the gate; the place verifier
-    /// asks for a place unique within ±2 m and at 180°, which no corridor is (infinite
-    /// corridor's right merges score 0.02–0.95 there), so the tracker drifts along it
-    /// unchecked. On since session 2026-12-03 (iv): on two draws of forced merges it raised
-    /// the tuning logs' best single detector AUC under both odometry settings, and its
-    /// public-log time is within noise (docs/benchmarks.md §8 and §10).
+    /// (default: true; false verifies them by the merge search's verifier and `min_score`). The
+    /// merge already fixes where the robot is to within the gate; the place verifier asks for a
+    /// place unique within ±2 m and at 180°, which no corridor is (infinite corridor's right
+    /// merges score 0.02–0.95 there), so the tracker drifts along it unchecked. On by default:
+    /// on two draws of forced merges it raised the tuning logs' best single detector AUC under
+    /// both odometry settings, and its public-log time is within noise.
     pub local_loops: bool,
-    /// With `local_loops`: the tried vertices the local matcher did not join are verified
-    /// again by the merge search's verifier and `min_score` (default: false). The local
-    /// matcher refuses a loop under `loops.min_score` even when it measures the drift well
-    /// (fhw's later loops score 0.40–0.55), which the place verifier accepts where the
-    /// place is unique (docs/benchmarks.md §8, session 2026-12-03 (iv)). Off: it raised the
-    /// detectors' AUC by 0.0005 and cost 1.09× public-log time (§10, session 2026-12-03 (v)).
+    /// With `local_loops`: the tried vertices the local matcher did not join are verified again
+    /// by the merge search's verifier and `min_score` (default: false). The local matcher
+    /// refuses a loop under `loops.min_score` even when it measures the drift well (fhw's later
+    /// loops score 0.40–0.55), which the place verifier accepts where the place is unique. Off
+    /// by default: it raised the detectors' AUC by only 0.0005 and cost 1.09× the public-log
+    /// time.
     pub place_verifier_too: bool,
 }
 

@@ -40,8 +40,8 @@ pub struct KeyframeParams {
     /// (from each vertex's origin), so that verification compares two local maps over their
     /// whole overlap ([`mapmerge_place::Evidence::agreement`], a score on its own scale:
     /// `RecognitionParams::place.min_score` and `MergeParams::overlap.min_score` are set on
-    /// it); 0 keeps none and scores as before (default: 0.1; issue 16, part 4: on the
-    /// simulator's held-out seeds wrong merges fell from 51 to 13, docs/benchmarks.md §11).
+    /// it); 0 keeps none and scores by the scan-level evidence instead (default: 0.1; on the
+    /// simulator's held-out seeds it cut wrong merges from 51 to 13).
     pub free_space_m: f64,
 }
 

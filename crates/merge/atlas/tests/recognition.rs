@@ -143,7 +143,7 @@ fn recognition_with_views_from_beside_merges_as_well() {
 }
 
 /// Keyframes without their free space: verification scores by the older evidence (inliers,
-/// violations), with the thresholds chosen for it before issue 16.
+/// violations), with the thresholds chosen for it.
 #[test]
 fn recognition_without_free_space_merges_as_well() {
     let mut params = AtlasParams::default();

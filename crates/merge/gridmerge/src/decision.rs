@@ -186,9 +186,9 @@ pub struct DecisionRecord {
 /// | `cloud-into-grid-known-pose` | grid | point cloud | known | – | 0 | known pose | rasterise then Bayes |
 ///
 /// Without a pose the resolution ratio is limited to 2:1 (the range the spectral matcher is
-/// specified for, issue 5) and poor maps are refused, because a wrong match is likelier
-/// without structure; feature and topological maps have no procedure and are rejected.
-/// The same table ships as `config/decision_table.yaml`.
+/// specified for) and poor maps are refused, because a wrong match is likelier without
+/// structure; feature and topological maps have no procedure and are rejected. The same table
+/// ships as `config/decision_table.yaml`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct DecisionTable {

@@ -1,6 +1,6 @@
 //! The machine's memory latency, the yardstick for the detectors' times: gridmap's per-vertex
-//! update is bound by loads of cells scattered over a grid of tens of MB (docs/benchmarks.md
-//! §8, session 2026-11-28 (iv)), so its time scales with this latency, not with the CPU clock.
+//! update is bound by loads of cells scattered over a grid of tens of MB, so its time scales
+//! with this latency, not with the CPU clock.
 //!
 //! Dependent loads through one random cycle over working sets of 1–64 MB (each load's address
 //! is the previous load's value, so no two overlap): the mean time per load is the latency of

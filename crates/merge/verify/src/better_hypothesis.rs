@@ -10,8 +10,8 @@
 //! scan, as `mapmerge-atlas`'s place recognition) with the free space their beams crossed,
 //! described by Scan Context, retrieved from a `PlaceIndex` built once per merge and verified
 //! by the atlas's `ScanMatchVerifier`, scored like the atlas's merge search by the whole-map
-//! agreement of the two local maps (issue 16, part 4), and accepted from a score and a
-//! confidence (the gap to the best rival place), so look-alike rooms give no evidence.
+//! agreement of the two local maps, and accepted from a score and a confidence (the gap to the
+//! best rival place), so look-alike rooms give no evidence.
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_place::{
@@ -47,12 +47,11 @@ pub struct BetterHypothesisParams {
     pub query_every: usize,
     /// Retrieval and verification (default: 5 candidates within Scan Context distance 0.6,
     /// accepted from whole-map score 0.95; chosen on the tuning logs' forced merges and the
-    /// simulator's fitting seeds, docs/benchmarks.md §11: 0.975, the atlas's merge setting,
-    /// caught fewer invalid merges, and 0.9 read 13 of 92 valid ones as contradicted).
+    /// simulator's fitting seeds: 0.975, the atlas's merge setting, caught fewer invalid
+    /// merges, and 0.9 read 13 of 92 valid ones as contradicted).
     pub place: PlaceParams,
     /// A match also needs this confidence (gap to the best rival place) (default: 0.2; the
-    /// atlas's 0.05 let one look-alike contradiction undo a correct merge on freiburg-079,
-    /// docs/benchmarks.md §11).
+    /// atlas's 0.05 let one look-alike contradiction undo a correct merge on freiburg-079).
     pub min_confidence: f64,
     /// A match contradicts the merge when it places the query this far (m) from where the
     /// merged map has it (default: 1) …
@@ -63,19 +62,18 @@ pub struct BetterHypothesisParams {
     /// 0.33, two 0.5, …; agreeing matches pull the ratio down.
     pub prior_agreeing: f64,
     /// A contradicting match counts only when it is a *better* hypothesis (Holoch et al.,
-    /// Sec. IV): the query is also verified where the merge puts it, against the other
-    /// epochs' nearest keyframes within this distance (m), and the match must outscore that
-    /// placement by `better_by` (default: 5; 0 counts every confident contradiction, as
-    /// before). A look-alike room scores as well as the place the merge chose, so it is no
-    /// evidence against the merge; the true place elsewhere outscores a wrong placement.
-    /// Where the other epochs have no keyframe that near, or none the query verifies against
-    /// there (an *unplaced* query, as after a wrong merge that puts the robot where they
-    /// never were, Holoch et al., Fig. 2e), the contradiction counts unless it puts the query
-    /// where an alternative already found no better since the merge puts it (within
-    /// `disagreement_m` / `disagreement_rad`): the same look-alike, met again once the robot
-    /// has left the other epochs' keyframes. On the simulator's tuning seeds two look-alike
-    /// contradictions undid a correct merge (seed 4), and unplaced ones of a known
-    /// look-alike undid or rejected three more (docs/benchmarks.md §10).
+    /// Sec. IV): the query is also verified where the merge puts it, against the other epochs'
+    /// nearest keyframes within this distance (m), and the match must outscore that placement
+    /// by `better_by` (default: 5; 0 counts every confident contradiction). A look-alike room
+    /// scores as well as the place the merge chose, so it is no evidence against the merge; the
+    /// true place elsewhere outscores a wrong placement. Where the other epochs have no
+    /// keyframe that near, or none the query verifies against there (an *unplaced* query, as
+    /// after a wrong merge that puts the robot where they never were, Holoch et al., Fig. 2e),
+    /// the contradiction counts unless it puts the query where an alternative already found no
+    /// better since the merge puts it (within `disagreement_m` / `disagreement_rad`): the same
+    /// look-alike, met again once the robot has left the other epochs' keyframes. Without these
+    /// checks, on the simulator's tuning seeds two look-alike contradictions undid a correct
+    /// merge (seed 4), and unplaced ones of a known look-alike undid or rejected three more.
     pub current_placement_within_m: f64,
     /// See `current_placement_within_m` (default: 0.02 on the whole-map score).
     pub better_by: f64,

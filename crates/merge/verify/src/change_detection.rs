@@ -59,15 +59,14 @@ pub struct ChangeDetectionParams {
     pub cache_rotation_rad: f64,
     /// Largest visibility grid (cells); a larger area gets coarser cells (default: 2²⁴).
     pub max_visibility_cells: usize,
-    /// The ratio is the smaller of the two directions' ratios (the window's points against
-    /// the old scans, the old scans' points against the window) instead of one ratio over
-    /// both (default: true). A misaligned merge moves static surfaces into each side's free
-    /// space both ways; a scene change (a door closed or opened, a person) puts points into
-    /// the free space of one side only, and the other side sees it as occluded (no info).
-    /// It also stops one window scan that sees through a region many old scans saw from
-    /// counting that region once per old scan. On the tuning logs' forced merges the valid
-    /// merges' mean peak fell by a third to a half and `combined`'s AUC rose or held
-    /// (docs/benchmarks.md §10, session vii).
+    /// The ratio is the smaller of the two directions' ratios (the window's points against the
+    /// old scans, the old scans' points against the window) instead of one ratio over both
+    /// (default: true). A misaligned merge moves static surfaces into each side's free space
+    /// both ways; a scene change (a door closed or opened, a person) puts points into the free
+    /// space of one side only, and the other side sees it as occluded (no info). It also stops
+    /// one window scan that sees through a region many old scans saw from counting that region
+    /// once per old scan. On the tuning logs' forced merges the valid merges' mean peak fell by
+    /// a third to a half and `combined`'s AUC rose or held.
     pub two_sided: bool,
 }
 

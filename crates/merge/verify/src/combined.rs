@@ -35,9 +35,8 @@ pub struct CombinedParams {
     pub better_hypothesis: BetterHypothesisParams,
     /// Change detection's decision threshold `t` (default: 0.4, the threshold that best
     /// separates the tuning logs' valid and invalid forced merges by change detection's peak,
-    /// Youden's J, with the two-sided ratio; 0.15 before, set on the simulator's office tests,
-    /// where half of the public logs' valid merges read above it: docs/benchmarks.md §10,
-    /// session vii).
+    /// Youden's J, with the two-sided ratio; at 0.15, a value set on the simulator's office
+    /// tests, half of the public logs' valid merges read above it).
     pub change_detection_threshold: f64,
     /// Gridmap's decision threshold `t` (default: 0.15; correct merges in the simulated office
     /// with moved furniture and closed doors reach 0.12).

@@ -2,15 +2,15 @@
 //! differential entropy `h(q) = ½ ln det(2πe Σ(q))` of a point, `Σ(q)` the covariance of the
 //! points within `r = 0.3 m`.
 //!
-//! The measure (issue 15, part 5). The paper's `ΔH = H_all − ½ (H_current − H_other)` (read
-//! as the mean of the parts' entropies) was inverted on the public logs (AUC 0.00–0.53): the
-//! unweighted mean of the parts moves with their sizes and clutter, not with the merge, and
-//! most of a 2D map's points have no neighbour from the other part at all, so the few that do
-//! drown in the average. Here the merge's effect is measured where it acts, point by point:
-//! `ΔH = mean over points with a neighbour from the other part of h(q | both) − h(q | own
-//! part)`. A correct merge lays walls on walls (a few cm apart: small increase), a wrong one
-//! lays walls across or beside walls (large increase); with no such point the merge is
-//! unsupported. The ratio is `1 − exp(−max(ΔH, 0) / s)`.
+//! The measure. The paper's `ΔH = H_all − ½ (H_current − H_other)` (read as the mean of the
+//! parts' entropies) was inverted on the public logs (AUC 0.00–0.53): the unweighted mean of
+//! the parts moves with their sizes and clutter, not with the merge, and most of a 2D map's
+//! points have no neighbour from the other part at all, so the few that do drown in the
+//! average. Here the merge's effect is measured where it acts, point by point: `ΔH = mean over
+//! points with a neighbour from the other part of h(q | both) − h(q | own part)`. A correct
+//! merge lays walls on walls (a few cm apart: small increase), a wrong one lays walls across or
+//! beside walls (large increase); with no such point the merge is unsupported. The ratio is
+//! `1 − exp(−max(ΔH, 0) / s)`.
 //!
 //! Choices where the paper is vague or too costly (it reports ~1 s per vertex):
 //! - the point clouds are those in the area of interest (the bounding box of the `n` most

@@ -1,12 +1,11 @@
-//! Whole-epoch agreement (our addition beyond Holoch et al. and iRobot; issue 14). A merge
-//! claims that the *whole* current epoch lies in the other map where the merge puts it, not
-//! only the places that were recognised. Place recognition and the window detectors look at
-//! a few metres; an epoch that came from a part of the building the look-alike does not
-//! share carries the contradiction in its older scans. The epoch's scans, joined in the map
-//! frame with the free space their beams crossed, are compared with the other epochs' scans
-//! near them by the whole-map agreement of `mapmerge_place::evidence` (Birk & Carpin 2006's
-//! `agr / (agr + dis)` over points: a point agrees near a return of the other map and
-//! disagrees in its free space).
+//! Whole-epoch agreement (our addition beyond Holoch et al. and iRobot). A merge claims that
+//! the *whole* current epoch lies in the other map where the merge puts it, not only the places
+//! that were recognised. Place recognition and the window detectors look at a few metres; an
+//! epoch that came from a part of the building the look-alike does not share carries the
+//! contradiction in its older scans. The epoch's scans, joined in the map frame with the free
+//! space their beams crossed, are compared with the other epochs' scans near them by the
+//! whole-map agreement of `mapmerge_place::evidence` (Birk & Carpin 2006's `agr / (agr + dis)`
+//! over points: a point agrees near a return of the other map and disagrees in its free space).
 //!
 //! It is a check, not a detector of the registry: it reads an agreement, not a ratio, and is
 //! meant to be asked rarely (a conditional merge, a full acceptance), since it joins the
@@ -25,9 +24,8 @@ use crate::{DetectorScan, MergedMap};
 #[serde(default, deny_unknown_fields)]
 pub struct EpochAgreementParams {
     /// A merge is contradicted below this agreement (default: 0.95, from a first reading of
-    /// wrong and correct merges on the simulator's tuning seeds 11–20 of the warehouse and
-    /// the symmetric hall and on the three tuning logs; docs/benchmarks.md §10, session
-    /// 2026-12-05).
+    /// wrong and correct merges on the simulator's tuning seeds 11–20 of the warehouse and the
+    /// symmetric hall and on the three tuning logs).
     pub min_agreement: f64,
     /// … over at least this many points where both maps know the space; fewer give no
     /// reading (default: 500).

@@ -9,7 +9,7 @@
 //! (majority vote only) and its trees' per-split feature sampling is crate-private; linfa's
 //! ensemble samples features per tree, not per split, and votes by majority. A ranking (AUC)
 //! needs a score, and on the tuning logs bagging without per-split sampling ranked merges
-//! worse (docs/benchmarks.md §8, session 2026-12-03).
+//! worse.
 //!
 //! A tree is stored flat: node `k` is a split on `feature[k]` at `value[k]` with children
 //! `child[k]` (≤) and `child[k] + 1` (>), or a leaf (`feature[k] < 0`) whose invalid share is

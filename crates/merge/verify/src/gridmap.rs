@@ -21,11 +21,11 @@
 //! occupied when any window scan returned from a cell (after dilation: from any cell of the
 //! square), free when beams passed through and none returned, unknown otherwise.
 //!
-//! Unknown space (issue 15, part 3): a cell the other epochs never saw is unknown in their
-//! grid, so the window's beams through it neither agree nor contradict; only cells known in
-//! both count. When the robot's scans cross only such space (it left the merged map, or the
-//! merge put it where the merged map has no structure) the overlap stays below `τ`: the
-//! ratio is 0 and the merge is *unsupported* ([`Evidence::Unsupported`]), not valid.
+//! Unknown space: a cell the other epochs never saw is unknown in their grid, so the window's
+//! beams through it neither agree nor contradict; only cells known in both count. When the
+//! robot's scans cross only such space (it left the merged map, or the merge put it where the
+//! merged map has no structure) the overlap stays below `τ`: the ratio is 0 and the merge is
+//! *unsupported* ([`Evidence::Unsupported`]), not valid.
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};

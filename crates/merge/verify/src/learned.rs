@@ -1,6 +1,6 @@
-//! The learned decision (issue 15, part 4): a logistic regression on the component detectors'
-//! highest supported ratios since the merge and on whether each was ever supported
-//! ([`Evidence`]), as Holoch et al. (Sec. V-A) score a merge by each detector's highest ratio.
+//! The learned decision: a logistic regression on the component detectors' highest supported
+//! ratios since the merge and on whether each was ever supported ([`Evidence`]), as Holoch et
+//! al. (Sec. V-A) score a merge by each detector's highest ratio.
 //!
 //! Why this form: the detectors' ratios live on different scales and fail in different
 //! places (change detection on changed rooms, gridmap and SM/DM on drift, all of them where
@@ -14,21 +14,21 @@
 //! Its default model, [`LearnedModel::calibrated`], is the engine's default decision. It was
 //! fitted by `mapmerge eval calibrate --features change_detection,gridmap
 //! --or-better-hypothesis` on forced merges (valid at the merge place) of the 13 public logs
-//! (seeds 0 and 1, odometry `none` and `default`) and of the simulator's fitting seeds (1–10
-//! of its five worlds, odometry `default`): change detection and gridmap, the appearance
-//! detectors of `combined`, on their logit. The simulator's cases are there because the
-//! engine works in its domain: fitted on the logs alone (whose valid merges read change
-//! detection up to 0.6), the model kept a wrong simulated merge that read like no valid merge
-//! of the simulator (rule 32). Better hypothesis joins the model by a noisy-or
-//! ([`LearnedModel::or_better_hypothesis`]), as in `combined`: forced merges lie near the true
-//! place and hold no merge into a far look-alike, so no fit on them can weigh that kind.
-//! Fitted with it as one more feature, better hypothesis's usual 0.5 counted for nothing and
-//! a wrong merge was kept (rule 29); adding SM, DM and histogram cost 1.10× the time (rule
-//! 31). docs/benchmarks.md §8 gives the commands, the rules and the leave-one-log-out figures.
+//! (seeds 0 and 1, odometry `none` and `default`) and of the simulator's fitting seeds (1–10 of
+//! its five worlds, odometry `default`): change detection and gridmap, the appearance detectors
+//! of `combined`, on their logit. The simulator's cases are there because the engine works in
+//! its domain: fitted on the logs alone (whose valid merges read change detection up to 0.6),
+//! the model kept a wrong simulated merge that read like no valid merge of the simulator.
+//! Better hypothesis joins the model by a noisy-or ([`LearnedModel::or_better_hypothesis`]), as
+//! in `combined`: forced merges lie near the true place and hold no merge into a far
+//! look-alike, so no fit on them can weigh that kind. Fitted with it as one more feature,
+//! better hypothesis's usual 0.5 counted for nothing and a wrong merge was kept; adding SM, DM
+//! and histogram cost 1.10× the time. docs/benchmarks.md, "Invalid-merge detection", gives the
+//! commands and the leave-one-log-out figures.
 //!
 //! The same features can instead feed a random forest ([`LearnedModel::fit_forest`],
-//! [`crate::RandomForest`]); it was measured and, by a rule fixed on the tuning logs, not made
-//! the default (docs/benchmarks.md §8, session 2026-12-03).
+//! [`crate::RandomForest`]); on the tuning logs with noisy odometry it ranked merges worse than
+//! the logistic model (mean AUC 0.988 against 0.993), so it is not the default.
 
 use serde::{Deserialize, Serialize};
 use smartcore::linalg::basic::arrays::Array;
@@ -70,7 +70,7 @@ pub struct LearnedModel {
     /// [`crate::CombinedDetector`] joins its appearance half (default: false). Then the model
     /// calibrates the window detectors' appearance evidence, and better hypothesis flags a
     /// merge into a look-alike far from the true place on its own: forced merges hold no
-    /// such case, so no fit on them can weigh it (docs/benchmarks.md §8, part 4).
+    /// such case, so no fit on them can weigh it.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub or_better_hypothesis: bool,
     /// Decision threshold on the probability: above it a merge is judged invalid.
@@ -789,9 +789,9 @@ mod tests {
     /// The engine's default decision on the test office (the cases `combined` is checked on):
     /// every wrong merge reads above every right one (a door closed between the epochs too).
     /// The turned and shifted placements read above its threshold, and so does the room placed
-    /// 20 m off, where the window detectors have nothing to compare: unsupported is evidence
-    /// in the model, not validity (issue 15, part 3; `combined` read better hypothesis's 0.5
-    /// there). The 0.8 m shift reads 0.40 (`combined`: 0.41).
+    /// 20 m off, where the window detectors have nothing to compare: unsupported is evidence in
+    /// the model, not validity (`combined` read better hypothesis's 0.5 there). The 0.8 m shift
+    /// reads 0.40 (`combined`: 0.41).
     #[test]
     fn the_embedded_decision_ranks_the_test_offices_wrong_merges_above_the_right_ones() {
         use crate::testworld::Case;

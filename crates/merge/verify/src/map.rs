@@ -33,7 +33,7 @@ pub struct MergedMap<'a> {
 
 /// Whether a detector's last ratio rests on anything. A merge claims that the maps overlap,
 /// so a detector that finds nothing to compare has no evidence of validity: its ratio (0)
-/// must not count as "valid" (issue 15, part 3).
+/// must not count as "valid".
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Evidence {

@@ -1,12 +1,12 @@
-//! Re-registration (issue 15; not one of Holoch et al.'s detectors): the window of recent
-//! current-epoch scans is matched again against the other epochs' points, around where the
-//! merged map has it. A right merge leaves the window where it fits best, up to the drift the
-//! front-end adds after it; a wrong one leaves a better fit within reach: for a turn, a shift
-//! or a careless place recognition near the true place, the true relative pose. Invalidity is
-//! the score deficit `1 − s_here / s_best`, where `s_here` is the best correlative score
-//! within `tolerance_m` / `tolerance_rad` of the merged pose and `s_best` the best within
-//! `reach_m` at any heading (Olson's correlative score, branch-and-bound as Hess et al.
-//! 2016). A look-alike room far away is out of reach: that is better hypothesis' job.
+//! Re-registration (not one of Holoch et al.'s detectors): the window of recent current-epoch
+//! scans is matched again against the other epochs' points, around where the merged map has it.
+//! A right merge leaves the window where it fits best, up to the drift the front-end adds after
+//! it; a wrong one leaves a better fit within reach: for a turn, a shift or a careless place
+//! recognition near the true place, the true relative pose. Invalidity is the score deficit
+//! `1 − s_here / s_best`, where `s_here` is the best correlative score within `tolerance_m` /
+//! `tolerance_rad` of the merged pose and `s_best` the best within `reach_m` at any heading
+//! (Olson's correlative score, branch-and-bound as Hess et al. 2016). A look-alike room far
+//! away is out of reach: that is better hypothesis' job.
 //!
 //! Only window points that fall where the other epochs' beams reached (at the merged pose)
 //! are matched: a window that leaves the merged map into space it never saw would otherwise
@@ -40,8 +40,8 @@ pub struct RealignParams {
     /// they set the angular step, Hess et al. Eq. 7).
     pub max_range_m: f64,
     /// Half-width (m) of the box around the merged pose whose best score is `s_here`: the
-    /// front-end's drift after a right merge (measured up to 0.45 m, §8 part 2)
-    /// (default: 0.5).
+    /// front-end's drift after a right merge (default: 0.5; measured up to 0.45 m on the public
+    /// logs' forced merges).
     pub tolerance_m: f64,
     /// … and its heading half-width (rad) (default: 6°; measured drift up to 3.9°).
     pub tolerance_rad: f64,

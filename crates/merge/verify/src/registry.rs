@@ -144,7 +144,7 @@ mod tests {
 
     /// A merged map with nothing in it (before any merge, and after an empty one) reads 0 in
     /// every detector, and no detector claims support for it: nothing to compare is no
-    /// evidence either way (issue 15, part 3).
+    /// evidence either way.
     /// The learned decision is the exception by design: it scores "never supported" where
     /// such merges fell in training (a merge claims overlap), so it reads high here.
     #[test]
@@ -169,10 +169,10 @@ mod tests {
         }
     }
 
-    /// Issue 15, part 3: a merge that puts the current scans where the other epochs saw
-    /// nothing is unsupported for every appearance detector (not "valid, 0"); one inside
-    /// their rooms is supported. (Better hypothesis, and the combinations holding it, do have
-    /// evidence far away: they recognise the rooms where the other epochs put them.)
+    /// A merge that puts the current scans where the other epochs saw nothing is unsupported
+    /// for every appearance detector (not "valid, 0"); one inside their rooms is supported.
+    /// (Better hypothesis, and the combinations holding it, do have evidence far away: they
+    /// recognise the rooms where the other epochs put them.)
     #[test]
     fn nothing_to_compare_is_unsupported_and_overlap_is_supported() {
         use crate::testworld::{Case, World};

@@ -2,34 +2,8 @@
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
 use mapmerge_geometry::{LieGroup, Se2, Se3};
-use mapmerge_io::{read_graph_with, AnyGraph, BadInformation, ReadParams};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph, PoseGraph2, PoseGraph3, Vertex};
 use nalgebra::{Matrix3, Matrix6, UnitQuaternion, Vector3};
-
-/// A 2D graph from `../shared/data/g2o/se-sync`, or `None` when the data folder is absent
-/// (outside CI). Non-positive-definite information matrices keep their diagonal.
-pub fn load_2d(name: &str) -> Option<PoseGraph2> {
-    match load(name)? {
-        AnyGraph::Planar(g) => Some(g),
-        AnyGraph::Spatial(_) => panic!("{name} is 3D"),
-    }
-}
-
-/// A 3D graph from `../shared/data/g2o/se-sync` (see [`load_2d`]).
-pub fn load_3d(name: &str) -> Option<PoseGraph3> {
-    match load(name)? {
-        AnyGraph::Spatial(g) => Some(g),
-        AnyGraph::Planar(_) => panic!("{name} is 2D"),
-    }
-}
-
-fn load(name: &str) -> Option<AnyGraph> {
-    let path = mapmerge_testkit::shared_data(&format!("g2o/se-sync/{name}"))?;
-    let params = ReadParams {
-        bad_information: BadInformation::KeepDiagonal,
-    };
-    Some(read_graph_with(&path, &params).unwrap().graph)
-}
 
 pub fn max_pose_error<G: LieGroup<D>, const D: usize>(
     a: &PoseGraph<G, D>,

@@ -1,0 +1,32 @@
+//! mapmerge's laboratory: the harnesses that make cases, run evaluation protocols, calibrate
+//! decisions, judge the product's outputs against ground truth and print the study tables of
+//! `docs/benchmarks.md`. The product never depends on it; the binary's `mapmerge eval …`
+//! parses its arguments with [`EvalArgs`] and calls [`run_eval`].
+//!
+//! Entry points:
+//! - [`run_eval`]: every `mapmerge eval` command (SLAM scores, grid merging, invalid-merge
+//!   cases and detectors, calibration, assembly, protrusions, doors, areas);
+//! - [`invalid_merge_eval`]: Holoch et al.'s forced merges and their results files, which
+//!   `mapmerge atlas --merge-results` also writes;
+//! - [`area_truth`]: door detection and the map manager scored against the simulator.
+//!
+//! The studies behind single tables are `examples/` of this crate (place recognition,
+//! retrieval, association at scale, grid-match crops, door traces, the simulator's speed).
+
+pub mod area_truth;
+mod areas_eval;
+mod assemble_eval;
+mod calibrate_eval;
+mod door_eval;
+mod eval;
+mod grid_merge_eval;
+pub mod invalid_merge_eval;
+mod protrusion_eval;
+
+pub use eval::{run as run_eval, EvalArgs, INDEX_HEADER};
+
+// What every command shares with the binary's (one definition, in `mapmerge-jobs`).
+pub(crate) use mapmerge_jobs::cli::{
+    bad_file, bad_input, check_resolution, job_error, load_posed_log, log_short_name, print_json,
+    progress_bar, read_config, read_log, BagTopics, PosedLog,
+};
