@@ -182,10 +182,6 @@ struct SelfSimilarityReport {
     joint_searched: usize,
     /// … and those that fit nowhere else (their views then count in full).
     joint_unique: usize,
-    /// Queries searched (`decisions.query_self_similarity`), and those that fit themselves
-    /// elsewhere.
-    queries: usize,
-    queries_self_similar: usize,
     seconds: f64,
 }
 
@@ -568,6 +564,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let revisiting = |e: &&EpochRevisit| e.revisit_travel_m >= REVISIT_MIN_M;
     let seconds = started.elapsed().as_secs_f64();
     let threshold = engine.params().decisions.self_similar_from_score;
+    let view_scores = mapmerge_engine::view_self_similarity(engine.events());
     let report = Report {
         epochs_revisiting: epoch_revisits
             .as_ref()
@@ -608,24 +605,19 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         } else {
             epochs.saturating_sub(1)
         },
-        hypotheses: engine.hypothesis_summary(),
+        hypotheses: mapmerge_engine::hypothesis_summary(engine.events()),
         epoch_outcomes: mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m()),
-        ambiguous_keyframes: engine.ambiguous_keyframes(),
+        ambiguous_keyframes: mapmerge_engine::ambiguous_views(engine.events()).len(),
         self_similarity: SelfSimilarityReport {
-            views: engine.view_self_similarity().len(),
-            self_similar: fitting_elsewhere(engine.view_self_similarity().values(), threshold),
+            views: view_scores.len(),
+            self_similar: fitting_elsewhere(view_scores.values(), threshold),
             joint_searched: engine.joint_self_similarity().len(),
             joint_unique: engine.joint_self_similarity().len()
                 - fitting_elsewhere(engine.joint_self_similarity().values(), threshold),
-            queries: engine.query_self_similarity().len(),
-            queries_self_similar: fitting_elsewhere(
-                engine.query_self_similarity().values(),
-                threshold,
-            ),
             seconds: engine.self_similarity_seconds(),
         },
         tracker: engine.tracker_info(),
-        constraints: engine.constraint_info(),
+        constraints: engine.atlas().constraint_info(),
         merges,
         unmerges,
         pictures,

@@ -11,7 +11,7 @@ use mapmerge_grid::{ClassThresholds, OccupancyGrid};
 use mapmerge_io::{MapMode, RosMap};
 use mapmerge_render::{Picture, PictureStyle, Rgb};
 use mapmerge_scan::LaserLog;
-use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, World, WorldPreset};
+use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, SlipSchedule, World, WorldPreset};
 use serde::Serialize;
 
 use crate::{bad_input, check_resolution, print_json};
@@ -193,7 +193,7 @@ fn params_of(args: &SimArgs) -> anyhow::Result<SimParams> {
     params.lidar.beam_count = args.beams;
     params.lidar.range_max_m = args.range_max;
     params.lidar.range_sigma_m = args.range_sigma;
-    params.odometry.slip_rate_per_min = args.slip_rate;
+    params.odometry.slip_schedule = SlipSchedule::by_time(args.slip_rate);
     params.kidnap.max_per_session = args.kidnaps;
     params.kidnap.probability = args.kidnap_probability;
     check_resolution(args.resolution)?;

@@ -15,10 +15,11 @@
 
 use mapmerge_atlas::{LoopEdge, LoopRecord, MapId, MergeId};
 use mapmerge_geometry::Se2;
-use mapmerge_hypothesis::{AmbiguityParams, FilterEvent, HypothesisFilterParams, HypothesisId};
+use mapmerge_hypothesis::{
+    AmbiguityParams, FilterEvent, HypothesisCounts, HypothesisFilterParams, HypothesisId,
+};
 use mapmerge_place::SelfSimilarityParams;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
-use mapmerge_verify::EpochAgreementParams;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -56,12 +57,6 @@ pub struct DecisionParams {
     /// where G' puts it; matches are observations of the conditional hypothesis (default:
     /// 2).
     pub confirm_every_keyframes: usize,
-    /// Without a conditional merge, the tentative merge hypothesis with the most
-    /// observations is checked the same way, every `confirm_every_keyframes` keyframes:
-    /// the newest keyframe verified where the hypothesis's estimate puts it in its map (the
-    /// two graphs joined rigidly, not optimised). Place recognition alone observes a place
-    /// once every several metres, often more rarely than hypotheses expire (default: false).
-    pub confirm_tentative: bool,
     /// A view of an inactive graph whose own local map fits itself at another place (a
     /// periodic or symmetric place: rack rows an aisle apart, a hall a half turn maps onto
     /// itself) is ambiguous (Sec. 5.3) from its first observation on: the search for that
@@ -76,19 +71,6 @@ pub struct DecisionParams {
     /// threshold: each view alone fits itself elsewhere, together they are one place
     /// (default: true).
     pub joint_views: bool,
-    /// A merge observation whose query, the robot's own local map at the matched keyframe,
-    /// fits itself at another place by the same search and threshold counts for nothing in
-    /// the conditional and full criteria, as an observation of an ambiguous view does
-    /// (default: false). The view's local map may not contain the period or symmetry (one
-    /// aisle, one half of a hall) that the robot's does.
-    pub query_self_similarity: bool,
-    /// When an epoch ends (a kidnap, a restart) while a merge is conditional, the epoch's
-    /// keyframes are verified where G' puts them (the overlap search: newest first, every
-    /// `overlap.stride`-th, within its limits) and the matches its hypothesis has not
-    /// observed yet count as its observations, each at its keyframe's travel; the merge is
-    /// made full if that meets the full criteria, else dropped as without it. The robot
-    /// cannot gather more evidence for a merge of an epoch it has left (default: false).
-    pub confirm_at_epoch_end: bool,
     /// A conditional merge not made full within this much travel since it became
     /// conditional is rejected (m) (Sec. 5.2: "if sufficient evidence for full acceptance
     /// presents itself, the conditional merge becomes a full merge. Otherwise, we undo
@@ -101,19 +83,6 @@ pub struct DecisionParams {
     /// 114 of 119 correct merges were made full within 5 m of becoming conditional. `null`
     /// keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
-    /// While a merge is conditional, the whole current epoch is compared with the other
-    /// epochs' scans near it in G' (`mapmerge_verify::epoch_agreement`): at the first
-    /// keyframe after the merge, every `epoch_agreement_every_m` of travel, and before the
-    /// merge is made full. A contradicting reading rejects it, as a detector would, and
-    /// each reading `1 − agreement` is recorded among the merge's readings as
-    /// `epoch_disagreement`. The window detectors see a few metres, while an epoch that came
-    /// from where the look-alike differs carries the contradiction in its older scans
-    /// (default: `null`, off: on the simulator's tuning seeds 11–20 correct merges read as
-    /// low as 0.84 where the world changed between sessions, and the wrong merges no other
-    /// check caught read 0.95–0.98).
-    pub epoch_agreement: Option<EpochAgreementParams>,
-    /// See `epoch_agreement` (m) (default: 2).
-    pub epoch_agreement_every_m: f64,
 }
 
 impl Default for DecisionParams {
@@ -129,16 +98,11 @@ impl Default for DecisionParams {
             conditional_reject_threshold: 0.5,
             recover: true,
             confirm_every_keyframes: 2,
-            confirm_tentative: false,
             probation_m: 10.0,
             self_similarity: Some(SelfSimilarityParams::default()),
             self_similar_from_score: 0.9,
             joint_views: true,
-            query_self_similarity: false,
-            confirm_at_epoch_end: false,
             conditional_max_m: Some(10.0),
-            epoch_agreement: None,
-            epoch_agreement_every_m: 2.0,
         }
     }
 }
@@ -230,18 +194,57 @@ pub struct MergeRecord {
 /// One method's readings over a merge's judging (see [`MergeRecord::readings`]).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct DetectorReading {
-    /// The detector (`mapmerge_verify::DETECTOR_NAMES`), or `epoch_disagreement`
-    /// ([`crate::EPOCH_DISAGREEMENT`]).
+    /// The detector or one of its components (`mapmerge_verify::DETECTOR_NAMES`).
     pub method: String,
     /// Its highest ratio (0 when never supported: unsupported ratios are 0).
     pub peak_ratio: f64,
     /// Vertices it judged.
     pub vertices: usize,
-    /// Vertices at which it had enough to compare (`mapmerge_verify::Evidence::Supported`).
+    /// Vertices at which it had enough to compare (`mapmerge_verify::RatioSupport::Supported`).
     pub supported_vertices: usize,
 }
 
 impl MergeRecord {
+    /// A merge decision as it is made in epoch `epoch` at scan and robot travel (m) `at`:
+    /// conditional (in G' only) without `merge`, full with the atlas's `merge`. `hypothesis`
+    /// is the merge hypothesis with its evidence (none for a forced merge: no observations),
+    /// `active_from_inactive` (`[x_m, y_m, yaw_rad]`) and `edges` the merge as made.
+    pub(crate) fn new(
+        epoch: u32,
+        at: (usize, f64),
+        hypothesis: Option<(HypothesisId, &HypothesisCounts)>,
+        map: MapId,
+        merge: Option<MergeId>,
+        active_from_inactive: [f64; 3],
+        edges: Vec<(NodeId, NodeId, Se2)>,
+    ) -> Self {
+        let (scan, travel_m) = at;
+        let full = merge.is_some();
+        Self {
+            hypothesis: hypothesis.map(|(id, _)| id.0),
+            epoch,
+            map: map.0,
+            state: if full {
+                MergeState::Full
+            } else {
+                MergeState::Conditional
+            },
+            conditional_at_scan: (!full).then_some(scan),
+            conditional_travel_m: (!full).then_some(travel_m),
+            full_at_scan: full.then_some(scan),
+            full_travel_m: full.then_some(travel_m),
+            merge: merge.map(|m| m.0),
+            ended_at_scan: None,
+            ended_travel_m: None,
+            reason: None,
+            observations: hypothesis.map_or(0, |(_, counts)| counts.observations),
+            views: hypothesis.map_or(0, |(_, counts)| counts.weighted_views.round() as usize),
+            active_from_inactive,
+            edges,
+            readings: Vec::new(),
+        }
+    }
+
     /// Adds one vertex's readings `(method, ratio, supported)`, in a fixed order per
     /// detector.
     pub(crate) fn note_readings(&mut self, readings: &[(&str, f64, bool)]) {
@@ -324,11 +327,11 @@ pub enum Decision {
         /// Their keyframe nodes.
         views: Vec<u64>,
     },
-    /// A local map was searched for itself elsewhere (`decisions.self_similarity`): an
-    /// inactive graph's view (`map` set) or the robot's own query keyframe (`map` none).
+    /// A view of an inactive graph was searched for its own local map elsewhere
+    /// (`decisions.self_similarity`).
     SelfSimilarity {
-        /// The inactive graph of the view; none for the active graph's query.
-        map: Option<MapId>,
+        /// The inactive graph of the view.
+        map: MapId,
         /// The keyframe node.
         node: u64,
         /// The best placement away from the identity, on the whole-map scale (0 when none).
@@ -358,8 +361,6 @@ pub(crate) struct Conditional {
     pub edges: Vec<LoopEdge>,
     /// G': the active graph with the inactive one merged in.
     pub graph: PoseGraph2,
-    /// Robot travel (m) when the whole epoch was last compared in G', if it was.
-    pub epoch_agreement_at_m: Option<f64>,
 }
 
 #[cfg(test)]
@@ -385,25 +386,47 @@ mod tests {
 
     #[test]
     fn a_record_measures_from_its_first_decision() {
-        let mut record = MergeRecord {
-            hypothesis: Some(3),
-            epoch: 1,
-            map: 0,
-            state: MergeState::Conditional,
-            conditional_at_scan: Some(10),
-            conditional_travel_m: Some(5.0),
-            full_at_scan: None,
-            full_travel_m: None,
-            merge: None,
-            ended_at_scan: None,
-            ended_travel_m: None,
-            reason: None,
+        let counts = HypothesisCounts {
             observations: 2,
-            views: 2,
-            active_from_inactive: [0.0; 3],
-            edges: Vec::new(),
-            readings: Vec::new(),
+            weighted_observations: 2.0,
+            weighted_views: 1.6,
+            view_spread_m: 1.0,
         };
+        let mut record = MergeRecord::new(
+            1,
+            (10, 5.0),
+            Some((HypothesisId(3), &counts)),
+            MapId(0),
+            None,
+            [0.0; 3],
+            Vec::new(),
+        );
+        assert_eq!(
+            (record.hypothesis, record.state, record.conditional_at_scan),
+            (Some(3), MergeState::Conditional, Some(10))
+        );
+        assert_eq!((record.observations, record.views), (2, 2));
+        assert_eq!((record.full_at_scan, record.merge), (None, None));
+        // Full at once (a forced merge): no hypothesis, no observations.
+        let forced = MergeRecord::new(
+            1,
+            (12, 6.0),
+            None,
+            MapId(0),
+            Some(MergeId(4)),
+            [0.0; 3],
+            Vec::new(),
+        );
+        assert_eq!(
+            (
+                forced.hypothesis,
+                forced.state,
+                forced.full_at_scan,
+                forced.merge
+            ),
+            (None, MergeState::Full, Some(12), Some(4))
+        );
+        assert_eq!((forced.conditional_at_scan, forced.observations), (None, 0));
         assert_eq!(record.ended_after_m(), None);
         assert_eq!(record.full_after_m(), None);
         record.full_travel_m = Some(7.5);
@@ -436,6 +459,27 @@ mod tests {
     }
 
     #[test]
+    fn removed_options_are_refused_by_name() {
+        for key in [
+            "confirm_tentative",
+            "query_self_similarity",
+            "confirm_at_epoch_end",
+            "epoch_agreement",
+            "epoch_agreement_every_m",
+        ] {
+            let text = format!(r#"{{"decisions": {{"{key}": null}}}}"#);
+            let error = serde_json::from_str::<crate::EngineParams>(&text)
+                .err()
+                .map(|e| e.to_string())
+                .unwrap_or_default();
+            assert!(
+                error.contains(&format!("unknown field `{key}`")),
+                "{key}: {error}"
+            );
+        }
+    }
+
+    #[test]
     fn decisions_round_trip_as_events_of_their_own_name() {
         let decisions = [
             Decision::ConditionalMerge {
@@ -459,14 +503,9 @@ mod tests {
             },
             Decision::AmbiguousViews { views: vec![7, 8] },
             Decision::SelfSimilarity {
-                map: Some(MapId(2)),
+                map: MapId(2),
                 node: 11,
                 score: 0.93,
-            },
-            Decision::SelfSimilarity {
-                map: None,
-                node: 12,
-                score: 0.0,
             },
         ];
         for decision in decisions {

@@ -16,9 +16,14 @@
 //!
 //! A kidnap, restart or tracking failure ends the epoch ([`Engine::end_epoch`]). Single-log
 //! SLAM is the same loop with one epoch ([`run_slam`]).
+//!
+//! The engine keeps the state it decides with; reports are read from its events
+//! ([`Engine::events`]): [`epoch_outcomes`], [`hypothesis_summary`], [`ambiguous_views`],
+//! [`view_self_similarity`].
 
 mod decisions;
 mod epochs;
+mod reports;
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -38,8 +43,8 @@ use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
 use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
 use mapmerge_verify::{
-    epoch_agreement, DetectorParams, DetectorScan, Evidence, InvalidMergeDetector, LearnedDetector,
-    LearnedModel, MergedMap,
+    DetectorParams, DetectorScan, InvalidMergeDetector, LearnedDetector, LearnedModel, MergedMap,
+    RatioSupport,
 };
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -52,6 +57,7 @@ pub use epochs::{epoch_outcomes, EpochEnd, EpochOutcome};
 /// Counters of the merge and recovery hypotheses (`created`, `merge`, `recovery`,
 /// `conditional`, `full`, `rejected_conditional`, `expired`).
 pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;
+pub use reports::{ambiguous_views, hypothesis_summary, view_self_similarity};
 
 /// What can go wrong.
 #[derive(Debug, thiserror::Error)]
@@ -91,11 +97,13 @@ pub enum EngineError {
 /// [`EngineParams::detector`] for no verification.
 pub const NO_DETECTOR: &str = "none";
 
-/// The reading `1 − agreement` of `decisions.epoch_agreement` among a merge's readings, and
-/// the name a conditional merge it rejects is rejected by.
-pub const EPOCH_DISAGREEMENT: &str = "epoch_disagreement";
-
 /// Parameters of the loop.
+///
+/// Absent fields keep their defaults; unknown fields are refused, at every level. A config
+/// that names a removed option, such as the decision options measured, rejected and deleted in
+/// issue 63 (`decisions.confirm_tentative`, `query_self_similarity`, `confirm_at_epoch_end`,
+/// `epoch_agreement`, `epoch_agreement_every_m`), fails with serde's "unknown field" error
+/// naming it, rather than running without it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct EngineParams {
@@ -220,9 +228,6 @@ pub struct Engine {
     /// Joint local maps of a hypothesis's self-similar views searched so far, by their
     /// sorted views, with their best other placement's score (`decisions.joint_views`).
     joint_self_similarity: std::collections::BTreeMap<Vec<u64>, f64>,
-    /// Queries (active-graph keyframes a merge observation was made from) searched so far,
-    /// by node, with their best other placement's score (`decisions.query_self_similarity`).
-    self_similarity_of_query: std::collections::BTreeMap<NodeId, f64>,
     /// Time spent in those searches (s).
     self_similarity_seconds: f64,
     /// The conditional merge and its graph copy G' (Sec. 5.2).
@@ -280,7 +285,6 @@ impl Engine {
             self_similarity,
             self_similarity_of_view: std::collections::BTreeMap::new(),
             joint_self_similarity: std::collections::BTreeMap::new(),
-            self_similarity_of_query: std::collections::BTreeMap::new(),
             self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
@@ -355,15 +359,6 @@ impl Engine {
         }
     }
 
-    /// The largest invalidity the detector reported for the newest merge decision (0 before
-    /// it judged one), from that record's readings.
-    pub fn max_invalidity(&self) -> f64 {
-        self.merge_log
-            .last()
-            .and_then(|r| r.readings.first())
-            .map_or(0.0, |r| r.peak_ratio)
-    }
-
     /// The active graph as it was just before the last merge or unmerge.
     pub fn before_last_change(&self) -> Option<&PoseGraph2> {
         self.before_last_change.as_ref()
@@ -374,37 +369,6 @@ impl Engine {
         &self.merge_log
     }
 
-    /// Counters of the constraint builder (loop search, recognition, optimisation).
-    pub fn constraint_info(&self) -> ConstraintInfo {
-        self.atlas.constraint_info()
-    }
-
-    /// Counters of the merge and recovery hypotheses.
-    pub fn hypothesis_summary(&self) -> HypothesisSummary {
-        self.filter.stats()
-    }
-
-    /// Keyframes marked ambiguous (Sec. 5.3).
-    pub fn ambiguous_keyframes(&self) -> usize {
-        self.ambiguity.ambiguous_views().len()
-    }
-
-    /// The keyframes marked ambiguous (Sec. 5.3), by node.
-    pub fn ambiguous_views(&self) -> Vec<NodeId> {
-        self.ambiguity
-            .ambiguous_views()
-            .iter()
-            .map(|v| NodeId(*v))
-            .collect()
-    }
-
-    /// The views of inactive graphs searched for another placement of their own local map so
-    /// far, by node, with that placement's score (`decisions.self_similarity`); those from
-    /// `decisions.self_similar_from_score` on are ambiguous.
-    pub fn view_self_similarity(&self) -> &std::collections::BTreeMap<NodeId, f64> {
-        &self.self_similarity_of_view
-    }
-
     /// Joint local maps of a merge hypothesis's self-similar views searched so far
     /// (`decisions.joint_views`), by their sorted views, with their best other placement's
     /// score; below `decisions.self_similar_from_score` the views counted in full.
@@ -412,14 +376,8 @@ impl Engine {
         &self.joint_self_similarity
     }
 
-    /// The queries searched for another placement of their own local map so far
-    /// (`decisions.query_self_similarity`), by node, with that placement's score.
-    pub fn query_self_similarity(&self) -> &std::collections::BTreeMap<NodeId, f64> {
-        &self.self_similarity_of_query
-    }
-
-    /// Time spent searching views (and joint sets of views, and queries) for another
-    /// placement of their own map (s).
+    /// Time spent searching views (and joint sets of views) for another placement of their
+    /// own map (s).
     pub fn self_similarity_seconds(&self) -> f64 {
         self.self_similarity_seconds
     }
@@ -456,11 +414,6 @@ impl Engine {
     pub fn end_epoch(&mut self, reason: EpochEndReason) -> Result<&[EngineEvent], EngineError> {
         let before = self.events.len();
         self.collect_events();
-        if self.params.decisions.confirm_at_epoch_end {
-            for hypothesis in self.confirm_conditional_at_epoch_end() {
-                self.accept_fully(hypothesis)?;
-            }
-        }
         let cleared = self.filter.clear();
         self.log_filter_events(cleared);
         if let Some(conditional) = self.conditional.take() {
@@ -629,12 +582,6 @@ impl Engine {
                 );
             }
         }
-        if self.conditional.is_none()
-            && decisions.confirm_tentative
-            && self.keyframes_in_epoch() % decisions.confirm_every_keyframes.max(1) == 0
-        {
-            merge_matches.extend(self.confirm_tentative());
-        }
         for (map, edge, covariance) in merge_matches {
             accepted_hypotheses.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
         }
@@ -655,9 +602,9 @@ impl Engine {
 
     /// A verified match of active keyframe `edge.active` against view `edge.inactive` of
     /// inactive graph `map` as a merge observation (Eq. 3), made at robot travel `travel_m`;
-    /// the view (and with `decisions.query_self_similarity` the query) is searched for
-    /// self-similarity first. A keyframe older than the robot's is brought into the robot's
-    /// frame along the active graph. Returns the hypotheses it made fully accepted.
+    /// the view is searched for self-similarity first. A keyframe older than the robot's is
+    /// brought into the robot's frame along the active graph. Returns the hypotheses it made
+    /// fully accepted.
     fn observe_merge_match(
         &mut self,
         map: MapId,
@@ -687,64 +634,19 @@ impl Engine {
                 .compose(&robot_from_inactive);
         }
         let view_self_similar = self.check_self_similarity(map, edge.inactive);
-        let query_self_similar = self.params.decisions.query_self_similarity
-            && self.check_query_self_similarity(edge.active);
         let observation = Observation {
             target: Target::Merge { map: map.0 },
             view: edge.inactive.0,
             robot: edge.active.0,
             robot_from_target: robot_from_inactive,
             covariance: self.params.decisions.observation_covariance(covariance),
-            ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0) || query_self_similar,
+            ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
             edge: ObservedEdge::Merge(edge),
         };
         let (id, accepted) = self.observe(observation, travel_m);
         let mut accepted: Vec<_> = accepted.into_iter().collect();
         if let (true, Some(id)) = (view_self_similar, id) {
             accepted.extend(self.count_jointly_unique_views(id, map));
-        }
-        accepted
-    }
-
-    /// The conditional merge's last chance when its epoch ends
-    /// (`decisions.confirm_at_epoch_end`): the epoch's keyframes are verified where G' puts
-    /// them, as the overlap search does, and each match its hypothesis has not observed yet
-    /// becomes an observation made at that keyframe's travel. Returns the hypotheses this
-    /// made fully accepted.
-    fn confirm_conditional_at_epoch_end(&mut self) -> Vec<Hypothesis<ObservedEdge>> {
-        let Some(conditional) = &self.conditional else {
-            return Vec::new();
-        };
-        let observed: BTreeSet<(NodeId, NodeId)> = self
-            .filter
-            .hypothesis(conditional.hypothesis)
-            .map(|h| {
-                merge_edges_of(h)
-                    .into_iter()
-                    .map(|e| (e.active, e.inactive))
-                    .collect()
-            })
-            .unwrap_or_default();
-        let map = conditional.map;
-        let nodes = self.atlas.current_epoch_nodes();
-        let confirmed =
-            self.atlas
-                .confirm_in_preview(&conditional.graph, map, &nodes, &self.verifier);
-        let mut accepted = Vec::new();
-        for edge in confirmed {
-            if observed.contains(&(edge.active, edge.inactive)) {
-                continue;
-            }
-            let Some(travel_in_epoch_m) = self
-                .atlas
-                .keyframes()
-                .record(edge.active)
-                .map(|k| k.travel_m)
-            else {
-                continue;
-            };
-            let travel_m = self.travel_before_epoch_m + travel_in_epoch_m;
-            accepted.extend(self.observe_merge_match(map, edge, &covariance_of(&edge), travel_m));
         }
         accepted
     }
@@ -761,7 +663,7 @@ impl Engine {
         };
         self.self_similarity_of_view.insert(node, score);
         self.log_decision(Decision::SelfSimilarity {
-            map: Some(map),
+            map,
             node: node.0,
             score,
         });
@@ -772,27 +674,6 @@ impl Engine {
             });
         }
         self_similar
-    }
-
-    /// Whether active-graph keyframe `node`, the query of a merge observation, has a local
-    /// map that fits itself at another place (`decisions.query_self_similarity`): a match is
-    /// only as unique as the less unique of its two places, and the robot's own map may show
-    /// the period or symmetry that the view's does not contain. Each query is searched once.
-    fn check_query_self_similarity(&mut self, node: NodeId) -> bool {
-        let threshold = self.params.decisions.self_similar_from_score;
-        if let Some(score) = self.self_similarity_of_query.get(&node) {
-            return *score >= threshold;
-        }
-        let Some(score) = self.self_similarity_score(|atlas| atlas.query_keyframe(node)) else {
-            return false;
-        };
-        self.self_similarity_of_query.insert(node, score);
-        self.log_decision(Decision::SelfSimilarity {
-            map: None,
-            node: node.0,
-            score,
-        });
-        score >= threshold
     }
 
     /// The score of the best placement of a local map on itself away from the identity (0
@@ -869,50 +750,11 @@ impl Engine {
         if score >= threshold {
             return None;
         }
-        // An observation from a query that fits itself elsewhere stays ambiguous
-        // (`decisions.query_self_similarity`): the views' joint map says nothing of it.
-        let queries = &self.self_similarity_of_query;
-        let outcome = self.filter.count_again(id, |o| {
-            self_similar.contains(&o.view)
-                && queries
-                    .get(&NodeId(o.robot))
-                    .is_none_or(|score| *score < threshold)
-        })?;
+        let outcome = self
+            .filter
+            .count_again(id, |o| self_similar.contains(&o.view))?;
         self.log_filter_events(outcome.events);
         outcome.accepted
-    }
-
-    /// The newest keyframe verified where the tentative merge hypothesis with the most
-    /// observations (the newest of equals) puts it (`decisions.confirm_tentative`).
-    fn confirm_tentative(&self) -> Vec<(MapId, LoopEdge, Matrix3<f64>)> {
-        let best = self
-            .filter
-            .hypotheses()
-            .filter(|h| h.state() == HypothesisState::Tentative)
-            .filter_map(|h| match h.target() {
-                Target::Merge { map } => Some((MapId(map), h)),
-                Target::Recovery => None,
-            })
-            .max_by(|(_, a), (_, b)| {
-                a.observations().len().cmp(&b.observations().len()).then(
-                    a.last_observation_travel_m()
-                        .total_cmp(&b.last_observation_travel_m()),
-                )
-            });
-        let (Some((map, hypothesis)), Some(node)) = (best, self.atlas.robot_node()) else {
-            return Vec::new();
-        };
-        let Some(active_from_inactive) = self.estimate_of(hypothesis) else {
-            return Vec::new();
-        };
-        if self.is_refused(map, &active_from_inactive) {
-            return Vec::new();
-        }
-        self.atlas
-            .confirm_at(map, node, &active_from_inactive, &self.verifier)
-            .into_iter()
-            .map(|edge| merge_match(map, edge))
-            .collect()
     }
 
     /// One observation into the filter; its events are logged. An observation the filter
@@ -1016,28 +858,18 @@ impl Engine {
             })
             .collect();
         let transform = mapmerge_atlas::pose_array(&preview.active_from_inactive);
-        self.merge_log.push(MergeRecord {
-            hypothesis: Some(id.0),
-            epoch: self.atlas.current_epoch().0,
-            map: map.0,
-            state: MergeState::Conditional,
-            conditional_at_scan: Some(self.scans),
-            conditional_travel_m: Some(self.travel_m()),
-            full_at_scan: None,
-            full_travel_m: None,
-            merge: None,
-            ended_at_scan: None,
-            ended_travel_m: None,
-            reason: None,
-            observations: counts.observations,
-            views: counts.weighted_views.round() as usize,
-            active_from_inactive: transform,
-            edges: edges
+        self.merge_log.push(MergeRecord::new(
+            self.atlas.current_epoch().0,
+            (self.scans, self.travel_m()),
+            Some((id, &counts)),
+            map,
+            None,
+            transform,
+            edges
                 .iter()
                 .map(|e| (e.inactive, e.active, e.inactive_from_active))
                 .collect(),
-            readings: Vec::new(),
-        });
+        ));
         self.log_decision(Decision::ConditionalMerge {
             hypothesis: id.0,
             map,
@@ -1051,7 +883,6 @@ impl Engine {
             record: self.merge_log.len() - 1,
             edges,
             graph: preview.graph,
-            epoch_agreement_at_m: None,
         });
         self.restart_detector();
         Ok(true)
@@ -1164,18 +995,6 @@ impl Engine {
                     }
                     return Ok(false);
                 }
-                if let Some(graph) = self
-                    .conditional
-                    .as_ref()
-                    .filter(|c| c.hypothesis == id)
-                    .filter(|_| self.params.decisions.epoch_agreement.is_some())
-                    .map(|c| &c.graph)
-                {
-                    let (current, other) = merged_map_scans(&self.atlas, graph);
-                    if self.conditional_contradicted_by_epoch(&current, &other) {
-                        return Ok(false);
-                    }
-                }
                 // Its edges: those G' had (observations and overlap loops) and any newer.
                 let conditional = self.conditional.take().filter(|c| c.hypothesis == id);
                 let mut edges = conditional
@@ -1202,26 +1021,15 @@ impl Engine {
                     },
                 };
                 let (event, merge_edges) = self.commit_merge(request)?;
-                let (scan, travel_m) = (self.scans, self.travel_m());
-                let record = MergeRecord {
-                    hypothesis: Some(id.0),
-                    epoch: self.atlas.current_epoch().0,
-                    map: map.0,
-                    state: MergeState::Full,
-                    conditional_at_scan: None,
-                    conditional_travel_m: None,
-                    full_at_scan: Some(scan),
-                    full_travel_m: Some(travel_m),
-                    merge: Some(event.merge.0),
-                    ended_at_scan: None,
-                    ended_travel_m: None,
-                    reason: None,
-                    observations: counts.observations,
-                    views: counts.weighted_views.round() as usize,
-                    active_from_inactive: event.active_from_inactive,
-                    edges: merge_edges,
-                    readings: Vec::new(),
-                };
+                let record = MergeRecord::new(
+                    self.atlas.current_epoch().0,
+                    (self.scans, self.travel_m()),
+                    Some((id, &counts)),
+                    map,
+                    Some(event.merge),
+                    event.active_from_inactive,
+                    merge_edges,
+                );
                 match conditional.and_then(|c| self.merge_log.get_mut(c.record)) {
                     Some(existing) => {
                         existing.state = MergeState::Full;
@@ -1243,54 +1051,6 @@ impl Engine {
                 Ok(true)
             }
         }
-    }
-
-    /// Whether the conditional merge's whole-epoch comparison is due: never made yet, or
-    /// `decisions.epoch_agreement_every_m` of travel ago.
-    fn epoch_agreement_due(&self) -> bool {
-        let Some(conditional) = &self.conditional else {
-            return false;
-        };
-        self.params.decisions.epoch_agreement.is_some()
-            && conditional.epoch_agreement_at_m.is_none_or(|at_m| {
-                self.travel_m() - at_m >= self.params.decisions.epoch_agreement_every_m
-            })
-    }
-
-    /// Compares the whole current epoch with the other epochs' scans near it
-    /// (`decisions.epoch_agreement`) in the conditional merge's G', whose scans are `current`
-    /// and `other`; a contradicting reading rejects the conditional merge. Returns whether
-    /// it did.
-    fn conditional_contradicted_by_epoch(
-        &mut self,
-        current: &[DetectorScan],
-        other: &[DetectorScan],
-    ) -> bool {
-        let travel_m = self.travel_m();
-        let (Some(params), Some(conditional)) = (
-            self.params.decisions.epoch_agreement.as_ref(),
-            self.conditional.as_mut(),
-        ) else {
-            return false;
-        };
-        conditional.epoch_agreement_at_m = Some(travel_m);
-        let Some(read) = epoch_agreement(&MergedMap { current, other }, params) else {
-            return false;
-        };
-        let disagreement = 1.0 - read.agreement;
-        if let Some(record) = self.merge_log.get_mut(conditional.record) {
-            record.note_readings(&[(EPOCH_DISAGREEMENT, disagreement, true)]);
-        }
-        if !read.contradicts(params) {
-            return false;
-        }
-        let note = format!("epoch agreement {:.3}", read.agreement);
-        let reason = RejectReason::Detector {
-            name: EPOCH_DISAGREEMENT.into(),
-            invalidity: disagreement,
-        };
-        self.reject_conditional(reason, note, true);
-        true
     }
 
     /// True while a full merge of this epoch can be undone and the newest is within its
@@ -1380,9 +1140,6 @@ impl Engine {
             }
         }
         let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
-        if self.epoch_agreement_due() && self.conditional_contradicted_by_epoch(&current, &other) {
-            return Ok(());
-        }
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
         };
@@ -1391,7 +1148,7 @@ impl Engine {
             other: &other,
         });
         let name = detector.name().to_owned();
-        let supported = |evidence| evidence == Evidence::Supported;
+        let supported = |evidence| evidence == RatioSupport::Supported;
         let readings: Vec<(&str, f64, bool)> =
             std::iter::once((detector.name(), invalidity, supported(detector.evidence())))
                 .chain(
@@ -1461,25 +1218,15 @@ impl Engine {
     ) -> Result<(), EngineError> {
         let (event, edges) =
             self.commit_merge(MergeRequest::forced(map, active_from_inactive, note))?;
-        self.merge_log.push(MergeRecord {
-            hypothesis: None,
-            epoch: self.atlas.current_epoch().0,
-            map: map.0,
-            state: MergeState::Full,
-            conditional_at_scan: None,
-            conditional_travel_m: None,
-            full_at_scan: Some(self.scans),
-            full_travel_m: Some(self.travel_m()),
-            merge: Some(event.merge.0),
-            ended_at_scan: None,
-            ended_travel_m: None,
-            reason: None,
-            observations: 0,
-            views: 0,
-            active_from_inactive: event.active_from_inactive,
+        self.merge_log.push(MergeRecord::new(
+            self.atlas.current_epoch().0,
+            (self.scans, self.travel_m()),
+            None,
+            map,
+            Some(event.merge),
+            event.active_from_inactive,
             edges,
-            readings: Vec::new(),
-        });
+        ));
         self.restart_detector();
         self.collect_events();
         Ok(())

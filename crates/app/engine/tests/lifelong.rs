@@ -8,12 +8,12 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
-use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState, EPOCH_DISAGREEMENT};
+use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
-use mapmerge_hypothesis::{FilterEvent, HypothesisId, RejectReason, Target};
+use mapmerge_hypothesis::{FilterEvent, RejectReason};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_sim::{simulate, SimParams};
-use mapmerge_verify::{EpochAgreementParams, LearnedModel};
+use mapmerge_verify::LearnedModel;
 
 /// Runs a simulated data set through the engine; checks the invariants after every scan and
 /// returns the engine and every keyframe's true pose.
@@ -97,7 +97,7 @@ fn run_with(
     engine.finish().unwrap();
     eprintln!(
         "{preset} seed {seed}: {undos} undos, {:?}",
-        engine.hypothesis_summary()
+        mapmerge_engine::hypothesis_summary(engine.events())
     );
     (engine, truth_of)
 }
@@ -173,7 +173,7 @@ fn evidence_decides_merges_and_wrong_ones_do_not_stay() {
             .filter(|r| r.conditional_at_scan.is_some())
             .count()
     );
-    let summary = engine.hypothesis_summary();
+    let summary = mapmerge_engine::hypothesis_summary(engine.events());
     assert!(summary.merge > 0 && summary.conditional >= 1);
     // Each epoch's outcome agrees with the merge log: an epoch with a full merge ended
     // merged, its hypotheses got that far, and the first epoch had nothing to merge into.
@@ -316,7 +316,6 @@ fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
     let reading = &record.readings[0];
     assert_eq!(reading.method, EngineParams::default().detector);
     assert!(reading.peak_ratio > EngineParams::default().unmerge_threshold);
-    assert_eq!(engine.max_invalidity(), reading.peak_ratio);
     assert!(reading.vertices >= 1 && reading.supported_vertices <= reading.vertices);
 }
 
@@ -378,7 +377,6 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
     let methods: Vec<&str> = record.readings.iter().map(|r| r.method.as_str()).collect();
     assert_eq!(methods, ["learned", "change_detection", "gridmap"]);
     assert!(record.readings[0].peak_ratio < 1e-6);
-    assert_eq!(engine.max_invalidity(), record.readings[0].peak_ratio);
     // The components saw the wrong merge for what it is.
     assert!(record.readings[1].peak_ratio > 0.3, "{:?}", record.readings);
     assert!(record
@@ -401,7 +399,7 @@ fn the_symmetric_hall_makes_a_view_ambiguous() {
     let mut engine_params = EngineParams::default();
     engine_params.decisions.self_similarity = None;
     let (engine, truth_of) = run_with(engine_params, "symmetric-hall", seed, sessions, duration);
-    let views = engine.ambiguous_views();
+    let views = mapmerge_engine::ambiguous_views(engine.events());
     assert!(!views.is_empty(), "no ambiguous view");
     // Where it is ambiguous: in a room of the symmetric block (the hall's halves, or a room
     // and its turned copy: rooms with an alias group).
@@ -434,14 +432,14 @@ fn a_view_whose_own_map_fits_itself_elsewhere_is_ambiguous_from_its_first_observ
     // wrong merges one aisle over were made on such views before this rule).
     let (engine, _) = run("warehouse", 7, 3, 120.0);
     let params = engine.params().decisions.clone();
-    let scores = engine.view_self_similarity();
+    let scores = mapmerge_engine::view_self_similarity(engine.events());
     assert!(
         !scores.is_empty(),
         "no view of an inactive graph was observed"
     );
-    let ambiguous: BTreeSet<NodeId> = engine.ambiguous_views().into_iter().collect();
+    let ambiguous = mapmerge_engine::ambiguous_views(engine.events());
     let mut marked = 0;
-    for (view, score) in scores {
+    for (view, score) in &scores {
         assert!((0.0..=1.0).contains(score), "{view}: {score}");
         if *score >= params.self_similar_from_score {
             marked += 1;
@@ -475,97 +473,9 @@ fn a_view_whose_own_map_fits_itself_elsewhere_is_ambiguous_from_its_first_observ
     let mut engine_params = EngineParams::default();
     engine_params.decisions.self_similarity = None;
     let (engine, _) = run_with(engine_params, "warehouse", 7, 3, 120.0);
-    assert!(engine.hypothesis_summary().merge > 0);
-    assert!(engine.view_self_similarity().is_empty());
+    assert!(mapmerge_engine::hypothesis_summary(engine.events()).merge > 0);
+    assert!(mapmerge_engine::view_self_similarity(engine.events()).is_empty());
     assert!(engine.joint_self_similarity().is_empty());
-}
-
-#[test]
-fn a_merge_observation_whose_query_fits_itself_elsewhere_counts_for_nothing() {
-    // Warehouse fitting seed 5: the robot's own local map in the racking fits itself an
-    // aisle over while some of the old map's views there do not (their local maps hold one
-    // aisle). Joint views are off, so nothing is counted again and a hypothesis's weighted
-    // observations can only grow by observations that count.
-    let mut engine_params = EngineParams::default();
-    engine_params.decisions.query_self_similarity = true;
-    engine_params.decisions.joint_views = false;
-    let (engine, _) = run_with(engine_params, "warehouse", 5, 3, 120.0);
-    let threshold = engine.params().decisions.self_similar_from_score;
-    let queries = engine.query_self_similarity();
-    assert!(
-        queries.values().any(|score| *score >= threshold),
-        "no self-similar query: {queries:?}"
-    );
-    let mut weighted: BTreeMap<HypothesisId, f64> = BTreeMap::new();
-    let mut checked = 0;
-    for event in engine.events() {
-        let EventKind::Hypothesis(FilterEvent::Updated {
-            id,
-            target: Target::Merge { .. },
-            robot,
-            counts,
-            ..
-        }) = event.event
-        else {
-            continue;
-        };
-        let query_score = queries.get(&NodeId(robot)).copied();
-        assert!(query_score.is_some(), "query {robot} was not searched");
-        if let (Some(before), Some(score)) = (weighted.get(&id), query_score) {
-            if score >= threshold {
-                checked += 1;
-                assert!(
-                    counts.weighted_observations <= *before + 1e-9,
-                    "hypothesis {id:?}: query {robot} fits itself elsewhere ({score}) but \
-                     counted ({before} -> {})",
-                    counts.weighted_observations
-                );
-            }
-        }
-        weighted.insert(id, counts.weighted_observations);
-    }
-    assert!(checked > 0, "no update from a self-similar query");
-    // Off by default: no query is searched.
-    let (engine, _) = run("warehouse", 5, 3, 120.0);
-    assert!(engine.hypothesis_summary().merge > 0);
-    assert!(engine.query_self_similarity().is_empty());
-}
-
-#[test]
-fn a_conditional_merge_confirmed_by_the_epochs_keyframes_is_made_full_when_the_epoch_ends() {
-    // Office fitting seed 9: the first later epoch's merge is conditional when the robot is
-    // kidnapped, 0.6 m after it became so; its keyframes verified where G' puts them make
-    // it full (`decisions.confirm_at_epoch_end`), and it is correct.
-    let mut engine_params = EngineParams::default();
-    engine_params.decisions.confirm_at_epoch_end = true;
-    let (engine, truth_of) = run_with(engine_params, "office", 9, 3, 120.0);
-    let epoch_ends: BTreeSet<usize> = engine
-        .events()
-        .iter()
-        .filter(|e| matches!(e.atlas(), Some(AtlasEvent::EpochEnded { .. })))
-        .map(|e| e.scan)
-        .collect();
-    let at_end: Vec<_> = engine
-        .merge_log()
-        .iter()
-        .filter(|r| r.full_at_scan.is_some_and(|s| epoch_ends.contains(&s)))
-        .collect();
-    assert!(!at_end.is_empty(), "no merge made full at an epoch's end");
-    for record in &at_end {
-        assert_eq!(record.state, MergeState::Full, "{record:?}");
-        assert!(record.conditional_at_scan.is_some(), "{record:?}");
-        assert_eq!(correct(&truth_of, &record.edges), Some(true), "{record:?}");
-    }
-    // Without the option the same hypotheses stay conditional when their epochs end.
-    let (engine, _) = run("office", 9, 3, 120.0);
-    for record in at_end {
-        let before = engine
-            .merge_log()
-            .iter()
-            .find(|r| r.hypothesis == record.hypothesis)
-            .unwrap_or_else(|| panic!("{record:?} not in the log without the option"));
-        assert_eq!(before.state, MergeState::Conditional, "{before:?}");
-    }
 }
 
 #[test]
@@ -613,45 +523,6 @@ fn a_conditional_merge_not_made_full_in_time_is_rejected() {
                     reason: RejectReason::Caller { note },
                     ..
                 }) if Some(id.0) == record.hypothesis && is_timeout(note)
-            )
-        });
-        assert!(rejected_in_filter, "{record:?}");
-    }
-}
-
-#[test]
-fn a_conditional_merge_the_whole_epoch_contradicts_is_rejected() {
-    // Office fitting seed 9 with `decisions.epoch_agreement` so strict that every reading
-    // over enough overlap contradicts: each conditional merge it reads is rejected before it
-    // can be made full, in the filter too, and its reading is recorded.
-    let mut engine_params = EngineParams::default();
-    assert_eq!(
-        engine_params.decisions.epoch_agreement, None,
-        "off by default"
-    );
-    engine_params.decisions.epoch_agreement = Some(EpochAgreementParams {
-        min_agreement: 1.01,
-        ..EpochAgreementParams::default()
-    });
-    let (engine, _) = run_with(engine_params, "office", 9, 3, 120.0);
-    let log = engine.merge_log();
-    let read: Vec<_> = log
-        .iter()
-        .filter(|r| r.readings.iter().any(|x| x.method == EPOCH_DISAGREEMENT))
-        .collect();
-    assert!(!read.is_empty(), "no conditional merge was read: {log:?}");
-    for record in &read {
-        assert_eq!(record.state, MergeState::Rejected, "{record:?}");
-        let note = record.reason.as_deref().unwrap_or_default();
-        assert!(note.starts_with("epoch agreement "), "{record:?}");
-        let rejected_in_filter = engine.events().iter().any(|e| {
-            matches!(
-                &e.event,
-                EventKind::Hypothesis(FilterEvent::Rejected {
-                    id,
-                    reason: RejectReason::Detector { name, .. },
-                    ..
-                }) if Some(id.0) == record.hypothesis && name == EPOCH_DISAGREEMENT
             )
         });
         assert!(rejected_in_filter, "{record:?}");

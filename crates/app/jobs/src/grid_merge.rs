@@ -9,7 +9,8 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, OccupancyGrid};
 use mapmerge_gridmatch::{match_grids, GridMatchParams, MatchHypothesis};
 use mapmerge_gridmerge::{
-    fuse, Decision, DecisionTable, FusionParams, MapKind, MapMetadata, MergeRequest, SensorKind,
+    fuse, DecisionTable, FusionParams, GridMergeDecision, GridMergeRequest, MapKind, MapMetadata,
+    SensorKind,
 };
 use mapmerge_io::{MapMode, RosMap};
 use mapmerge_render::{PairStyle, Picture};
@@ -22,7 +23,7 @@ pub const DEFAULT_HYPOTHESES: usize = 4;
 
 /// A transform in the report: B's map frame in A's map frame (m, rad).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Transform {
+pub struct TransformReport {
     /// Translation (m).
     pub x: f64,
     /// See `x`.
@@ -33,9 +34,9 @@ pub struct Transform {
 
 /// One hypothesis in the report.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct Hypothesis {
+pub struct HypothesisReport {
     /// B in A.
-    pub transform: Transform,
+    pub transform: TransformReport,
     /// Birk & Carpin's acceptance index ω.
     pub acceptance: f64,
     /// Andersone's SM.
@@ -58,7 +59,7 @@ pub struct GridMergeReport {
     /// Why not.
     pub reason: Option<String>,
     /// The best hypothesis (accepted or not): B in A, ω, SM, DM (cells).
-    pub transform: Option<Transform>,
+    pub transform: Option<TransformReport>,
     /// See `transform`.
     pub acceptance: Option<f64>,
     /// See `transform`.
@@ -70,7 +71,7 @@ pub struct GridMergeReport {
     /// See `seconds`.
     pub match_seconds: f64,
     /// The runners-up.
-    pub hypotheses: Vec<Hypothesis>,
+    pub hypotheses: Vec<HypothesisReport>,
     /// The decision table's matching and fusion procedure.
     pub procedure: Option<String>,
     /// The maps' cell sides (m).
@@ -158,17 +159,17 @@ pub fn grid_merge(
         Ok(GridMerged { report, merged })
     };
     // 1. Whether and how (Andersone Sec. 2.1).
-    let request = MergeRequest {
+    let request = GridMergeRequest {
         a: metadata(&map_a),
         b: metadata(&map_b),
         a_from_b: None,
     };
     let fusion = match DecisionTable::default().decide(&request) {
-        Decision::Merge(choice) => {
+        GridMergeDecision::Merge(choice) => {
             report.procedure = Some(format!("{:?} + {:?}", choice.matching, choice.fusion));
             FusionParams::default()
         }
-        Decision::Reject(rejection) => {
+        GridMergeDecision::Reject(rejection) => {
             report.reason = Some(format!("decision table: {}", rejection.message));
             return finish(report, None);
         }
@@ -189,8 +190,8 @@ pub fn grid_merge(
         let t = a_map_from_grid
             .compose(&h.a_from_b)
             .compose(&b_map_from_grid.inverse());
-        Hypothesis {
-            transform: Transform {
+        HypothesisReport {
+            transform: TransformReport {
                 x: t.x_m,
                 y: t.y_m,
                 yaw: t.theta_rad,

@@ -42,7 +42,8 @@ pub use assemble::{
 pub use atlas::{draw_graph, write_atlas};
 pub use error::{error_chain, JobError};
 pub use grid_merge::{
-    grid_merge, load_map, GridMergeReport, GridMerged, Hypothesis, Transform, DEFAULT_HYPOTHESES,
+    grid_merge, load_map, GridMergeReport, GridMerged, HypothesisReport, TransformReport,
+    DEFAULT_HYPOTHESES,
 };
 pub use optimize::{
     load_graph, numerical_failure_message, optimize_file, optimize_loaded, AlgorithmChoice,

@@ -20,15 +20,15 @@ use crate::{bad_input, MapmergeError};
 /// recognition (conditionally first), checks merges and undoes wrong ones. A kidnap or a
 /// restart ends the epoch (`end_epoch`). Events and merge decisions come out as the dicts of
 /// `events.jsonl`.
-#[pyclass(module = "mapmerge")]
-pub struct Atlas {
+#[pyclass(module = "mapmerge", name = "Atlas")]
+pub struct PyAtlas {
     /// The engine is `Send` but not `Sync` (its detector is a plain trait object); the lock
     /// makes the class shareable as PyO3 requires, and is never contended: `&mut self`
     /// methods take it without locking, through `get_mut`.
     engine: Mutex<Engine>,
 }
 
-impl Atlas {
+impl PyAtlas {
     /// The engine, for reading.
     fn engine(&self) -> PyResult<MutexGuard<'_, Engine>> {
         self.engine.lock().map_err(|_| poisoned())
@@ -63,7 +63,7 @@ fn events_list<'py>(
 }
 
 #[pymethods]
-impl Atlas {
+impl PyAtlas {
     /// A new atlas: epoch 0 starts.
     #[new]
     fn new(py: Python<'_>) -> PyResult<Self> {
@@ -178,7 +178,10 @@ impl Atlas {
     /// Counters of the merge and recovery hypotheses.
     #[getter]
     fn hypotheses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_python(py, &self.engine()?.hypothesis_summary())
+        to_python(
+            py,
+            &mapmerge_engine::hypothesis_summary(self.engine()?.events()),
+        )
     }
 
     /// Scans fed so far.

@@ -90,6 +90,6 @@ fn mapmerge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(maps::read_log, m)?)?;
     m.add_function(wrap_pyfunction!(maps::slam, m)?)?;
     m.add_function(wrap_pyfunction!(maps::assemble, m)?)?;
-    m.add_class::<atlas::Atlas>()?;
+    m.add_class::<atlas::PyAtlas>()?;
     Ok(())
 }

@@ -41,3 +41,9 @@ pub use so3::{
     exp_so3, left_jacobian_inverse_so3, left_jacobian_so3, log_so3, right_jacobian_inverse_so3,
     right_jacobian_so3,
 };
+
+/// A point in the plane (metres), in whatever frame its name says; every crate's `Point2`.
+pub type Point2 = nalgebra::Vector2<f64>;
+
+/// A point in space (metres), in whatever frame its name says; every crate's `Point3`.
+pub type Point3 = nalgebra::Vector3<f64>;

@@ -4,7 +4,8 @@ use mapmerge_grid::GridError;
 
 use crate::{DoorId, RoomId};
 
-/// Why a world could not be generated or a simulation could not run.
+/// Why a world could not be generated, a simulation could not run or a log could not be given
+/// odometry noise.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum SimError {
@@ -14,6 +15,14 @@ pub enum SimError {
         /// The name asked for.
         name: String,
         /// The valid names, comma-separated.
+        valid: String,
+    },
+    /// No odometry noise profile has this name.
+    #[error("unknown odometry noise profile `{name}`; known: {valid}")]
+    UnknownNoiseProfile {
+        /// The name asked for.
+        name: String,
+        /// The known names, comma-separated.
         valid: String,
     },
     /// A parameter is out of its range.
@@ -41,6 +50,13 @@ pub enum SimError {
     /// The world has no free space the robot fits in.
     #[error("world `{0}` has no free space for the robot")]
     NoFreeSpace(String),
+    /// A scan of a laser log carries no robot pose (e.g. `RAWLASER*`), so the log has no
+    /// trajectory to add odometry noise to.
+    #[error("scan {scan} carries no robot pose")]
+    MissingPose {
+        /// Index of the scan in the log.
+        scan: usize,
+    },
     /// The ground-truth grid could not be made.
     #[error("ground-truth grid: {0}")]
     Grid(#[from] GridError),

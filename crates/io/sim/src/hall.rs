@@ -26,7 +26,7 @@ use crate::furniture::{door_zone, furnish, FURNITURE_GAP_M};
 use crate::office::{generate_office, new_template, random_widths, OfficeParams, Template};
 use crate::rng::{derive_seed, stream_rng, uniform, SimRng, Stream};
 use crate::roadmap::unreachable_destinations;
-use crate::shapes::{Rect, Segment, Shape};
+use crate::shapes::{LineSegment, Rect, Shape};
 use crate::world::{DoorKind, ObstacleKind, RoomId, RoomKind, World};
 use crate::{Point2, SimError};
 
@@ -130,7 +130,7 @@ impl Frame {
                 half_size_m,
                 yaw_rad,
             } => Shape::oriented(self.turn_point(center_m), *half_size_m, yaw_rad + PI),
-            Shape::Segment(s) => Shape::Segment(Segment::new(
+            Shape::Segment(s) => Shape::Segment(LineSegment::new(
                 self.turn_point(&s.start_m),
                 self.turn_point(&s.end_m),
             )),
@@ -651,7 +651,9 @@ fn append(world: &mut World, part: &World, dx: f64, prefix: &str, skip: &Rect) {
                 half_size_m,
                 yaw_rad,
             },
-            Shape::Segment(s) => Shape::Segment(Segment::new(s.start_m + offset, s.end_m + offset)),
+            Shape::Segment(s) => {
+                Shape::Segment(LineSegment::new(s.start_m + offset, s.end_m + offset))
+            }
         };
         world.add_obstacle(obstacle.kind, shape, obstacle.room.map(map));
     }

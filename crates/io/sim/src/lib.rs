@@ -13,6 +13,10 @@
 //!   [`World::to_grid`] rasterises into the ground-truth occupancy grid.
 //! - [`Lidar`] and [`Roadmap`]: scans from any pose, and routes that keep clear of obstacles,
 //!   in any world (generated or hand-made).
+//! - [`add_odometry_noise`]: the simulator's wheel-odometry model (random noise, calibration,
+//!   slips; [`OdometryNoiseParams`]) applied to a *corrected* laser log, so a SLAM front-end can
+//!   be scored against the corrected poses ([`OdometryNoiseProfile`]: `default`, `harsh`,
+//!   `none`).
 //!
 //! ```
 //! use mapmerge_sim::{simulate, SimParams, WorldPreset};
@@ -40,6 +44,7 @@ mod hall;
 mod kidnap;
 mod lidar;
 mod motion;
+mod noisy_log;
 mod odometry;
 mod office;
 mod preset;
@@ -58,13 +63,18 @@ pub use error::SimError;
 pub use hall::SymmetricHallParams;
 pub use kidnap::{Kidnap, KidnapParams, KidnapTarget};
 pub use lidar::{Lidar, LidarParams};
+pub use mapmerge_geometry::Point2;
 pub use motion::{MotionInfo, RobotParams};
-pub use odometry::{OdometryNoiseParams, SlipEvent, SlipKind};
+pub use noisy_log::{
+    add_odometry_noise, scan_poses, NoisyLog, OdometryNoiseProfile, NOISE_PROFILE_NAMES,
+};
+pub use odometry::{OdometryNoiseParams, SlipEvent, SlipKind, SlipSchedule, SlipSpan};
 pub use office::OfficeParams;
 pub use preset::{generate_world, LayoutParams, WorldParams, WorldPreset};
 pub use ray_caster::{RayCaster, DEFAULT_CELL_M};
+pub use rng::{exponential, gaussian, gaussian_pair, seeded, uniform, uniform_drawn, SimRng};
 pub use roadmap::Roadmap;
-pub use shapes::{Rect, Segment, Shape};
+pub use shapes::{LineSegment, Rect, Shape};
 pub use simulate::{
     simulate, simulate_session_alone, Dataset, SessionData, SimParams, SCAN_SOURCE_TAG,
 };
@@ -73,6 +83,3 @@ pub use world::{
     Door, DoorId, DoorKind, Obstacle, ObstacleId, ObstacleKind, Room, RoomId, RoomKind, World,
     DOOR_LEAF_THICKNESS_M,
 };
-
-/// A point in the plane (m), in whatever frame its name says.
-pub type Point2 = nalgebra::Vector2<f64>;

@@ -4,7 +4,7 @@
 //! at the first cell whose exit lies beyond the nearest hit found so far.
 
 use crate::shapes::{point_segment_distance, segment_segment_distance, segments_intersect};
-use crate::{Point2, Segment, World};
+use crate::{LineSegment, Point2, World};
 
 /// Default cell side of the index (m): about one room-wall spacing in a corridor, so a beam
 /// crosses few cells and each cell holds few segments.
@@ -46,13 +46,13 @@ impl RayCaster {
     }
 
     /// The index of arbitrary segments with cells of `cell_m` (clamped to at least 5 cm).
-    pub fn from_segments(segments: &[Segment], cell_m: f64) -> Self {
+    pub fn from_segments(segments: &[LineSegment], cell_m: f64) -> Self {
         let cell_m = if cell_m.is_finite() {
             cell_m.max(0.05)
         } else {
             DEFAULT_CELL_M
         };
-        let finite: Vec<&Segment> = segments
+        let finite: Vec<&LineSegment> = segments
             .iter()
             .filter(|s| {
                 s.start_m
@@ -378,14 +378,16 @@ mod tests {
     use super::*;
     use std::f64::consts::PI;
 
-    fn square_room() -> Vec<Segment> {
+    fn square_room() -> Vec<LineSegment> {
         let c = [
             Point2::new(0.0, 0.0),
             Point2::new(4.0, 0.0),
             Point2::new(4.0, 4.0),
             Point2::new(0.0, 4.0),
         ];
-        (0..4).map(|i| Segment::new(c[i], c[(i + 1) % 4])).collect()
+        (0..4)
+            .map(|i| LineSegment::new(c[i], c[(i + 1) % 4]))
+            .collect()
     }
 
     #[test]

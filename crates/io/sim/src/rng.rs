@@ -1,5 +1,6 @@
 //! Seeded randomness: ChaCha8 (reproducible across platforms), independent streams derived
-//! from one seed, and a normal sampler (rand 0.9 has none without `rand_distr`).
+//! from one seed, and the samplers (normal, uniform, exponential; rand 0.9 has no normal without
+//! `rand_distr`), which `mapmerge-eval` draws with too.
 //!
 //! Every random decision of the simulator draws from a stream named by what it is for
 //! (world, session route, odometry noise, one scan's range noise, ...), so changing one
@@ -8,8 +9,8 @@
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// The generator every seeded function of this crate uses.
-pub(crate) type SimRng = ChaCha8Rng;
+/// The generator every seeded function of this crate (and of `mapmerge-eval`) uses.
+pub type SimRng = ChaCha8Rng;
 
 /// What a derived stream is for (mixed into its seed).
 #[derive(Clone, Copy, Debug)]
@@ -42,17 +43,17 @@ pub(crate) fn stream_rng(seed: u64, stream: Stream, index: u64) -> SimRng {
 }
 
 /// A generator seeded directly.
-pub(crate) fn seeded(seed: u64) -> SimRng {
+pub fn seeded(seed: u64) -> SimRng {
     SimRng::seed_from_u64(seed)
 }
 
-/// A standard normal sample (Box–Muller, one of the pair discarded).
-pub(crate) fn gaussian<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+/// A standard normal sample (Box–Muller, the cosine of the pair; the sine discarded).
+pub fn gaussian<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     gaussian_pair(rng).0
 }
 
-/// Two independent standard normal samples (Box–Muller).
-pub(crate) fn gaussian_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
+/// Two independent standard normal samples (Box–Muller): `(cosine, sine)`.
+pub fn gaussian_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
     // u1 in (0, 1] so that ln(u1) is finite.
     let u1 = 1.0 - rng.random::<f64>();
     let u2 = rng.random::<f64>();
@@ -61,17 +62,24 @@ pub(crate) fn gaussian_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
     (radius * c, radius * s)
 }
 
-/// A uniform sample from `[lo, hi]` (`lo` when the range is empty).
-pub(crate) fn uniform<R: Rng + ?Sized>(rng: &mut R, lo: f64, hi: f64) -> f64 {
+/// A uniform sample from `[lo, hi]`; `lo` when the range is empty, without drawing.
+pub fn uniform<R: Rng + ?Sized>(rng: &mut R, lo: f64, hi: f64) -> f64 {
     if hi > lo {
-        lo + (hi - lo) * rng.random::<f64>()
+        uniform_drawn(rng, lo, hi)
     } else {
         lo
     }
 }
 
+/// A uniform sample from `[lo, hi]` that draws even when the range is empty (and then gives
+/// `lo`), so that the stream after it does not depend on the range.
+pub fn uniform_drawn<R: Rng + ?Sized>(rng: &mut R, lo: f64, hi: f64) -> f64 {
+    lo + (hi - lo) * rng.random::<f64>()
+}
+
 /// An exponential sample with mean `mean`.
-pub(crate) fn exponential<R: Rng + ?Sized>(rng: &mut R, mean: f64) -> f64 {
+pub fn exponential<R: Rng + ?Sized>(rng: &mut R, mean: f64) -> f64 {
+    // 1 − u in (0, 1], so the logarithm is finite.
     -mean * (1.0 - rng.random::<f64>()).ln()
 }
 

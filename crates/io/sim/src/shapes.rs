@@ -106,14 +106,14 @@ impl Rect {
 
 /// A line segment from `start_m` to `end_m` (m).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Segment {
+pub struct LineSegment {
     /// First end point (m).
     pub start_m: Point2,
     /// Second end point (m).
     pub end_m: Point2,
 }
 
-impl Segment {
+impl LineSegment {
     /// The segment between two points.
     pub fn new(start_m: Point2, end_m: Point2) -> Self {
         Self { start_m, end_m }
@@ -125,7 +125,7 @@ impl Segment {
     }
 
     /// True when the two closed segments share a point (collinear overlaps included).
-    pub fn intersects(&self, other: &Segment) -> bool {
+    pub fn intersects(&self, other: &LineSegment) -> bool {
         segments_intersect(&self.start_m, &self.end_m, &other.start_m, &other.end_m)
     }
 
@@ -152,17 +152,19 @@ pub enum Shape {
         yaw_rad: f64,
     },
     /// An infinitely thin wall (hand-made worlds; the generators use rectangles).
-    Segment(Segment),
+    Segment(LineSegment),
 }
 
 impl Shape {
     /// The boundary as segments (one for a [`Shape::Segment`], four otherwise).
-    pub fn edges(&self) -> Vec<Segment> {
+    pub fn edges(&self) -> Vec<LineSegment> {
         match self {
             Shape::Segment(segment) => vec![*segment],
             _ => {
                 let c = self.corners_m();
-                (0..4).map(|i| Segment::new(c[i], c[(i + 1) % 4])).collect()
+                (0..4)
+                    .map(|i| LineSegment::new(c[i], c[(i + 1) % 4]))
+                    .collect()
             }
         }
     }
@@ -231,7 +233,7 @@ impl Shape {
     /// a multiple of 90° stay rectangles; other turns give boxes.
     pub fn transformed(&self, b_from_a: &Se2) -> Shape {
         match self {
-            Shape::Segment(segment) => Shape::Segment(Segment::new(
+            Shape::Segment(segment) => Shape::Segment(LineSegment::new(
                 b_from_a.transform_point(&segment.start_m),
                 b_from_a.transform_point(&segment.end_m),
             )),
@@ -360,10 +362,10 @@ mod tests {
 
     #[test]
     fn segment_tests() {
-        let a = Segment::new(Point2::new(0.0, 0.0), Point2::new(2.0, 0.0));
-        let b = Segment::new(Point2::new(1.0, -1.0), Point2::new(1.0, 1.0));
-        let c = Segment::new(Point2::new(3.0, -1.0), Point2::new(3.0, 1.0));
-        let touching = Segment::new(Point2::new(2.0, 0.0), Point2::new(2.0, 1.0));
+        let a = LineSegment::new(Point2::new(0.0, 0.0), Point2::new(2.0, 0.0));
+        let b = LineSegment::new(Point2::new(1.0, -1.0), Point2::new(1.0, 1.0));
+        let c = LineSegment::new(Point2::new(3.0, -1.0), Point2::new(3.0, 1.0));
+        let touching = LineSegment::new(Point2::new(2.0, 0.0), Point2::new(2.0, 1.0));
         assert!(a.intersects(&b) && !a.intersects(&c) && a.intersects(&touching));
         let d = segment_segment_distance(&a.start_m, &a.end_m, &c.start_m, &c.end_m);
         assert!((d - 1.0).abs() < 1e-12);

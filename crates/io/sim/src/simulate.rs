@@ -14,7 +14,10 @@ use serde::{Deserialize, Serialize};
 use crate::changes::{change_world, ChangeParams, WorldChange};
 use crate::kidnap::{schedule_kidnaps, Kidnap, KidnapParams};
 use crate::motion::{drive, DriveSetup, MotionInfo, RobotParams};
-use crate::odometry::{integrate_odometry, schedule_slips, OdometryNoiseParams, SlipEvent};
+use crate::odometry::{
+    integrate_odometry, schedule_slips_by_time, OdometryNoiseParams, SlipEvent, SlipSchedule,
+    SlipSpan,
+};
 use crate::rng::{derive_seed, stream_rng, uniform, Stream};
 use crate::world::RoomId;
 use crate::{
@@ -148,6 +151,13 @@ impl SimParams {
         self.robot.validate()?;
         self.lidar.validate()?;
         self.odometry.validate()?;
+        if !matches!(self.odometry.slip_schedule, SlipSchedule::ByTime { .. }) {
+            return bad(
+                "odometry.slip_schedule",
+                "the simulator schedules slips over robot time (slip_rate_per_min, \
+                 slip_duration_min_secs, slip_duration_max_secs)",
+            );
+        }
         self.kidnap.validate()
     }
 }
@@ -372,7 +382,7 @@ fn simulate_session(
     );
     // 4. Schedules.
     let kidnap_times = schedule_kidnaps(&mut kidnap_rng, &params.kidnap, duration);
-    let slips = schedule_slips(&mut odometry_rng, &params.odometry, duration);
+    let slips = schedule_slips_by_time(&mut odometry_rng, &params.odometry, duration);
     // 5. True motion.
     let setup = DriveSetup {
         world: &world,
@@ -455,9 +465,12 @@ fn simulate_session(
     let slips = slips
         .into_iter()
         .map(|s| SlipEvent {
-            start_secs: stamp0 + s.start_secs,
-            end_secs: stamp0 + s.end_secs,
-            ..s
+            span: SlipSpan::Time {
+                start_secs: stamp0 + s.start,
+                end_secs: stamp0 + s.end,
+            },
+            kind: s.kind,
+            factor: s.factor,
         })
         .collect();
     let mut log_params = BTreeMap::new();

@@ -6,7 +6,7 @@ use std::fmt;
 use mapmerge_geometry::Se2;
 use serde::{Deserialize, Serialize};
 
-use crate::shapes::{Rect, Segment, Shape};
+use crate::shapes::{LineSegment, Rect, Shape};
 use crate::{Point2, SimError};
 
 /// Thickness of a closed door's leaf (m).
@@ -159,9 +159,9 @@ impl Door {
     }
 
     /// The segment across the doorway, in the middle of the wall, from jamb to jamb.
-    pub fn span(&self) -> Segment {
+    pub fn span(&self) -> LineSegment {
         let half = self.wall_direction() * (0.5 * self.width_m);
-        Segment::new(self.center_m - half, self.center_m + half)
+        LineSegment::new(self.center_m - half, self.center_m + half)
     }
 
     /// The point `distance_m` from the door's centre on the side of `rooms[side]` (0 or 1).
@@ -331,7 +331,7 @@ impl World {
     }
 
     /// Every obstacle's boundary segments, obstacle by obstacle.
-    pub fn segments(&self) -> Vec<Segment> {
+    pub fn segments(&self) -> Vec<LineSegment> {
         self.obstacles
             .iter()
             .flat_map(|o| o.shape.edges())

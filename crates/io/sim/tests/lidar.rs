@@ -8,7 +8,7 @@ use std::f64::consts::{FRAC_PI_4, PI};
 
 use mapmerge_geometry::Se2;
 use mapmerge_sim::{
-    Lidar, LidarParams, ObstacleKind, Point2, RayCaster, Rect, Segment, Shape, World,
+    Lidar, LidarParams, LineSegment, ObstacleKind, Point2, RayCaster, Rect, Shape, World,
 };
 use proptest::prelude::*;
 
@@ -25,7 +25,7 @@ fn room() -> World {
     for i in 0..4 {
         world.add_obstacle(
             ObstacleKind::Wall,
-            Shape::Segment(Segment::new(c[i], c[(i + 1) % 4])),
+            Shape::Segment(LineSegment::new(c[i], c[(i + 1) % 4])),
             None,
         );
     }
@@ -134,7 +134,10 @@ fn nothing_in_range_reads_max_range_and_dropouts_too() {
     let mut world = World::new("wall");
     world.add_obstacle(
         ObstacleKind::Wall,
-        Shape::Segment(Segment::new(Point2::new(5.0, -1.0), Point2::new(5.0, 1.0))),
+        Shape::Segment(LineSegment::new(
+            Point2::new(5.0, -1.0),
+            Point2::new(5.0, 1.0),
+        )),
         None,
     );
     let params = LidarParams {
@@ -226,9 +229,9 @@ proptest! {
         origin in (-12.0f64..12.0, -12.0f64..12.0),
         angles in prop::collection::vec(-PI..PI, 20),
     ) {
-        let segments: Vec<Segment> = raw
+        let segments: Vec<LineSegment> = raw
             .iter()
-            .map(|&(a, b, c, d)| Segment::new(Point2::new(a, b), Point2::new(c, d)))
+            .map(|&(a, b, c, d)| LineSegment::new(Point2::new(a, b), Point2::new(c, d)))
             .collect();
         let caster = RayCaster::from_segments(&segments, cell_m);
         let origin = Point2::new(origin.0, origin.1);

@@ -7,6 +7,7 @@ mod common;
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_sim::{
     simulate, ChangeParams, KidnapParams, OdometryNoiseParams, SessionData, SimParams, SlipKind,
+    SlipSchedule,
 };
 
 fn params(odometry: OdometryNoiseParams, sessions: usize, duration_secs: f64) -> SimParams {
@@ -107,9 +108,11 @@ fn drift_grows_with_time() {
 #[test]
 fn slips_happen_at_the_configured_rate_and_scale_the_odometry() {
     let noise = OdometryNoiseParams {
-        slip_rate_per_min: 3.0,
-        slip_duration_min_secs: 2.0,
-        slip_duration_max_secs: 2.0,
+        slip_schedule: SlipSchedule::ByTime {
+            rate_per_min: 3.0,
+            duration_min_secs: 2.0,
+            duration_max_secs: 2.0,
+        },
         ..OdometryNoiseParams::perfect()
     };
     let dataset = simulate(&params(noise, 1, 1800.0), 4).unwrap();
@@ -127,8 +130,8 @@ fn slips_happen_at_the_configured_rate_and_scale_the_odometry() {
     {
         let inside: Vec<usize> = (0..session.truth.len())
             .filter(|&i| {
-                session.truth[i].0 >= slip.start_secs + 0.2
-                    && session.truth[i].0 <= slip.end_secs - 0.2
+                session.truth[i].0 >= slip.span.start() + 0.2
+                    && session.truth[i].0 <= slip.span.end() - 0.2
             })
             .collect();
         let (Some(&a), Some(&b)) = (inside.first(), inside.last()) else {
@@ -160,4 +163,11 @@ fn slips_happen_at_the_configured_rate_and_scale_the_odometry() {
         checked >= 5,
         "only {checked} translation slips while driving"
     );
+}
+
+#[test]
+fn the_simulator_refuses_slips_over_wheel_travel() {
+    let noise = mapmerge_sim::OdometryNoiseProfile::default();
+    let err = simulate(&params(noise, 1, 10.0), 1).unwrap_err();
+    assert!(err.to_string().contains("robot time"), "{err}");
 }

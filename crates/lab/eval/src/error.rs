@@ -32,13 +32,6 @@ pub enum EvalError {
         /// What is wrong with it.
         reason: String,
     },
-    /// A scan of a laser log carries no robot pose (e.g. `RAWLASER*`), so the log has no
-    /// trajectory to add noise to or to score.
-    #[error("scan {scan} carries no robot pose")]
-    MissingPose {
-        /// Index of the scan in the log.
-        scan: usize,
-    },
     /// Two trajectories keyed by scan index differ in length.
     #[error("{what}: {estimate} estimated poses vs {reference} reference poses (poses pair by scan index)")]
     LengthMismatch {

@@ -13,7 +13,8 @@
 //!   the best rigid alignment ([`align_rigid`], Horn/Umeyama without scale).
 //! - [`add_odometry_noise`]: seeded wheel-odometry noise (random, calibration, wheel slips) for
 //!   a *corrected* laser log, so a SLAM front-end can be scored against the corrected poses
-//!   ([`OdometryNoiseProfile`]: `default`, `harsh`, `none`).
+//!   ([`OdometryNoiseProfile`]: `default`, `harsh`, `none`). Re-exported from `mapmerge-sim`,
+//!   which owns the one odometry model (the simulator's wheel odometry).
 //! - [`make_relations`] / [`relations_error`]: the relations metric of Kümmerle et al. 2009
 //!   ("On measuring the accuracy of SLAM algorithms"), with [`absolute_trajectory_error`] and
 //!   [`relative_pose_error`] on scan-indexed planar trajectories ([`trajectory_report`]).
@@ -66,21 +67,19 @@
 //! ```
 
 mod error;
-mod odometry_noise;
 mod outliers;
 mod pose;
 mod relations;
 mod revisit;
-mod rng;
 mod roc;
 mod score;
 mod simulate;
 mod trajectory;
 
 pub use error::EvalError;
-pub use odometry_noise::{
-    add_odometry_noise, scan_poses, NoisyLog, OdometryNoiseProfile, SlipEvent, SlipKind,
-    NOISE_PROFILE_NAMES,
+pub use mapmerge_sim::{
+    add_odometry_noise, scan_poses, NoisyLog, OdometryNoiseParams, OdometryNoiseProfile, SlipEvent,
+    SlipKind, SlipSchedule, SlipSpan, NOISE_PROFILE_NAMES,
 };
 pub use outliers::{
     add_false_loop_closures, add_false_loop_closures_with, count_loop_closures, false_loop_count,

@@ -8,12 +8,12 @@
 //! itself, so that a false edge weighs as much as a true one whatever the dataset's scale.
 
 use mapmerge_posegraph::{Edge, EdgeId, EdgeKind, NodeId, PoseGraph};
+use mapmerge_sim::seeded;
 use nalgebra::SMatrix;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::pose::EvalPose;
-use crate::rng::seeded;
 use crate::EvalError;
 
 /// How the relative pose of a false loop closure is drawn.

@@ -1,10 +1,9 @@
 //! What the evaluation helpers need from a pose type beyond [`LieGroup`].
 
 use mapmerge_geometry::{LieGroup, Se2, Se3};
+use mapmerge_sim::gaussian;
 use nalgebra::{UnitQuaternion, Vector3};
 use rand::Rng;
-
-use crate::rng::gaussian;
 
 /// A pose type the evaluation helpers can handle: [`Se2`] and [`Se3`].
 pub trait EvalPose<const D: usize>: LieGroup<D> {

@@ -7,11 +7,11 @@ use std::collections::HashMap;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, Vertex};
+use mapmerge_sim::{gaussian, seeded, SimRng};
 use nalgebra::Matrix3;
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::rng::{gaussian, seeded};
 use crate::EvalError;
 
 /// Parameters of [`simulate_manhattan_2d`].
@@ -176,7 +176,7 @@ pub fn simulate_manhattan_2d(
         1.0 / (params.sigma_xy_m * params.sigma_xy_m),
         1.0 / (params.sigma_theta_rad * params.sigma_theta_rad),
     ));
-    let noisy_measurement = |from: &Se2, to: &Se2, rng: &mut rand_chacha::ChaCha8Rng| {
+    let noisy_measurement = |from: &Se2, to: &Se2, rng: &mut SimRng| {
         let noise = Se2::new(
             gaussian(rng) * params.sigma_xy_m,
             gaussian(rng) * params.sigma_xy_m,

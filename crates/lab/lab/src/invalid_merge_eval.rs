@@ -113,7 +113,9 @@ use mapmerge_place::{GeometricVerifier, Keyframe, PlaceIndex, ScanContext, ScanM
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use mapmerge_scan::{BeamFilter, LaserLog, Point2};
 use mapmerge_slam::ScanAnchors;
-use mapmerge_verify::{DetectorParams, Evidence, InvalidMergeDetector, MergedMap, DETECTOR_NAMES};
+use mapmerge_verify::{
+    DetectorParams, InvalidMergeDetector, MergedMap, RatioSupport, DETECTOR_NAMES,
+};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -377,7 +379,7 @@ pub struct MergeResult {
     pub kind: String,
     /// The case's log.
     pub log: String,
-    /// New vertices at which the detector had enough to compare ([`Evidence::Supported`]);
+    /// New vertices at which the detector had enough to compare ([`RatioSupport::Supported`]);
     /// 0 of `vertices`: the merge was *unsupported* (nothing it claims could be checked).
     /// Absent in older files.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -1469,7 +1471,7 @@ struct TraceEntry {
     scan: usize,
     invalidity: f64,
     support: Option<u64>,
-    evidence: Evidence,
+    evidence: RatioSupport,
     /// What the trace adds (only when tracing).
     diagnostics: Option<Diagnostics>,
 }
@@ -1557,7 +1559,7 @@ struct TraceLine<'a> {
     /// What the ratio rests on (`InvalidMergeDetector::support`), `null` if not counted.
     support: Option<u64>,
     /// Whether that was enough (`supported`) or not (`unsupported`).
-    evidence: Evidence,
+    evidence: RatioSupport,
     /// The newest keyframe's misalignment against the corrected poses (valid cases).
     #[serde(skip_serializing_if = "Option::is_none")]
     local_error: Option<LocalError>,
@@ -1662,7 +1664,7 @@ fn evaluate_case(
             outcome.seconds += started.elapsed().as_secs_f64();
             outcome.vertices += 1;
             let evidence = detector.evidence();
-            if evidence == Evidence::Supported {
+            if evidence == RatioSupport::Supported {
                 outcome.supported_vertices += 1;
             }
             outcome.trace.push(TraceEntry {

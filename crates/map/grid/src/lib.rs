@@ -23,11 +23,9 @@ pub use error::GridError;
 pub use free_space::FreeSpace;
 pub use geometry::{Cell, GridGeometry};
 pub use local_maps::{LocalMap, LocalMapParams, LocalMaps, RenderInfo};
+pub use mapmerge_geometry::Point2;
 pub use morphology::{CellMask, DistanceField};
 pub use occupancy::{
     log_odds_of, probability_of, CellClass, ClassThresholds, OccupancyGrid, SensorModel, MAX_CELLS,
 };
 pub use raycast::{traverse, traverse_cells, InsertInfo, InsertParams};
-
-/// A point in the plane (metres).
-pub type Point2 = nalgebra::Vector2<f64>;

@@ -22,9 +22,7 @@ mod overlay;
 mod pair;
 mod picture;
 
+pub use mapmerge_geometry::Point2;
 pub use overlay::{session_color, GraphStyle};
 pub use pair::PairStyle;
 pub use picture::{Picture, PictureStyle, RenderError, Rgb};
-
-/// A point in the plane (metres).
-pub type Point2 = nalgebra::Vector2<f64>;

@@ -21,7 +21,5 @@ mod scan;
 
 pub use cloud::{estimate_normals, scan_normals, transform_points, voxel_downsample, PointNormal};
 pub use log::{LaserLog, OdometryReading, ScanRecord};
+pub use mapmerge_geometry::Point2;
 pub use scan::{BeamFilter, LaserScan};
-
-/// A point in the plane (metres), in whatever frame its name says.
-pub type Point2 = nalgebra::Vector2<f64>;

@@ -9,12 +9,12 @@ pub use mapmerge_place::submap_descriptor::{
     RingSpectrumDescriptor3, RingSpectrumParams, SubmapDescriptor, YawEstimate,
 };
 
-use crate::submap::Submap;
+use crate::submap::SegmentSubmap;
 
 /// Describes every submap, in parallel; rows are in submap order.
 pub fn describe_submaps<D: SubmapDescriptor, G: Sync>(
     descriptor: &D,
-    submaps: &[Submap<D::Point, G>],
+    submaps: &[SegmentSubmap<D::Point, G>],
 ) -> DescriptorRows
 where
     D::Point: Sync,

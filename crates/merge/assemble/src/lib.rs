@@ -26,7 +26,7 @@ pub use error::AssembleError;
 pub use optimize::{solve_group, solve_group_without, GroupGraphParams, GroupSolution};
 pub use segment::{Point3, Segment, Segment3, SegmentPoints};
 pub use submap::{
-    build_submaps, submap_centres, voxel_downsample, Submap, Submap2, Submap3, SubmapParams,
+    build_submaps, submap_centres, voxel_downsample, SegmentSubmap, Submap2, Submap3, SubmapParams,
     SubmapPoint, SubmapsOf,
 };
 pub use three_d::{

@@ -14,8 +14,7 @@ use nalgebra::Vector3;
 use crate::error::AssembleError;
 use crate::submap::SubmapPoint;
 
-/// A point in space (metres), in whatever frame its name says.
-pub type Point3 = Vector3<f64>;
+pub use mapmerge_geometry::Point3;
 
 /// What the submap builder reads from a segment, 2D or 3D.
 pub trait SegmentPoints: Sync {

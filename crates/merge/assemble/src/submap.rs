@@ -168,7 +168,7 @@ impl SubmapPoint for Point3 {
 
 /// One submap of a segment.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Submap<P, G> {
+pub struct SegmentSubmap<P, G> {
     /// Position in the segment's submap list (0, 1, …).
     pub index: usize,
     /// The scan the submap is centred on (its frame is that scan's robot frame).
@@ -187,12 +187,12 @@ pub struct Submap<P, G> {
 }
 
 /// The submaps of a segment of type `S`.
-pub type SubmapsOf<S> = Vec<Submap<<S as SegmentPoints>::Point, <S as SegmentPoints>::Pose>>;
+pub type SubmapsOf<S> = Vec<SegmentSubmap<<S as SegmentPoints>::Point, <S as SegmentPoints>::Pose>>;
 
 /// A submap of a 2D segment.
-pub type Submap2 = Submap<Point2, mapmerge_geometry::Se2>;
+pub type Submap2 = SegmentSubmap<Point2, mapmerge_geometry::Se2>;
 /// A submap of a 3D segment.
-pub type Submap3 = Submap<Point3, mapmerge_geometry::Se3>;
+pub type Submap3 = SegmentSubmap<Point3, mapmerge_geometry::Se3>;
 
 /// The centre scans: the first scan, then every scan whose travel since the previous centre
 /// reaches `spacing_m` (so consecutive centres are at least `spacing_m` apart along the
@@ -254,7 +254,7 @@ pub fn build_submaps<S: SegmentPoints>(
                     .ok()
                     .map(Arc::new)
             };
-            Some(Submap {
+            Some(SegmentSubmap {
                 index,
                 centre_scan: centre,
                 scan_range: (first, last),

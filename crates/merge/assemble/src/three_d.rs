@@ -34,7 +34,7 @@ use crate::associate::PreparedSegment;
 use crate::descriptor::{describe_submaps, RingSpectrumDescriptor3};
 use crate::error::AssembleError;
 use crate::segment::{Point3, Segment, Segment3, SegmentPoints};
-use crate::submap::{build_submaps, voxel_downsample, Submap, Submap2, SubmapParams};
+use crate::submap::{build_submaps, voxel_downsample, SegmentSubmap, Submap2, SubmapParams};
 
 /// Beams of the virtual 360° scan of each cloud (0.5° apart).
 const VIRTUAL_BEAMS: usize = 720;
@@ -158,7 +158,7 @@ pub fn prepare_3d(
                 submap_params.radius_m,
                 slice,
             );
-            Submap {
+            SegmentSubmap {
                 index: submap.index,
                 centre_scan: submap.centre_scan,
                 scan_range: submap.scan_range,

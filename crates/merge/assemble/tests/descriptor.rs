@@ -8,7 +8,7 @@ use std::f64::consts::{PI, TAU};
 
 use mapmerge_assemble::{
     cosine_distance, describe_submaps, Point3, RingSpectrumDescriptor, RingSpectrumDescriptor3,
-    Submap, SubmapDescriptor,
+    SegmentSubmap, SubmapDescriptor,
 };
 use mapmerge_geometry::wrap_angle_rad;
 use mapmerge_scan::Point2;
@@ -255,8 +255,8 @@ fn empty_input_gives_a_zero_descriptor_and_no_yaw() {
     let descriptor3 = RingSpectrumDescriptor3::default();
     assert!(descriptor3.describe(&[]).iter().all(|&v| v == 0.0));
     // Rows of submaps without points, in parallel.
-    let submaps: Vec<Submap<Point2, ()>> = (0..3)
-        .map(|index| Submap {
+    let submaps: Vec<SegmentSubmap<Point2, ()>> = (0..3)
+        .map(|index| SegmentSubmap {
             index,
             centre_scan: index,
             scan_range: (index, index),

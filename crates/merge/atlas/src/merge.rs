@@ -563,38 +563,6 @@ impl<B: BackupStore> Atlas<B> {
         )
     }
 
-    /// [`Atlas::confirm_in_preview`] for a merge not yet made: keyframe `node` verified
-    /// where inactive graph `map`, placed rigidly at `active_from_inactive` (nothing
-    /// optimised), puts the nearest of its vertices. Empty for an unknown map or vertex.
-    pub fn confirm_at(
-        &self,
-        map: MapId,
-        node: NodeId,
-        active_from_inactive: &Se2,
-        verifier: &dyn GeometricVerifier,
-    ) -> Vec<LoopEdge> {
-        let Some(inactive) = self.inactive.get(&map) else {
-            return Vec::new();
-        };
-        if !(active_from_inactive.is_finite() && self.active.contains_vertex(node)) {
-            return Vec::new();
-        }
-        let mut moved = inactive.clone();
-        moved.reanchor(active_from_inactive);
-        let mut joined = self.active.clone();
-        if joined.union(&moved, &[]).is_err() {
-            return Vec::new();
-        }
-        self.overlap_loops(
-            &joined,
-            &[node],
-            &moved,
-            &BTreeSet::new(),
-            GatedVerifier::new(verifier, self.params.merge.overlap.min_score),
-            None,
-        )
-    }
-
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):
     /// every merged inactive graph comes back from its backup exactly (poses, edges and their
     /// ids, metadata) under its old id; every other-epoch vertex leaves the active graph with
@@ -815,28 +783,6 @@ mod tests {
         };
         assert!(edges(true) > 0);
         assert_eq!(edges(false), 0);
-    }
-
-    #[test]
-    fn confirm_at_verifies_a_keyframe_where_the_transform_puts_it() {
-        let atlas = overlapping();
-        let fake = Fake {
-            offset: Se2::new(0.05, 0.0, 0.01),
-        };
-        let robot = atlas.robot_node().unwrap();
-        let here = atlas.confirm_at(MapId(0), robot, &Se2::identity(), &fake);
-        assert_eq!(here.len(), 1);
-        assert_eq!(here[0].active, robot);
-        // Nothing of the map within reach, an unknown map, a non-finite transform: nothing.
-        let far = Se2::new(50.0, 0.0, 0.0);
-        assert!(atlas.confirm_at(MapId(0), robot, &far, &fake).is_empty());
-        assert!(atlas
-            .confirm_at(MapId(7), robot, &Se2::identity(), &fake)
-            .is_empty());
-        let nan = Se2::new(f64::NAN, 0.0, 0.0);
-        assert!(atlas.confirm_at(MapId(0), robot, &nan, &fake).is_empty());
-        // The atlas is unchanged (a query, not a merge).
-        assert!(atlas.inactive(MapId(0)).is_some());
     }
 
     #[test]

@@ -50,6 +50,6 @@ mod params;
 mod raster;
 
 pub use error::{GridMatchError, Which};
-pub use matcher::{match_grids, GridMatch, MatchHypothesis, Rejection};
+pub use matcher::{match_grids, GridMatch, MatchHypothesis, MatchRejection};
 pub use metrics::{map_metrics, MapMetrics};
 pub use params::{AcceptanceParams, GridMatchParams};

@@ -51,7 +51,7 @@ pub struct MatchHypothesis {
 /// Why the best hypothesis was not accepted.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 #[non_exhaustive]
-pub enum Rejection {
+pub enum MatchRejection {
     /// No hypothesis at all (no rotation or translation peak).
     NoHypothesis,
     /// ω below `AcceptanceParams::min_acceptance`.
@@ -93,27 +93,27 @@ pub enum Rejection {
     },
 }
 
-impl std::fmt::Display for Rejection {
+impl std::fmt::Display for MatchRejection {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Rejection::NoHypothesis => write!(f, "no hypothesis"),
-            Rejection::LowAcceptance { acceptance, min } => {
+            MatchRejection::NoHypothesis => write!(f, "no hypothesis"),
+            MatchRejection::LowAcceptance { acceptance, min } => {
                 write!(f, "acceptance {acceptance:.3} below {min:.3}")
             }
-            Rejection::SmallOverlap { cells, min } => {
+            MatchRejection::SmallOverlap { cells, min } => {
                 write!(f, "overlap of {cells} cells below {min}")
             }
-            Rejection::HighDistance { dm_cells, max } => {
+            MatchRejection::HighDistance { dm_cells, max } => {
                 write!(f, "DM {dm_cells:.2} cells above {max:.2}")
             }
-            Rejection::Dominated {
+            MatchRejection::Dominated {
                 acceptance,
                 dm_cells,
             } => write!(
                 f,
                 "a runner-up agrees better (ω {acceptance:.3}) and lies closer (DM {dm_cells:.2} cells)"
             ),
-            Rejection::Ambiguous { margin, min } => {
+            MatchRejection::Ambiguous { margin, min } => {
                 write!(f, "margin {margin:.3} over the runner-up below {min:.3}")
             }
         }
@@ -128,7 +128,7 @@ pub struct GridMatch {
     /// Whether `hypotheses[0]` passes the acceptance rule.
     pub accepted: bool,
     /// Why not, when not accepted.
-    pub rejection: Option<Rejection>,
+    pub rejection: Option<MatchRejection>,
     /// `(best − runner_up) / best` of the scores; 1 without a runner-up.
     pub margin: f64,
     /// The common resolution the maps were matched at (m): the coarser one.
@@ -344,24 +344,26 @@ pub fn match_grids(
         _ => 0.0,
     };
     let rejection = match kept.first() {
-        None => Some(Rejection::NoHypothesis),
+        None => Some(MatchRejection::NoHypothesis),
         Some(best) if best.acceptance < params.acceptance.min_acceptance => {
-            Some(Rejection::LowAcceptance {
+            Some(MatchRejection::LowAcceptance {
                 acceptance: best.acceptance,
                 min: params.acceptance.min_acceptance,
             })
         }
-        Some(best) if best.metrics.overlap_cells < min_overlap => Some(Rejection::SmallOverlap {
-            cells: best.metrics.overlap_cells,
-            min: min_overlap,
-        }),
+        Some(best) if best.metrics.overlap_cells < min_overlap => {
+            Some(MatchRejection::SmallOverlap {
+                cells: best.metrics.overlap_cells,
+                min: min_overlap,
+            })
+        }
         Some(best) if best.metrics.dm_cells > params.acceptance.max_dm_cells => {
-            Some(Rejection::HighDistance {
+            Some(MatchRejection::HighDistance {
                 dm_cells: best.metrics.dm_cells,
                 max: params.acceptance.max_dm_cells,
             })
         }
-        Some(_) if margin < params.acceptance.min_margin => Some(Rejection::Ambiguous {
+        Some(_) if margin < params.acceptance.min_margin => Some(MatchRejection::Ambiguous {
             margin,
             min: params.acceptance.min_margin,
         }),
@@ -374,7 +376,7 @@ pub fn match_grids(
                     && r.metrics.overlap_cells >= min_overlap
                     && 2 * r.metrics.overlap_cells >= best.metrics.overlap_cells
             })
-            .map(|r| Rejection::Dominated {
+            .map(|r| MatchRejection::Dominated {
                 acceptance: r.acceptance,
                 dm_cells: r.metrics.dm_cells,
             }),

@@ -69,7 +69,7 @@ fn unknown_sensor() -> SensorKind {
 /// The two maps of a merge attempt: `a` is the receiving (own) map, `b` the other robot's.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct MergeRequest {
+pub struct GridMergeRequest {
     /// The receiving robot's map.
     pub a: MapMetadata,
     /// The other robot's map.
@@ -243,7 +243,7 @@ impl Default for DecisionTable {
 
 /// The procedures chosen for a merge attempt.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Choice {
+pub struct GridMergeChoice {
     /// Name of the record that matched.
     pub record: String,
     /// Its index in the table.
@@ -283,7 +283,7 @@ impl fmt::Display for WhichMap {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "reason", rename_all = "snake_case")]
 #[non_exhaustive]
-pub enum RejectReason {
+pub enum GridRejectReason {
     /// The metadata itself is unusable (non-finite or out-of-range values).
     InvalidMetadata {
         /// Field at fault, e.g. `b.resolution_m`.
@@ -336,29 +336,30 @@ pub enum RejectReason {
     },
 }
 
-impl RejectReason {
+impl GridRejectReason {
     /// How far a record got before this failure (pose, ratio, quality, sensor).
     fn stage(&self) -> u8 {
         match self {
-            RejectReason::InvalidMetadata { .. } | RejectReason::UnsupportedMapKinds { .. } => 0,
-            RejectReason::RelativePose { .. } => 1,
-            RejectReason::ResolutionRatio { .. } => 2,
-            RejectReason::QualityTooLow { .. } => 3,
-            RejectReason::SensorNotAccepted { .. } => 4,
+            GridRejectReason::InvalidMetadata { .. }
+            | GridRejectReason::UnsupportedMapKinds { .. } => 0,
+            GridRejectReason::RelativePose { .. } => 1,
+            GridRejectReason::ResolutionRatio { .. } => 2,
+            GridRejectReason::QualityTooLow { .. } => 3,
+            GridRejectReason::SensorNotAccepted { .. } => 4,
         }
     }
 }
 
-impl fmt::Display for RejectReason {
+impl fmt::Display for GridRejectReason {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            RejectReason::InvalidMetadata { field, problem } => {
+            GridRejectReason::InvalidMetadata { field, problem } => {
                 write!(f, "invalid metadata: {field} {problem}")
             }
-            RejectReason::UnsupportedMapKinds { a, b } => {
+            GridRejectReason::UnsupportedMapKinds { a, b } => {
                 write!(f, "no procedure merges a {b:?} map into a {a:?} map")
             }
-            RejectReason::RelativePose {
+            GridRejectReason::RelativePose {
                 record,
                 required,
                 actual,
@@ -371,11 +372,11 @@ impl fmt::Display for RejectReason {
                     PoseCondition::Any => "known or unknown",
                 }
             ),
-            RejectReason::ResolutionRatio { record, ratio, max } => write!(
+            GridRejectReason::ResolutionRatio { record, ratio, max } => write!(
                 f,
                 "record `{record}`: resolutions differ by {ratio:.3}:1, more than {max}:1"
             ),
-            RejectReason::QualityTooLow {
+            GridRejectReason::QualityTooLow {
                 record,
                 map,
                 quality,
@@ -384,7 +385,7 @@ impl fmt::Display for RejectReason {
                 f,
                 "record `{record}`: quality of map {map} is {quality:.3}, below {min}"
             ),
-            RejectReason::SensorNotAccepted { record, sensor } => {
+            GridRejectReason::SensorNotAccepted { record, sensor } => {
                 write!(f, "record `{record}` does not accept maps from {sensor:?}")
             }
         }
@@ -393,15 +394,15 @@ impl fmt::Display for RejectReason {
 
 /// A rejected attempt: the reason as data and as a sentence.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Rejection {
+pub struct GridMergeRejection {
     /// Why.
-    pub reason: RejectReason,
+    pub reason: GridRejectReason,
     /// `reason` in words.
     pub message: String,
 }
 
-impl From<RejectReason> for Rejection {
-    fn from(reason: RejectReason) -> Self {
+impl From<GridRejectReason> for GridMergeRejection {
+    fn from(reason: GridRejectReason) -> Self {
         Self {
             message: reason.to_string(),
             reason,
@@ -412,11 +413,11 @@ impl From<RejectReason> for Rejection {
 /// The outcome of [`DecisionTable::decide`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "decision", rename_all = "snake_case")]
-pub enum Decision {
+pub enum GridMergeDecision {
     /// Merge with these procedures.
-    Merge(Choice),
+    Merge(GridMergeChoice),
     /// Do not attempt the merge.
-    Reject(Rejection),
+    Reject(GridMergeRejection),
 }
 
 impl DecisionTable {
@@ -428,9 +429,9 @@ impl DecisionTable {
     /// condition of the record for the two map kinds that got furthest (the first tried among
     /// equals), or "unsupported kinds" when no record names them. Invalid metadata is
     /// rejected before any record is tried.
-    pub fn decide(&self, request: &MergeRequest) -> Decision {
+    pub fn decide(&self, request: &GridMergeRequest) -> GridMergeDecision {
         if let Err(reason) = validate(request) {
-            return Decision::Reject(reason.into());
+            return GridMergeDecision::Reject(reason.into());
         }
         let pose = pose_knowledge(request);
         let mut order: Vec<usize> = (0..self.records.len()).collect();
@@ -438,7 +439,7 @@ impl DecisionTable {
         order.sort_by_key(|&i| {
             core::cmp::Reverse(self.records.get(i).map_or(i32::MIN, |r| r.priority))
         });
-        let mut best_failure: Option<(u8, RejectReason)> = None;
+        let mut best_failure: Option<(u8, GridRejectReason)> = None;
         for index in order {
             let Some(record) = self.records.get(index) else {
                 continue;
@@ -457,7 +458,7 @@ impl DecisionTable {
                         (Some(a), Some(b)) if a != b => Some(a),
                         _ => None,
                     };
-                    return Decision::Merge(Choice {
+                    return GridMergeDecision::Merge(GridMergeChoice {
                         record: record.name.clone(),
                         record_index: index,
                         matching: record.matching,
@@ -477,17 +478,17 @@ impl DecisionTable {
             }
         }
         let reason = best_failure.map_or(
-            RejectReason::UnsupportedMapKinds {
+            GridRejectReason::UnsupportedMapKinds {
                 a: request.a.kind,
                 b: request.b.kind,
             },
             |(_, reason)| reason,
         );
-        Decision::Reject(reason.into())
+        GridMergeDecision::Reject(reason.into())
     }
 }
 
-fn pose_knowledge(request: &MergeRequest) -> PoseKnowledge {
+fn pose_knowledge(request: &GridMergeRequest) -> PoseKnowledge {
     if request.a_from_b.is_some() {
         PoseKnowledge::Given
     } else if !request.a.frame_id.is_empty() && request.a.frame_id == request.b.frame_id {
@@ -497,8 +498,8 @@ fn pose_knowledge(request: &MergeRequest) -> PoseKnowledge {
     }
 }
 
-fn validate(request: &MergeRequest) -> Result<(), RejectReason> {
-    let invalid = |field: &str, problem: String| RejectReason::InvalidMetadata {
+fn validate(request: &GridMergeRequest) -> Result<(), GridRejectReason> {
+    let invalid = |field: &str, problem: String| GridRejectReason::InvalidMetadata {
         field: field.into(),
         problem,
     };
@@ -537,16 +538,16 @@ fn validate(request: &MergeRequest) -> Result<(), RejectReason> {
 
 fn check_record(
     record: &DecisionRecord,
-    request: &MergeRequest,
+    request: &GridMergeRequest,
     pose: PoseKnowledge,
-) -> Result<(), RejectReason> {
+) -> Result<(), GridRejectReason> {
     let pose_ok = match record.relative_pose {
         PoseCondition::Any => true,
         PoseCondition::Known => pose.is_known(),
         PoseCondition::Unknown => !pose.is_known(),
     };
     if !pose_ok {
-        return Err(RejectReason::RelativePose {
+        return Err(GridRejectReason::RelativePose {
             record: record.name.clone(),
             required: record.relative_pose,
             actual: pose,
@@ -559,7 +560,7 @@ fn check_record(
     ) {
         let ratio = a.max(b) / a.min(b);
         if ratio > max {
-            return Err(RejectReason::ResolutionRatio {
+            return Err(GridRejectReason::ResolutionRatio {
                 record: record.name.clone(),
                 ratio,
                 max,
@@ -569,7 +570,7 @@ fn check_record(
     for (map, meta) in [(WhichMap::A, &request.a), (WhichMap::B, &request.b)] {
         if let Some(quality) = meta.quality {
             if quality < record.min_quality {
-                return Err(RejectReason::QualityTooLow {
+                return Err(GridRejectReason::QualityTooLow {
                     record: record.name.clone(),
                     map,
                     quality,
@@ -579,7 +580,7 @@ fn check_record(
         }
     }
     if !record.b_sensors.is_empty() && !record.b_sensors.contains(&request.b.sensor) {
-        return Err(RejectReason::SensorNotAccepted {
+        return Err(GridRejectReason::SensorNotAccepted {
             record: record.name.clone(),
             sensor: request.b.sensor,
         });
@@ -601,24 +602,24 @@ mod tests {
         }
     }
 
-    fn request(a: MapMetadata, b: MapMetadata, a_from_b: Option<Se2>) -> MergeRequest {
-        MergeRequest { a, b, a_from_b }
+    fn request(a: MapMetadata, b: MapMetadata, a_from_b: Option<Se2>) -> GridMergeRequest {
+        GridMergeRequest { a, b, a_from_b }
     }
 
-    fn reject_reason(decision: Decision) -> RejectReason {
+    fn reject_reason(decision: GridMergeDecision) -> GridRejectReason {
         match decision {
-            Decision::Reject(r) => {
+            GridMergeDecision::Reject(r) => {
                 assert_eq!(r.message, r.reason.to_string());
                 r.reason
             }
-            Decision::Merge(c) => panic!("expected a rejection, got {c:?}"),
+            GridMergeDecision::Merge(c) => panic!("expected a rejection, got {c:?}"),
         }
     }
 
-    fn choice(decision: Decision) -> Choice {
+    fn choice(decision: GridMergeDecision) -> GridMergeChoice {
         match decision {
-            Decision::Merge(c) => c,
-            Decision::Reject(r) => panic!("expected a merge, got {}", r.message),
+            GridMergeDecision::Merge(c) => c,
+            GridMergeDecision::Reject(r) => panic!("expected a merge, got {}", r.message),
         }
     }
 
@@ -662,7 +663,7 @@ mod tests {
         let table = DecisionTable::default();
         assert_eq!(
             reject_reason(table.decide(&request(grid(0.05, None), grid(0.15, None), None))),
-            RejectReason::ResolutionRatio {
+            GridRejectReason::ResolutionRatio {
                 record: "grids-no-pose".into(),
                 ratio: 0.15 / 0.05,
                 max: 2.0
@@ -670,7 +671,7 @@ mod tests {
         );
         assert!(matches!(
             reject_reason(table.decide(&request(grid(0.05, None), grid(0.05, Some(0.1)), None))),
-            RejectReason::QualityTooLow { map: WhichMap::B, min, .. } if min == 0.3
+            GridRejectReason::QualityTooLow { map: WhichMap::B, min, .. } if min == 0.3
         ));
         let topo = MapMetadata {
             kind: MapKind::Topological,
@@ -679,7 +680,7 @@ mod tests {
         };
         assert_eq!(
             reject_reason(table.decide(&request(grid(0.05, None), topo, None))),
-            RejectReason::UnsupportedMapKinds {
+            GridRejectReason::UnsupportedMapKinds {
                 a: MapKind::OccupancyGrid,
                 b: MapKind::Topological
             }
@@ -692,7 +693,7 @@ mod tests {
         let reason = reject_reason(table.decide(&request(grid(0.05, None), cloud.clone(), None)));
         assert!(matches!(
             reason,
-            RejectReason::RelativePose {
+            GridRejectReason::RelativePose {
                 required: PoseCondition::Known,
                 actual: PoseKnowledge::Unknown,
                 ..
@@ -731,7 +732,7 @@ mod tests {
             ),
         ] {
             match reject_reason(table.decide(&request(a, b, pose))) {
-                RejectReason::InvalidMetadata { field: f, .. } => assert_eq!(f, field),
+                GridRejectReason::InvalidMetadata { field: f, .. } => assert_eq!(f, field),
                 other => panic!("{other:?}"),
             }
         }
@@ -741,13 +742,13 @@ mod tests {
         };
         assert!(matches!(
             reject_reason(table.decide(&request(no_resolution, grid(0.05, None), None))),
-            RejectReason::InvalidMetadata { .. }
+            GridRejectReason::InvalidMetadata { .. }
         ));
         // An empty table rejects everything as unsupported.
         let empty = DecisionTable { records: vec![] };
         assert!(matches!(
             reject_reason(empty.decide(&request(grid(0.05, None), grid(0.05, None), None))),
-            RejectReason::UnsupportedMapKinds { .. }
+            GridRejectReason::UnsupportedMapKinds { .. }
         ));
     }
 
@@ -771,7 +772,7 @@ mod tests {
         b.quality = Some(0.1);
         assert!(matches!(
             reject_reason(table.decide(&request(grid(0.05, None), b.clone(), None))),
-            RejectReason::QualityTooLow { record, .. } if record == "sonar"
+            GridRejectReason::QualityTooLow { record, .. } if record == "sonar"
         ));
         // The record that got furthest reports: sonar fails on the sensor (after passing
         // pose, ratio and quality), the default record on the quality.
@@ -782,7 +783,7 @@ mod tests {
         b.sensor = SensorKind::Camera;
         assert!(matches!(
             reject_reason(table.decide(&request(grid(0.05, None), b, None))),
-            RejectReason::SensorNotAccepted { record, .. } if record == "sonar"
+            GridRejectReason::SensorNotAccepted { record, .. } if record == "sonar"
         ));
         // Ties: two identical records, the first in the table wins.
         let mut twin = table.records[1].clone();

@@ -2,7 +2,7 @@
 
 use mapmerge_grid::GridError;
 
-use crate::MergeId;
+use crate::GridMergeId;
 
 /// Why a merge operation was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -31,7 +31,7 @@ pub enum MergeError {
     },
     /// A merge is active; the mapper keeps one merge at a time.
     #[error("merge {0} is active; undo it before merging again")]
-    AlreadyMerged(MergeId),
+    AlreadyMerged(GridMergeId),
     /// Undo was asked for but no merge is active.
     #[error("no merge is active")]
     NotMerged,

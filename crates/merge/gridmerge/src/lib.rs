@@ -34,16 +34,16 @@ mod warp;
 
 pub use check::MetricsCheck;
 pub use decision::{
-    Choice, Decision, DecisionRecord, DecisionTable, FusionProcedure, MapKind, MapMetadata,
-    MatchingProcedure, MergeRequest, PoseCondition, PoseKnowledge, RejectReason, Rejection,
-    SensorKind, WhichMap,
+    DecisionRecord, DecisionTable, FusionProcedure, GridMergeChoice, GridMergeDecision,
+    GridMergeRejection, GridMergeRequest, GridRejectReason, MapKind, MapMetadata,
+    MatchingProcedure, PoseCondition, PoseKnowledge, SensorKind, WhichMap,
 };
 pub use error::MergeError;
 pub use fusion::{fuse, Fused, FusionInfo, FusionParams, FusionWeighting};
 pub use quality::{QualityMap, QualityParams};
 pub use reversible::{
-    CheckInput, KeepMerge, LocalUpdateMap, MapperState, MergeCheck, MergeEvent, MergeEventKind,
-    MergeId, Metric, ReversibleMapper, ReversibleMode, ReversibleParams, ScanUpdate, UndoReason,
-    UpdateTiming, Verdict,
+    CheckInput, GridMergeEvent, GridMergeEventKind, GridMergeId, KeepMerge, LocalUpdateMap,
+    MapperState, MergeCheck, Metric, ReversibleMapper, ReversibleMode, ReversibleParams,
+    ScanUpdate, UndoReason, UpdateTiming, Verdict,
 };
 pub use warp::resample_into;

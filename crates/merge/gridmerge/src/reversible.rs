@@ -11,7 +11,7 @@
 //!
 //! Every `check_every_scans` scans after a merge a [`MergeCheck`] (e.g. the SM/DM metrics of
 //! Sec. 3.3) judges the merge; an inconsistent verdict triggers the undo. Merges,
-//! verifications and undos are [`MergeEvent`]s, each with its reason.
+//! verifications and undos are [`GridMergeEvent`]s, each with its reason.
 
 use std::time::Instant;
 
@@ -28,9 +28,9 @@ use crate::MergeError;
 
 /// Identifies one merge of a [`ReversibleMapper`] (counted from 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
-pub struct MergeId(pub u32);
+pub struct GridMergeId(pub u32);
 
-impl core::fmt::Display for MergeId {
+impl core::fmt::Display for GridMergeId {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         write!(f, "#{}", self.0)
     }
@@ -122,7 +122,7 @@ impl Verdict {
 #[derive(Clone, Copy, Debug)]
 pub struct CheckInput<'a> {
     /// The merge being checked.
-    pub merge: MergeId,
+    pub merge: GridMergeId,
     /// 2M or 1M.
     pub mode: ReversibleMode,
     /// 2M: the own map with every scan (never merged); `None` in 1M.
@@ -184,7 +184,7 @@ pub enum UndoReason {
 /// What happened.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]
-pub enum MergeEventKind {
+pub enum GridMergeEventKind {
     /// Map B was fused in.
     Merged {
         /// 2M or 1M from here on.
@@ -218,13 +218,13 @@ pub enum MergeEventKind {
 
 /// One entry of a mapper's event list.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MergeEvent {
+pub struct GridMergeEvent {
     /// The merge it concerns.
-    pub merge: MergeId,
+    pub merge: GridMergeId,
     /// Scans inserted (in total) when it happened.
     pub after_scans: u64,
     /// What happened.
-    pub kind: MergeEventKind,
+    pub kind: GridMergeEventKind,
 }
 
 /// Time spent on one scan, by map (seconds; 0 for maps not updated). The data behind
@@ -343,7 +343,7 @@ impl LocalUpdateMap {
 /// An active merge.
 #[derive(Clone, Debug)]
 struct Active {
-    id: MergeId,
+    id: GridMergeId,
     b_in_a: OccupancyGrid,
     scans_since_merge: usize,
 }
@@ -385,7 +385,7 @@ enum State {
 pub struct ReversibleMapper {
     params: ReversibleParams,
     state: State,
-    events: Vec<MergeEvent>,
+    events: Vec<GridMergeEvent>,
     timings: Vec<UpdateTiming>,
     scans: u64,
     next_merge: u32,
@@ -432,7 +432,7 @@ impl ReversibleMapper {
     }
 
     /// The active merge, if any.
-    pub fn active_merge(&self) -> Option<MergeId> {
+    pub fn active_merge(&self) -> Option<GridMergeId> {
         match &self.state {
             State::Own(_) => None,
             State::MultiMap { active, .. } | State::SingleMap { active, .. } => Some(active.id),
@@ -482,7 +482,7 @@ impl ReversibleMapper {
     }
 
     /// Every merge, verification and undo so far, oldest first.
-    pub fn events(&self) -> &[MergeEvent] {
+    pub fn events(&self) -> &[GridMergeEvent] {
         &self.events
     }
 
@@ -512,7 +512,7 @@ impl ReversibleMapper {
         b: &OccupancyGrid,
         a_from_b: &Se2,
         reason: impl Into<String>,
-    ) -> Result<MergeEvent, MergeError> {
+    ) -> Result<GridMergeEvent, MergeError> {
         let own = match &self.state {
             State::Own(own) => own,
             State::MultiMap { active, .. } | State::SingleMap { active, .. } => {
@@ -530,7 +530,7 @@ impl ReversibleMapper {
             ReversibleMode::MultiMap => None,
         };
         let placeholder = State::Own(OccupancyGrid::new(own.resolution_m())?);
-        let id = MergeId(self.next_merge);
+        let id = GridMergeId(self.next_merge);
         self.next_merge = self.next_merge.saturating_add(1);
         let active = Active {
             id,
@@ -555,7 +555,7 @@ impl ReversibleMapper {
         };
         Ok(self.push_event(
             id,
-            MergeEventKind::Merged {
+            GridMergeEventKind::Merged {
                 mode: self.params.mode,
                 a_from_b: *a_from_b,
                 reason: reason.into(),
@@ -566,13 +566,13 @@ impl ReversibleMapper {
 
     /// Takes the active merge back: 2M drops the merged map, 1M resets every cell not updated
     /// locally to unknown.
-    pub fn undo(&mut self, reason: impl Into<String>) -> Result<MergeEvent, MergeError> {
+    pub fn undo(&mut self, reason: impl Into<String>) -> Result<GridMergeEvent, MergeError> {
         self.undo_with(UndoReason::Requested {
             reason: reason.into(),
         })
     }
 
-    fn undo_with(&mut self, reason: UndoReason) -> Result<MergeEvent, MergeError> {
+    fn undo_with(&mut self, reason: UndoReason) -> Result<GridMergeEvent, MergeError> {
         let resolution_m = match &self.state {
             State::Own(_) => return Err(MergeError::NotMerged),
             State::MultiMap { merged, .. } | State::SingleMap { merged, .. } => {
@@ -601,7 +601,7 @@ impl ReversibleMapper {
         self.state = State::Own(own);
         Ok(self.push_event(
             active.id,
-            MergeEventKind::Undone {
+            GridMergeEventKind::Undone {
                 mode,
                 reason,
                 scans_since_merge: active.scans_since_merge,
@@ -680,7 +680,7 @@ impl ReversibleMapper {
             update.verdict = Some(verdict.clone());
             self.push_event(
                 due.0,
-                MergeEventKind::Verified {
+                GridMergeEventKind::Verified {
                     scans_since_merge: due.1,
                     verdict: verdict.clone(),
                 },
@@ -705,7 +705,7 @@ impl ReversibleMapper {
         let verdict = self.run_check(check, due);
         self.push_event(
             due.0,
-            MergeEventKind::Verified {
+            GridMergeEventKind::Verified {
                 scans_since_merge: due.1,
                 verdict: verdict.clone(),
             },
@@ -719,7 +719,7 @@ impl ReversibleMapper {
         Ok(verdict)
     }
 
-    fn check_due(&self) -> Option<(MergeId, usize)> {
+    fn check_due(&self) -> Option<(GridMergeId, usize)> {
         let every = self.params.check_every_scans;
         match &self.state {
             State::MultiMap { active, .. } | State::SingleMap { active, .. }
@@ -766,7 +766,7 @@ impl ReversibleMapper {
         }
     }
 
-    fn run_check(&self, check: &dyn MergeCheck, (id, scans): (MergeId, usize)) -> Verdict {
+    fn run_check(&self, check: &dyn MergeCheck, (id, scans): (GridMergeId, usize)) -> Verdict {
         match self.check_input() {
             Some(input) => check.check(&CheckInput {
                 merge: id,
@@ -779,8 +779,8 @@ impl ReversibleMapper {
         }
     }
 
-    fn push_event(&mut self, merge: MergeId, kind: MergeEventKind) -> MergeEvent {
-        let event = MergeEvent {
+    fn push_event(&mut self, merge: GridMergeId, kind: GridMergeEventKind) -> GridMergeEvent {
+        let event = GridMergeEvent {
             merge,
             after_scans: self.scans,
             kind,

@@ -7,7 +7,7 @@ use core::f64::consts::PI;
 use mapmerge_geometry::Se2;
 use mapmerge_grid::{GridGeometry, OccupancyGrid, Point2};
 use mapmerge_gridmerge::{
-    CheckInput, KeepMerge, MapperState, MergeError, MergeEvent, MergeEventKind, Metric,
+    CheckInput, GridMergeEvent, GridMergeEventKind, KeepMerge, MapperState, MergeError, Metric,
     ReversibleMapper, ReversibleMode, ReversibleParams, UndoReason, Verdict,
 };
 use mapmerge_scan::LaserScan;
@@ -135,8 +135,8 @@ proptest! {
         prop_assert_eq!(bits(mapper.current()), bits(&reference));
         // One merge, one undo, with verifications in between.
         let events = mapper.events();
-        let merged_first = matches!(events.first().map(|e| &e.kind), Some(MergeEventKind::Merged { .. }));
-        let undone_last = matches!(events.last().map(|e| &e.kind), Some(MergeEventKind::Undone { .. }));
+        let merged_first = matches!(events.first().map(|e| &e.kind), Some(GridMergeEventKind::Merged { .. }));
+        let undone_last = matches!(events.last().map(|e| &e.kind), Some(GridMergeEventKind::Undone { .. }));
         prop_assert!(merged_first && undone_last);
         prop_assert_eq!(mapper.update_times().len(), before.len() + after.len());
     }
@@ -199,7 +199,7 @@ proptest! {
             }
         }
         match &mapper.events().last().unwrap().kind {
-            MergeEventKind::Undone { cells_reset, mode, .. } => {
+            GridMergeEventKind::Undone { cells_reset, mode, .. } => {
                 prop_assert_eq!(*cells_reset, reset);
                 prop_assert_eq!(*mode, ReversibleMode::SingleMap);
             }
@@ -227,7 +227,7 @@ fn a_failing_check_undoes_the_merge_and_is_logged() {
     let merge = mapper
         .merge(&b, &Se2::new(5.0, 0.0, 0.0), "record grids-known-pose")
         .unwrap();
-    assert!(matches!(merge.kind, MergeEventKind::Merged { .. }));
+    assert!(matches!(merge.kind, GridMergeEventKind::Merged { .. }));
     assert!(matches!(
         mapper.merge(&b, &Se2::new(0.0, 0.0, 0.0), "again"),
         Err(MergeError::AlreadyMerged(_))
@@ -259,9 +259,9 @@ fn a_failing_check_undoes_the_merge_and_is_logged() {
         .events()
         .iter()
         .map(|e| match e.kind {
-            MergeEventKind::Merged { .. } => "merged",
-            MergeEventKind::Verified { .. } => "verified",
-            MergeEventKind::Undone { .. } => "undone",
+            GridMergeEventKind::Merged { .. } => "merged",
+            GridMergeEventKind::Verified { .. } => "verified",
+            GridMergeEventKind::Undone { .. } => "undone",
         })
         .collect();
     assert_eq!(kinds, ["merged", "verified", "verified", "undone"]);
@@ -269,12 +269,12 @@ fn a_failing_check_undoes_the_merge_and_is_logged() {
     assert_eq!(undone.after_scans, 7);
     assert!(matches!(
         &undone.kind,
-        MergeEventKind::Undone { reason: UndoReason::CheckFailed { reason, .. }, scans_since_merge: 6, .. }
+        GridMergeEventKind::Undone { reason: UndoReason::CheckFailed { reason, .. }, scans_since_merge: 6, .. }
             if reason == "failed at 6"
     ));
     // The event list is data: it survives JSON.
     let json = serde_json::to_string(mapper.events()).unwrap();
-    let back: Vec<MergeEvent> = serde_json::from_str(&json).unwrap();
+    let back: Vec<GridMergeEvent> = serde_json::from_str(&json).unwrap();
     assert_eq!(back, mapper.events());
     // Update times: one per scan, by state.
     let states: Vec<MapperState> = mapper.update_times().iter().map(|t| t.state).collect();

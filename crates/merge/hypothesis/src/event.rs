@@ -237,3 +237,43 @@ pub struct FilterStats {
     /// Hypotheses expired, evictions included.
     pub expired: u64,
 }
+
+impl FilterStats {
+    /// The counts `events` add up to: a filter's events since it was made give its
+    /// [`crate::HypothesisFilter::stats`], so a caller that logs them needs no counters.
+    pub fn of_events<'a>(events: impl IntoIterator<Item = &'a FilterEvent>) -> Self {
+        let mut stats = Self::default();
+        for event in events {
+            let ended_conditional = match event {
+                FilterEvent::Created { target, .. } => {
+                    stats.created += 1;
+                    match target {
+                        Target::Merge { .. } => stats.merge += 1,
+                        Target::Recovery => stats.recovery += 1,
+                    }
+                    false
+                }
+                FilterEvent::Updated { .. } => false,
+                FilterEvent::Conditional { .. } => {
+                    stats.conditional += 1;
+                    false
+                }
+                FilterEvent::Full { .. } => {
+                    stats.full += 1;
+                    false
+                }
+                FilterEvent::Expired { previous, .. } => {
+                    stats.expired += 1;
+                    *previous == HypothesisState::Conditional
+                }
+                FilterEvent::Rejected { previous, .. } | FilterEvent::Dropped { previous, .. } => {
+                    *previous == HypothesisState::Conditional
+                }
+            };
+            if ended_conditional {
+                stats.rejected_conditional += 1;
+            }
+        }
+        stats
+    }
+}

@@ -7,8 +7,8 @@ use std::collections::BTreeSet;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_hypothesis::{
-    AcceptanceCriteria, FilterEvent, HypothesisError, HypothesisFilter, HypothesisFilterParams,
-    HypothesisId, HypothesisState, Observation, RejectReason, Target,
+    AcceptanceCriteria, FilterEvent, FilterStats, HypothesisError, HypothesisFilter,
+    HypothesisFilterParams, HypothesisId, HypothesisState, Observation, RejectReason, Target,
 };
 use nalgebra::{Matrix3, Vector3};
 
@@ -692,6 +692,73 @@ fn events_and_stats_serialise_as_json() {
     assert_eq!(stats["rejected_conditional"], 1);
     let recovery = serde_json::to_string(&Target::Recovery).unwrap();
     assert_eq!(recovery, r#"{"kind":"recovery"}"#);
+}
+
+#[test]
+fn the_events_add_up_to_the_stats() {
+    let mut f = filter();
+    let mut events: Vec<FilterEvent> = Vec::new();
+    let outcomes = |o: Vec<mapmerge_hypothesis::ObserveOutcome<u64>>| {
+        o.into_iter().flat_map(|o| o.events).collect::<Vec<_>>()
+    };
+    // A conditional, superseded by a stronger competitor; a recovery.
+    events.extend(outcomes(observe_views(
+        &mut f,
+        MAP_1,
+        at(),
+        &[10, 11],
+        0.0,
+        0.1,
+    )));
+    let other = Se2::new(-3.0, 2.0, -1.0);
+    events.extend(outcomes(observe_views(
+        &mut f,
+        MAP_2,
+        other,
+        &[20, 21, 22],
+        0.2,
+        0.1,
+    )));
+    events.extend(
+        f.observe(seen(Target::Recovery, 3, at()), 0.6, None)
+            .unwrap()
+            .events,
+    );
+    // Both expire, the conditional one among them.
+    let small = Matrix3::from_diagonal_element(1e-6);
+    events.extend(f.predict(&Se2::identity(), &small, 20.0, None).unwrap());
+    // One made full, then one conditional when everything is dropped.
+    events.extend(outcomes(observe_views(
+        &mut f,
+        MAP_1,
+        at(),
+        &[30, 31, 32, 33, 34],
+        21.0,
+        1.0,
+    )));
+    events.extend(outcomes(observe_views(
+        &mut f,
+        MAP_2,
+        other,
+        &[40, 41],
+        30.0,
+        0.1,
+    )));
+    events.extend(f.clear());
+    let stats = f.stats();
+    assert_eq!(
+        (
+            stats.created,
+            stats.conditional,
+            stats.full,
+            stats.expired,
+            stats.rejected_conditional
+        ),
+        (5, 4, 1, 2, 3),
+        "{events:?}"
+    );
+    assert_eq!(FilterStats::of_events(&events), stats);
+    assert_eq!(FilterStats::of_events(&[]), FilterStats::default());
 }
 
 #[test]

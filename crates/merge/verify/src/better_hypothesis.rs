@@ -23,7 +23,7 @@ use mapmerge_scan::voxel_downsample;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{unit, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`BetterHypothesisDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -451,11 +451,11 @@ impl InvalidMergeDetector for BetterHypothesisDetector {
     }
 
     /// Unsupported until some place was recognised in the merged epochs (agreeing or not).
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         if self.info.agreeing + self.info.contradicting == 0 {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         } else {
-            Evidence::Supported
+            RatioSupport::Supported
         }
     }
 }

@@ -18,7 +18,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{fast_atan2, moved, recent, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`ChangeDetectionDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -851,11 +851,11 @@ impl InvalidMergeDetector for ChangeDetectionDetector {
     }
 
     /// Unsupported below `min_classified_points` classified points.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         if self.info.change_points + self.info.agree_points < self.params.min_classified_points {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         } else {
-            Evidence::Supported
+            RatioSupport::Supported
         }
     }
 }

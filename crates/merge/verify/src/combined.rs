@@ -19,8 +19,8 @@ use serde::{Deserialize, Serialize};
 use crate::common::{logistic, noisy_or, unit};
 use crate::{
     BetterHypothesisDetector, BetterHypothesisParams, ChangeDetectionDetector,
-    ChangeDetectionParams, Evidence, GridmapDetector, GridmapParams, InvalidMergeDetector,
-    MergedMap,
+    ChangeDetectionParams, GridmapDetector, GridmapParams, InvalidMergeDetector, MergedMap,
+    RatioSupport,
 };
 
 /// Parameters of [`CombinedDetector`].
@@ -167,7 +167,7 @@ impl InvalidMergeDetector for CombinedDetector {
     }
 
     /// The three components' last ratios, so that a merge's record says which one read high.
-    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+    fn component_readings(&self) -> Vec<(&'static str, f64, RatioSupport)> {
         vec![
             (
                 self.change_detection.name(),
@@ -188,14 +188,14 @@ impl InvalidMergeDetector for CombinedDetector {
     }
 
     /// Unsupported while no component had anything to compare.
-    fn evidence(&self) -> Evidence {
-        if self.change_detection.evidence() == Evidence::Unsupported
-            && self.gridmap.evidence() == Evidence::Unsupported
-            && self.better_hypothesis.evidence() == Evidence::Unsupported
+    fn evidence(&self) -> RatioSupport {
+        if self.change_detection.evidence() == RatioSupport::Unsupported
+            && self.gridmap.evidence() == RatioSupport::Unsupported
+            && self.better_hypothesis.evidence() == RatioSupport::Unsupported
         {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         } else {
-            Evidence::Supported
+            RatioSupport::Supported
         }
     }
 }

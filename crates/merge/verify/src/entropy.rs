@@ -24,7 +24,7 @@ use mapmerge_scan::{voxel_downsample, Point2};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{extend_points_in_map, recent, unit, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`EntropyDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -246,7 +246,7 @@ pub struct EntropyDetector {
     other_points: Vec<Point2>,
     /// `ΔH` of the last call (nats), NaN before.
     last_delta_h: Option<f64>,
-    evidence: Evidence,
+    evidence: RatioSupport,
 }
 
 impl EntropyDetector {
@@ -303,7 +303,7 @@ impl InvalidMergeDetector for EntropyDetector {
     fn on_vertex(&mut self, map: &MergedMap<'_>) -> f64 {
         self.last_delta_h = None;
         // Unsupported until enough points are paired (step 3), also when the window is empty.
-        self.evidence = Evidence::Unsupported;
+        self.evidence = RatioSupport::Unsupported;
         if self
             .snapshot
             .as_ref()
@@ -353,7 +353,7 @@ impl InvalidMergeDetector for EntropyDetector {
         if paired < self.params.min_paired_points {
             return 0.0;
         }
-        self.evidence = Evidence::Supported;
+        self.evidence = RatioSupport::Supported;
         let scale = if self.params.logistic_scale.is_finite() && self.params.logistic_scale > 0.0 {
             self.params.logistic_scale
         } else {
@@ -363,7 +363,7 @@ impl InvalidMergeDetector for EntropyDetector {
     }
 
     /// Unsupported below `min_paired_points` points where the parts meet.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         self.evidence
     }
 }

@@ -25,7 +25,7 @@
 //! beams through it neither agree nor contradict; only cells known in both count. When the
 //! robot's scans cross only such space (it left the merged map, or the merge put it where the
 //! merged map has no structure) the overlap stays below `τ`: the ratio is 0 and the merge is
-//! *unsupported* ([`Evidence::Unsupported`]), not valid.
+//! *unsupported* ([`RatioSupport::Unsupported`]), not valid.
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};
@@ -34,7 +34,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{moved, recent, unit, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`GridmapDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -655,11 +655,11 @@ impl InvalidMergeDetector for GridmapDetector {
 
     /// Unsupported below `τ` of overlap: the window's scans crossed only space the merged
     /// epochs never saw (their grid is unknown there), so nothing could contradict them.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         if self.overlap_reaches_tau() {
-            Evidence::Supported
+            RatioSupport::Supported
         } else {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         }
     }
 }

@@ -13,7 +13,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{extend_points_in_map, recent, unit, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`HistogramDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -51,7 +51,7 @@ pub struct HistogramDetector {
     other: HashMap<Key, u32>,
     current: HashMap<Key, u32>,
     points: Vec<Point2>,
-    evidence: Evidence,
+    evidence: RatioSupport,
 }
 
 impl HistogramDetector {
@@ -146,18 +146,18 @@ impl InvalidMergeDetector for HistogramDetector {
         }
         self.current = current;
         self.evidence = if total == 0 || total < self.params.min_points as u64 {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         } else {
-            Evidence::Supported
+            RatioSupport::Supported
         };
-        if self.evidence == Evidence::Unsupported {
+        if self.evidence == RatioSupport::Unsupported {
             return 0.0;
         }
         unit(1.0 - intersection as f64 / total as f64)
     }
 
     /// Unsupported below `min_points` window points near other-epoch data.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         self.evidence
     }
 }

@@ -1,5 +1,5 @@
 //! The learned decision: a logistic regression on the component detectors' highest supported
-//! ratios since the merge and on whether each was ever supported ([`Evidence`]), as Holoch et
+//! ratios since the merge and on whether each was ever supported ([`RatioSupport`]), as Holoch et
 //! al. (Sec. V-A) score a merge by each detector's highest ratio.
 //!
 //! Why this form: the detectors' ratios live on different scales and fail in different
@@ -37,7 +37,8 @@ use smartcore::linear::logistic_regression::{LogisticRegression, LogisticRegress
 
 use crate::common::noisy_or;
 use crate::{
-    BetterHypothesisDetector, Evidence, ForestParams, InvalidMergeDetector, MergedMap, RandomForest,
+    BetterHypothesisDetector, ForestParams, InvalidMergeDetector, MergedMap, RandomForest,
+    RatioSupport,
 };
 
 /// The model of [`LearnedModel::calibrated`] (written by `mapmerge eval calibrate -o`).
@@ -448,8 +449,8 @@ impl InvalidMergeDetector for Nothing {
     fn on_vertex(&mut self, _: &MergedMap<'_>) -> f64 {
         0.0
     }
-    fn evidence(&self) -> Evidence {
-        Evidence::Unsupported
+    fn evidence(&self) -> RatioSupport {
+        RatioSupport::Unsupported
     }
 }
 
@@ -481,7 +482,7 @@ impl InvalidMergeDetector for LearnedDetector {
         {
             let ratio = c.on_vertex(map);
             *last = ratio;
-            if c.evidence() == Evidence::Supported && ratio.is_finite() {
+            if c.evidence() == RatioSupport::Supported && ratio.is_finite() {
                 *never = false;
                 *peak = peak.max(ratio);
             }
@@ -497,19 +498,19 @@ impl InvalidMergeDetector for LearnedDetector {
     }
 
     /// Supported once any component was (better hypothesis too, when joined).
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         let joined = self
             .better_hypothesis
             .as_ref()
-            .is_some_and(|(d, _)| d.evidence() == Evidence::Supported);
+            .is_some_and(|(d, _)| d.evidence() == RatioSupport::Supported);
         if self.never_supported.iter().all(|&u| u) && !joined {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         } else {
-            Evidence::Supported
+            RatioSupport::Supported
         }
     }
 
-    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+    fn component_readings(&self) -> Vec<(&'static str, f64, RatioSupport)> {
         let joined = self
             .better_hypothesis
             .iter()
@@ -772,7 +773,7 @@ mod tests {
         assert!(far.max_ratio(&mut LearnedDetector::new(never)) < 1e-9);
         let mut d = LearnedDetector::new(joined.clone());
         assert!((far.max_ratio(&mut d) - alone).abs() < 1e-12);
-        assert_eq!(d.evidence(), Evidence::Supported);
+        assert_eq!(d.evidence(), RatioSupport::Supported);
         let names: Vec<&str> = d.component_readings().iter().map(|r| r.0).collect();
         assert_eq!(names, ["change_detection", "better_hypothesis"]);
         let correct = Case::office(&open, &open, &Se2::identity());

@@ -9,7 +9,7 @@
 //! trait, and the detectors by name ([`detector`], [`DETECTOR_NAMES`], [`all_detectors`]).
 //!
 //! ```
-//! use mapmerge_verify::{detector, Evidence, MergedMap, DETECTOR_NAMES};
+//! use mapmerge_verify::{detector, RatioSupport, MergedMap, DETECTOR_NAMES};
 //! // After a merge: prepare once, then ask after every new current-epoch vertex.
 //! let map = MergedMap { current: &[], other: &[] };
 //! for name in DETECTOR_NAMES {
@@ -17,7 +17,7 @@
 //!     d.on_merge(&map);
 //!     let ratio = d.on_vertex(&map);
 //!     // No other-epoch data: no evidence (0, or a calibrated score flagged unsupported).
-//!     assert!(ratio == 0.0 || d.evidence() == Evidence::Unsupported);
+//!     assert!(ratio == 0.0 || d.evidence() == RatioSupport::Unsupported);
 //! }
 //! ```
 
@@ -26,7 +26,6 @@ mod change_detection;
 mod combined;
 mod common;
 mod entropy;
-mod epoch_agreement;
 mod forest;
 mod gridmap;
 mod histogram;
@@ -46,12 +45,11 @@ pub use change_detection::{
 };
 pub use combined::{CombinedDetector, CombinedInfo, CombinedParams};
 pub use entropy::{EntropyDetector, EntropyParams};
-pub use epoch_agreement::{epoch_agreement, EpochAgreement, EpochAgreementParams};
 pub use forest::{ForestParams, RandomForest, Tree};
 pub use gridmap::{GridmapDetector, GridmapInfo, GridmapParams};
 pub use histogram::{HistogramDetector, HistogramParams};
 pub use learned::{FitError, LearnedDetector, LearnedModel, LearnedSample, RatioTransform};
-pub use map::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+pub use map::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 pub use realign::{RealignDetector, RealignInfo, RealignParams};
 pub use registry::{all_detectors, detector, DetectorParams, DETECTOR_NAMES};
 pub use similarity::{DmDetector, SimilarityParams, SmDetector};

@@ -36,7 +36,7 @@ pub struct MergedMap<'a> {
 /// must not count as "valid".
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
-pub enum Evidence {
+pub enum RatioSupport {
     /// Enough was compared for the ratio to be evidence either way.
     #[default]
     Supported,
@@ -68,16 +68,16 @@ pub trait InvalidMergeDetector: Send {
         None
     }
 
-    /// Whether the last ratio rests on enough compared data (see [`Evidence`]); detectors
-    /// without a minimum of their own are always [`Evidence::Supported`].
-    fn evidence(&self) -> Evidence {
-        Evidence::Supported
+    /// Whether the last ratio rests on enough compared data (see [`RatioSupport`]); detectors
+    /// without a minimum of their own are always [`RatioSupport::Supported`].
+    fn evidence(&self) -> RatioSupport {
+        RatioSupport::Supported
     }
 
     /// For a detector made of other detectors: each component's name, last ratio and
     /// evidence (after the last [`InvalidMergeDetector::on_vertex`]); empty for a single
     /// detector. Lets a caller record what a combination's decision rested on.
-    fn component_readings(&self) -> Vec<(&'static str, f64, Evidence)> {
+    fn component_readings(&self) -> Vec<(&'static str, f64, RatioSupport)> {
         Vec::new()
     }
 }

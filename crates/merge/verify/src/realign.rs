@@ -25,7 +25,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::common::{extend_points_in_map, moved, unit, OtherSnapshot};
 use crate::similarity::{beams_in_map, grid_of};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`RealignDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -116,7 +116,7 @@ pub struct RealignDetector {
     /// The newest scan's pose at the last search.
     searched_at: Option<Se2>,
     ratio: f64,
-    evidence: Evidence,
+    evidence: RatioSupport,
     info: RealignInfo,
     target: Option<MatchTarget>,
     /// Where the other epochs' beams reached, built with the snapshot.
@@ -242,7 +242,7 @@ impl InvalidMergeDetector for RealignDetector {
         self.snapshot = Some(OtherSnapshot::new(map.other));
         self.searched_at = None;
         self.ratio = 0.0;
-        self.evidence = Evidence::Unsupported;
+        self.evidence = RatioSupport::Unsupported;
         self.info = RealignInfo::default();
         self.coverage = None;
     }
@@ -274,19 +274,19 @@ impl InvalidMergeDetector for RealignDetector {
             Some((ratio, info)) => {
                 self.ratio = ratio;
                 self.info = info;
-                self.evidence = Evidence::Supported;
+                self.evidence = RatioSupport::Supported;
             }
             None => {
                 self.ratio = 0.0;
                 self.info = RealignInfo::default();
-                self.evidence = Evidence::Unsupported;
+                self.evidence = RatioSupport::Unsupported;
             }
         }
         self.ratio
     }
 
     /// Unsupported when the window or the other epochs near it hold too little to match.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         self.evidence
     }
 }

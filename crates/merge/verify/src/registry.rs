@@ -149,7 +149,7 @@ mod tests {
     /// such merges fell in training (a merge claims overlap), so it reads high here.
     #[test]
     fn an_empty_merged_map_reads_zero_and_unsupported_in_every_detector() {
-        use crate::{Evidence, MergedMap};
+        use crate::{MergedMap, RatioSupport};
         let empty = MergedMap {
             current: &[],
             other: &[],
@@ -160,7 +160,7 @@ mod tests {
             let first = d.on_vertex(&empty);
             d.on_merge(&empty);
             let again = d.on_vertex(&empty);
-            assert_eq!(d.evidence(), Evidence::Unsupported, "{name}");
+            assert_eq!(d.evidence(), RatioSupport::Unsupported, "{name}");
             if name == "learned" {
                 assert!(first > 0.5 && first == again, "{name}: {first}, {again}");
             } else {
@@ -176,7 +176,7 @@ mod tests {
     #[test]
     fn nothing_to_compare_is_unsupported_and_overlap_is_supported() {
         use crate::testworld::{Case, World};
-        use crate::{Evidence, MergedMap};
+        use crate::{MergedMap, RatioSupport};
         use mapmerge_geometry::{LieGroup, Se2};
         let open = World::office(false);
         let far = Case::office(&open, &open, &Se2::new(200.0, 0.0, 0.0));
@@ -199,10 +199,10 @@ mod tests {
         let place_aware = ["better_hypothesis", "combined", "learned"];
         for &name in DETECTOR_NAMES.iter().filter(|n| !place_aware.contains(n)) {
             let (evidence, ratios) = last_evidence(&far, name);
-            assert_eq!(evidence, Evidence::Unsupported, "{name} far away");
+            assert_eq!(evidence, RatioSupport::Unsupported, "{name} far away");
             assert!(ratios.iter().all(|&r| r == 0.0), "{name}: {ratios:?}");
             let (evidence, _) = last_evidence(&right, name);
-            assert_eq!(evidence, Evidence::Supported, "{name} in the rooms");
+            assert_eq!(evidence, RatioSupport::Supported, "{name} in the rooms");
         }
     }
 }

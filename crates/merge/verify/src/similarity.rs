@@ -14,7 +14,7 @@ use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
 use crate::common::{recent, unit, OtherSnapshot};
-use crate::{DetectorScan, Evidence, InvalidMergeDetector, MergedMap};
+use crate::{DetectorScan, InvalidMergeDetector, MergedMap, RatioSupport};
 
 /// Parameters of [`SmDetector`] and [`DmDetector`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -149,7 +149,7 @@ struct Similarity {
     snapshot: Option<OtherSnapshot>,
     other: Option<OccupancyGrid>,
     /// Whether the last window overlapped the other epochs by `τ`.
-    evidence: Evidence,
+    evidence: RatioSupport,
 }
 
 impl Similarity {
@@ -164,9 +164,9 @@ impl Similarity {
     fn metrics(&mut self, map: &MergedMap<'_>) -> Option<MapMetrics> {
         let metrics = self.overlapping_metrics(map);
         self.evidence = if metrics.is_some() {
-            Evidence::Supported
+            RatioSupport::Supported
         } else {
-            Evidence::Unsupported
+            RatioSupport::Unsupported
         };
         metrics
     }
@@ -229,7 +229,7 @@ impl InvalidMergeDetector for SmDetector {
     }
 
     /// Unsupported below `τ` of overlap.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         self.0.evidence
     }
 }
@@ -275,7 +275,7 @@ impl InvalidMergeDetector for DmDetector {
     }
 
     /// Unsupported below `τ` of overlap.
-    fn evidence(&self) -> Evidence {
+    fn evidence(&self) -> RatioSupport {
         self.0.evidence
     }
 }

@@ -55,7 +55,7 @@ mod tests {
     #![allow(clippy::unwrap_used)]
 
     use super::*;
-    use mapmerge_sim::{RayCaster, Segment};
+    use mapmerge_sim::{LineSegment, RayCaster};
 
     use crate::{PlaceParams, SignatureExtractor};
 
@@ -89,9 +89,9 @@ mod tests {
             (p(0.5, 1.5), p(15.0, 1.5)),
             (p(15.0, 1.5), p(15.0, -1.5)),
         ];
-        let segments: Vec<Segment> = wall_ends
+        let segments: Vec<LineSegment> = wall_ends
             .iter()
-            .map(|(a, b)| Segment::new(*a, *b))
+            .map(|(a, b)| LineSegment::new(*a, *b))
             .collect();
         let walls = RayCaster::from_segments(&segments, 1.0);
         let extractor = SignatureExtractor::new(&PlaceParams::default());

@@ -363,10 +363,10 @@ mod tests {
     /// `world_from_robot` by the simulator's ray caster, as a keyframe with the free space
     /// its beams crossed.
     fn scanned(corners: &[Point2], world_from_robot: &Se2, id: u64) -> Keyframe {
-        let walls: Vec<mapmerge_sim::Segment> = corners
+        let walls: Vec<mapmerge_sim::LineSegment> = corners
             .iter()
             .zip(corners.iter().cycle().skip(1))
-            .map(|(a, b)| mapmerge_sim::Segment::new(*a, *b))
+            .map(|(a, b)| mapmerge_sim::LineSegment::new(*a, *b))
             .collect();
         let caster = mapmerge_sim::RayCaster::from_segments(&walls, 1.0);
         let origin = world_from_robot.translation();

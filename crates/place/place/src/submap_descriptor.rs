@@ -53,8 +53,7 @@ use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
 use serde::{Deserialize, Serialize};
 
-/// A 3D point (m), as the 3D descriptor describes it.
-pub type Point3 = nalgebra::Vector3<f64>;
+pub use mapmerge_geometry::Point3;
 
 /// Largest accepted ring count (bigger values are clamped).
 const MAX_RINGS: usize = 256;

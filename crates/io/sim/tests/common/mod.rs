@@ -2,7 +2,7 @@
 //! crate's spatial index, so the tests check the index too.
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used)]
 
-use mapmerge_sim::{Point2, Segment, World};
+use mapmerge_sim::{LineSegment, Point2, World};
 
 fn cross(a: &Point2, b: &Point2) -> f64 {
     a.x * b.y - a.y * b.x
@@ -13,7 +13,7 @@ pub fn crosses(p0: &Point2, p1: &Point2, q0: &Point2, q1: &Point2) -> bool {
     let (r, s) = (p1 - p0, q1 - q0);
     if r.norm_squared() < 1e-30 {
         // Not a move: only touching counts.
-        return Segment::new(*q0, *q1).distance_to_point_m(p0) < 1e-12;
+        return LineSegment::new(*q0, *q1).distance_to_point_m(p0) < 1e-12;
     }
     let denom = cross(&r, &s);
     if denom.abs() < 1e-15 {
@@ -31,7 +31,7 @@ pub fn crosses(p0: &Point2, p1: &Point2, q0: &Point2, q1: &Point2) -> bool {
 }
 
 /// Distance from `p` to the segment.
-pub fn distance_to(p: &Point2, s: &Segment) -> f64 {
+pub fn distance_to(p: &Point2, s: &LineSegment) -> f64 {
     s.distance_to_point_m(p)
 }
 
@@ -46,7 +46,7 @@ pub fn clearance(world: &World, p: &Point2) -> f64 {
 
 /// First hit along a ray (brute force), `None` beyond `max_range_m`.
 pub fn brute_force_cast(
-    segments: &[Segment],
+    segments: &[LineSegment],
     origin: &Point2,
     angle_rad: f64,
     max_range_m: f64,
