@@ -30,6 +30,7 @@ mod assemble;
 mod atlas;
 #[cfg(feature = "cli")]
 pub mod cli;
+mod convert;
 mod error;
 mod grid_merge;
 mod optimize;
@@ -40,6 +41,7 @@ pub use assemble::{
     LoopLine, Order, ScanRef, TrajectorySource,
 };
 pub use atlas::{draw_graph, write_atlas};
+pub use convert::{convert, is_kitti_folder, ConvertReport};
 pub use error::{error_chain, JobError};
 pub use grid_merge::{
     grid_merge, load_map, GridMergeReport, GridMerged, Hypothesis, Transform, DEFAULT_HYPOTHESES,
