@@ -19,7 +19,6 @@ use mapmerge_scan::{LaserLog, Point2};
 use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 use serde::Serialize;
 
-use crate::slam::write_map_outputs;
 use crate::{bad_file, bad_input, check_resolution, print_json};
 use crate::{build_posed_grid as build_grid, PosedLog};
 
@@ -298,14 +297,15 @@ pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
                 graph.add_edge(moved)?;
             }
         }
-        write_map_outputs(
+        mapmerge_jobs::write_slam_outputs(
             &args.output.join(format!("area_{}", area.id)),
-            part,
+            &part,
             &trajectory,
             &graph,
             args.resolution,
-            false,
-        )?;
+            || {},
+        )
+        .map_err(crate::job_error)?;
     }
     // Every scan's pose in the first area's frame (an overlap scan by its earlier span), for
     // placed sessions.

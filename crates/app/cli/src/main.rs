@@ -16,7 +16,6 @@ mod grid_merge;
 mod optimize;
 mod render;
 mod slam;
-mod split;
 mod store;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
@@ -68,7 +67,7 @@ enum Command {
     Slam(slam::SlamArgs),
     /// Cut a corrected laser log into overlapping segments, each re-based to its own origin
     /// (optionally with noisy odometry), with the ground truth kept apart.
-    Split(split::SplitArgs),
+    Split(mapmerge_lab::split::SplitArgs),
     /// Inspect, check and roll back a lifelong store (a SQLite file of map versions).
     Store(store::StoreArgs),
 }
@@ -100,7 +99,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Eval(args) => mapmerge_lab::run_eval(args),
         Command::Slam(args) => slam::run(args),
-        Command::Split(args) => split::run(args),
+        Command::Split(args) => mapmerge_lab::split::run(args),
         Command::Store(args) => store::run(args),
     };
     match result {

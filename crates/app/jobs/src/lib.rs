@@ -53,5 +53,6 @@ pub use optimize::{
 };
 pub use session::{
     build_grid, check_resolution, log_file_stem, read_log_or_bag, read_session_log,
-    read_session_log_with, slam_log, SlamSummary, DEFAULT_RESOLUTION_M,
+    read_session_log_with, slam_log, write_slam_outputs, SlamSummary, DEFAULT_RESOLUTION_M,
+    TUM_CLOCK_PERIOD_S,
 };

@@ -12,7 +12,8 @@
 //! - the data and cases the experiments run on: [`sim`] (`mapmerge sim`: simulated sessions
 //!   with their truth), [`sim_graph`] (`mapmerge sim-graph`: a Manhattan world), [`corrupt`]
 //!   (`mapmerge corrupt`: vertigo's false loop closures) and [`compare`] (`mapmerge compare`:
-//!   ATE between two graphs).
+//!   ATE between two graphs), [`split`] (`mapmerge split`: a corrected log cut into
+//!   segments for assembly, the truth kept apart).
 //!
 //! The studies behind single tables are `examples/` of this crate (place recognition,
 //! retrieval, association at scale, grid-match crops, door traces, the simulator's speed).
@@ -30,6 +31,8 @@ pub mod invalid_merge_eval;
 mod protrusion_eval;
 pub mod sim;
 pub mod sim_graph;
+pub mod slam_judge;
+pub mod split;
 
 pub use eval::{run as run_eval, EvalArgs, INDEX_HEADER};
 
