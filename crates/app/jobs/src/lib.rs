@@ -26,6 +26,7 @@
 //! assert!(err.to_string().starts_with(&format!("{}: cannot read", dir.join("missing.g2o").display())));
 //! ```
 
+mod areas;
 mod assemble;
 mod atlas;
 #[cfg(feature = "cli")]
@@ -35,7 +36,12 @@ mod error;
 mod grid_merge;
 mod optimize;
 mod session;
+mod store;
 
+pub use areas::{
+    load_hybrid_map, manage_areas, parse_area_position, route_between, AreasOptions, AreasProgress,
+    AreasReport,
+};
 pub use assemble::{
     arrival_order, assemble, default_params, load_segments, segment_name, Assembled, LoadedSegment,
     LoopLine, Order, ScanRef, TrajectorySource,
@@ -55,4 +61,8 @@ pub use session::{
     build_grid, check_resolution, log_file_stem, read_log_or_bag, read_session_log,
     read_session_log_with, slam_log, write_slam_outputs, SlamSummary, DEFAULT_RESOLUTION_M,
     TUM_CLOCK_PERIOD_S,
+};
+pub use store::{
+    export_version, open_or_create_store, open_store, store_protrusions, ExportReport, ExportedMap,
+    ProtrusionAction, ProtrusionReport, RegionReport,
 };
