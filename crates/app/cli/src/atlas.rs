@@ -386,7 +386,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let opened = Instant::now();
     let mut store = match &args.store {
         Some(path) => {
-            let mut store = crate::store::open_or_create(path)?;
+            let mut store = mapmerge_jobs::open_or_create_store(path).map_err(job_error)?;
             store.keep_versions(args.keep_versions);
             Some(store)
         }

@@ -10,17 +10,12 @@ use clap::{Parser, Subcommand};
 mod areas;
 mod assemble;
 mod atlas;
-mod compare;
 mod convert;
-mod corrupt;
 mod grid;
 mod grid_merge;
 mod optimize;
 mod render;
-mod sim;
-mod simulate;
 mod slam;
-mod split;
 mod store;
 
 /// Merges robot maps across sessions, robots and scales; optimises pose graphs.
@@ -48,14 +43,14 @@ enum Command {
     /// Optimise a pose graph (g2o or TORO, 2D or 3D; `.xz` accepted).
     Optimize(optimize::OptimizeArgs),
     /// Add random false loop closures to a graph (vertigo's pattern) for robustness tests.
-    Corrupt(corrupt::CorruptArgs),
+    Corrupt(mapmerge_lab::corrupt::CorruptArgs),
     /// Compare two graphs' trajectories (same vertex ids): ATE after optional alignment.
-    Compare(compare::CompareArgs),
+    Compare(mapmerge_lab::compare::CompareArgs),
     /// Generate a synthetic pose graph with known ground truth (Manhattan world).
     #[command(name = "sim-graph", alias = "simulate")]
-    Simulate(simulate::SimulateArgs),
+    Simulate(mapmerge_lab::sim_graph::SimulateArgs),
     /// Simulate robot sessions in a 2D office world: CARMEN logs, ground truth, world map.
-    Sim(sim::SimArgs),
+    Sim(mapmerge_lab::sim::SimArgs),
     /// Build an occupancy grid (ROS map_server YAML + PGM) from a laser log and poses.
     Grid(grid::GridArgs),
     /// Convert a laser log (CARMEN or ROS 2 bag) to a ROS 2 bag (`.mcap`, `.db3`) or a
@@ -72,7 +67,7 @@ enum Command {
     Slam(slam::SlamArgs),
     /// Cut a corrected laser log into overlapping segments, each re-based to its own origin
     /// (optionally with noisy odometry), with the ground truth kept apart.
-    Split(split::SplitArgs),
+    Split(mapmerge_lab::split::SplitArgs),
     /// Inspect, check and roll back a lifelong store (a SQLite file of map versions).
     Store(store::StoreArgs),
 }
@@ -92,10 +87,10 @@ fn main() -> ExitCode {
         Command::Atlas(args) => atlas::run(args),
         Command::Assemble(args) => assemble::run(args).map(|()| ExitCode::SUCCESS),
         Command::Optimize(args) => optimize::run(args),
-        Command::Corrupt(args) => corrupt::run(args),
-        Command::Compare(args) => compare::run(args),
-        Command::Simulate(args) => simulate::run(args),
-        Command::Sim(args) => sim::run(args),
+        Command::Corrupt(args) => mapmerge_lab::corrupt::run(args),
+        Command::Compare(args) => mapmerge_lab::compare::run(args),
+        Command::Simulate(args) => mapmerge_lab::sim_graph::run(args),
+        Command::Sim(args) => mapmerge_lab::sim::run(args),
         Command::Convert(args) => convert::run(args),
         Command::Areas(args) => areas::run(args),
         Command::Route(args) => areas::route(args),
@@ -104,7 +99,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Eval(args) => mapmerge_lab::run_eval(args),
         Command::Slam(args) => slam::run(args),
-        Command::Split(args) => split::run(args),
+        Command::Split(args) => mapmerge_lab::split::run(args),
         Command::Store(args) => store::run(args),
     };
     match result {

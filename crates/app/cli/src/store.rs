@@ -2,21 +2,15 @@
 //! `mapmerge atlas --store`). Every refused store (in use, newer schema, not a store, corrupt)
 //! is bad input: exit code 2, the file untouched.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Context;
 use clap::{Args, Subcommand};
-use mapmerge_atlas::RenderedMap;
-use mapmerge_geometry::Se2;
-use mapmerge_grid::{ClassThresholds, InsertParams, OccupancyGrid, Point2};
-use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
-use mapmerge_render::{session_color, Picture, PictureStyle};
-use mapmerge_store::{Store, StoreError};
+use mapmerge_jobs::{open_store, ProtrusionAction};
+use mapmerge_store::Store;
 use serde::Serialize;
 
-use crate::{bad_file, print_json};
+use crate::{bad_file, job_error, print_json};
 
 /// Arguments of `mapmerge store`.
 #[derive(Args, Debug)]
@@ -101,27 +95,11 @@ pub struct RollbackArgs {
 }
 
 fn open(site: &SiteArgs) -> anyhow::Result<Store> {
-    open_existing(&site.site)
-}
-
-/// Opens the store at `path`; an error when there is none.
-pub(crate) fn open_existing(path: &std::path::Path) -> anyhow::Result<Store> {
-    if !path.is_file() {
-        return Err(crate::bad_input(format!(
-            "{}: no such store",
-            path.display()
-        )));
-    }
-    Store::open_existing(path).map_err(refused)
-}
-
-/// Opens the store at `path`, creating it when there is no file (`atlas --store`).
-pub(crate) fn open_or_create(path: &std::path::Path) -> anyhow::Result<Store> {
-    Store::open(path).map_err(refused)
+    open_store(&site.site).map_err(job_error)
 }
 
 /// Store errors are the user's file: bad input.
-fn refused(error: StoreError) -> anyhow::Error {
+fn refused(error: mapmerge_store::StoreError) -> anyhow::Error {
     bad_file(error)
 }
 
@@ -212,273 +190,72 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// One region of new space as `store protrusions` reports it.
-#[derive(Serialize)]
-struct RegionReport {
-    centre_m: [f64; 2],
-    features: mapmerge_atlas::RegionFeatures,
-    protrusion: bool,
-}
-
 /// Runs `mapmerge store protrusions`.
 fn protrusions(args: &ProtrusionArgs) -> anyhow::Result<()> {
-    let mut store = open(&args.site)?;
-    let Some(child) = store.load(args.version).map_err(refused)? else {
-        return Err(crate::bad_input(format!(
-            "{}: the store has no version yet",
-            args.site.site.display()
-        )));
-    };
-    let parent_version = store
-        .versions()
-        .map_err(refused)?
-        .into_iter()
-        .find(|v| v.version == child.version)
-        .and_then(|v| v.parent)
-        .ok_or_else(|| {
-            crate::bad_input(format!(
-                "version {} has no parent to compare with",
-                child.version
-            ))
-        })?;
-    let parent = store
-        .load(Some(parent_version))
-        .map_err(refused)?
-        .ok_or_else(|| crate::bad_input(format!("no version {parent_version}")))?;
-    let params = mapmerge_atlas::ProtrusionParams::default();
-    let classifier = mapmerge_atlas::ProtrusionClassifier::trained().map_err(anyhow::Error::msg)?;
-    let (rendered, regions) = mapmerge_atlas::new_regions(&parent.atlas, &child.atlas, &params)
-        .unwrap_or_else(|| {
-            (
-                mapmerge_atlas::RenderedMap {
-                    geometry: mapmerge_grid::GridGeometry {
-                        resolution_m: params.resolution_m,
-                        origin_m: Point2::zeros(),
-                        width: 0,
-                        height: 0,
-                    },
-                    sums: Vec::new(),
-                    contributions: BTreeMap::new(),
-                },
-                Vec::new(),
-            )
-        });
-    let features: Vec<_> = regions.iter().map(|r| r.features).collect();
-    let verdicts = classifier.predict(&features).map_err(anyhow::Error::msg)?;
-    let found: Vec<&mapmerge_atlas::Region> = regions
-        .iter()
-        .zip(&verdicts)
-        .filter(|(_, p)| **p)
-        .map(|(r, _)| r)
-        .collect();
-    let mut new_version = None;
-    let mut rolled_back = false;
-    if !found.is_empty() && args.remove {
-        let mut atlas = child.atlas.clone();
-        mapmerge_atlas::remove_regions(&parent.atlas, &mut atlas, &rendered, &found);
-        let session = format!("protrusions removed from version {}", child.version);
-        new_version = Some(
-            store
-                .commit_session(&mapmerge_store::SessionCommit {
-                    session: &session,
-                    atlas: &atlas,
-                    events: &[],
-                    reference_poses: &child.reference_poses,
-                })
-                .map_err(refused)?,
-        );
-    } else if !found.is_empty() && args.rollback {
-        store.rollback_to(parent_version).map_err(refused)?;
-        rolled_back = true;
-    }
-    let report: Vec<RegionReport> = regions
-        .iter()
-        .zip(&verdicts)
-        .map(|(r, p)| RegionReport {
-            centre_m: r.centre_m,
-            features: r.features,
-            protrusion: *p,
-        })
-        .collect();
-    if args.site.json {
-        #[derive(Serialize)]
-        struct Report<'a> {
-            version: i64,
-            parent: i64,
-            regions: &'a [RegionReport],
-            protrusions: usize,
-            new_version: Option<i64>,
-            rolled_back: bool,
-        }
-        print_json(&Report {
-            version: child.version,
-            parent: parent_version,
-            regions: &report,
-            protrusions: found.len(),
-            new_version,
-            rolled_back,
-        })?;
+    let action = if args.remove {
+        ProtrusionAction::Remove
+    } else if args.rollback {
+        ProtrusionAction::Rollback
     } else {
+        ProtrusionAction::Report
+    };
+    let report = mapmerge_jobs::store_protrusions(&args.site.site, args.version, action)
+        .map_err(job_error)?;
+    if args.site.json {
+        return print_json(&report);
+    }
+    println!(
+        "version {} against {}: {} regions of new space, {} protrusions",
+        report.version,
+        report.parent,
+        report.regions.len(),
+        report.protrusions
+    );
+    for r in &report.regions {
         println!(
-            "version {} against {parent_version}: {} regions of new space, {} protrusions",
-            child.version,
-            report.len(),
-            found.len()
+            "  ({:.1}, {:.1}) m: {:.2} m², mean distance {:.2} m, minor axis {:.2} m -> {}",
+            r.centre_m[0],
+            r.centre_m[1],
+            r.features.area_m2,
+            r.features.mean_distance_m,
+            r.features.minor_axis_m,
+            if r.protrusion {
+                "protrusion"
+            } else {
+                "new space"
+            }
         );
-        for r in &report {
-            println!(
-                "  ({:.1}, {:.1}) m: {:.2} m², mean distance {:.2} m, minor axis {:.2} m -> {}",
-                r.centre_m[0],
-                r.centre_m[1],
-                r.features.area_m2,
-                r.features.mean_distance_m,
-                r.features.minor_axis_m,
-                if r.protrusion {
-                    "protrusion"
-                } else {
-                    "new space"
-                }
-            );
-        }
-        if let Some(v) = new_version {
-            println!("removed: version {v}");
-        }
-        if rolled_back {
-            println!("rolled back to version {parent_version}");
-        }
+    }
+    if let Some(v) = report.new_version {
+        println!("removed: version {v}");
+    }
+    if report.rolled_back {
+        println!("rolled back to version {}", report.parent);
     }
     Ok(())
 }
 
-/// One exported map's files.
-#[derive(Serialize)]
-struct ExportedMap {
-    /// `active` or `map-N` (the inactive graph's id).
-    name: String,
-    vertices: usize,
-    edges: usize,
-    epochs: Vec<u32>,
-    g2o: PathBuf,
-    map_yaml: PathBuf,
-    png: PathBuf,
-    trajectories: Vec<PathBuf>,
-}
-
-/// Writes every non-empty graph of a version (see [`StoreCommand::Export`]).
+/// Runs `mapmerge store export` (see [`StoreCommand::Export`]).
 fn export(args: &ExportArgs) -> anyhow::Result<()> {
-    crate::check_resolution(args.resolution)?;
-    let store = open(&args.site)?;
-    let Some(stored) = store.load(args.version).map_err(refused)? else {
-        return Err(crate::bad_input(format!(
-            "{}: the store has no version yet",
-            args.site.site.display()
-        )));
-    };
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("creating {}", args.output.display()))?;
-    let atlas = &stored.atlas;
-    let graphs = std::iter::once(("active".to_owned(), &atlas.active)).chain(
-        atlas
-            .inactive
-            .iter()
-            .map(|(id, g)| (format!("map-{}", id.0), g)),
-    );
-    let thresholds = ClassThresholds::default();
-    let mut maps = Vec::new();
-    for (name, graph) in graphs.filter(|(_, g)| g.num_vertices() > 0) {
-        let g2o = args.output.join(format!("{name}.g2o"));
-        mapmerge_io::write_graph(&g2o, &AnyGraph::Planar(graph.clone()), GraphFormat::G2o)
-            .map_err(anyhow::Error::from)?;
-        // The grid: the graph's local maps rendered (iRobot Sec. 3.3), else every keyframe's
-        // beams from its vertex (a graph without local maps).
-        let grid = match RenderedMap::render(graph, &atlas.local_maps, args.resolution)
-            .and_then(|rendered| rendered.to_grid())
-        {
-            Some(grid) => grid,
-            None => {
-                let mut grid = OccupancyGrid::new(args.resolution)?;
-                let model = InsertParams::default().model;
-                for (node, vertex) in graph.vertices() {
-                    let Some(keyframe) = atlas.keyframes.get(&node) else {
-                        continue;
-                    };
-                    let ends: Vec<Point2> = keyframe
-                        .points_in_robot
-                        .iter()
-                        .map(|p| vertex.pose.transform_point(p))
-                        .collect();
-                    grid.insert_rays(&vertex.pose.translation(), &ends, &[], &model)?;
-                }
-                grid
-            }
-        };
-        let map_yaml = args.output.join(format!("{name}.yaml"));
-        mapmerge_io::write_ros_map(
-            &map_yaml,
-            &RosMap::from_grid(&grid, MapMode::Trinary, &thresholds),
-        )?;
-        let png = args.output.join(format!("{name}.png"));
-        let style = PictureStyle {
-            pixels_per_cell: 1,
-            classes: Some(thresholds),
-        };
-        // One trajectory per epoch, stamped with the vertices' stamps (else their order).
-        let mut by_epoch: BTreeMap<u32, Vec<(f64, Se2)>> = BTreeMap::new();
-        for (k, (_, vertex)) in graph.vertices().enumerate() {
-            let stamp = vertex.meta.stamp_secs.unwrap_or(k as f64);
-            by_epoch
-                .entry(vertex.meta.session.0)
-                .or_default()
-                .push((stamp, vertex.pose));
-        }
-        let mut picture = Picture::of_grid(&grid, &style);
-        for (epoch, poses) in &by_epoch {
-            let poses: Vec<Se2> = poses.iter().map(|(_, pose)| *pose).collect();
-            picture.draw_trajectory(&poses, session_color(u64::from(*epoch)), 1.0);
-        }
-        picture.save_png(&png)?;
-        let mut trajectories = Vec::new();
-        for (epoch, poses) in &by_epoch {
-            let path = args.output.join(format!("{name}-epoch-{epoch}.tum"));
-            mapmerge_io::write_tum_planar(&path, poses)?;
-            trajectories.push(path);
-        }
-        maps.push(ExportedMap {
-            name,
-            vertices: graph.num_vertices(),
-            edges: graph.num_edges(),
-            epochs: by_epoch.keys().copied().collect(),
-            g2o,
-            map_yaml,
-            png,
-            trajectories,
-        });
-    }
+    let report =
+        mapmerge_jobs::export_version(&args.site.site, args.version, args.resolution, &args.output)
+            .map_err(job_error)?;
     if args.site.json {
-        #[derive(Serialize)]
-        struct Report<'a> {
-            version: i64,
-            maps: &'a [ExportedMap],
-        }
-        print_json(&Report {
-            version: stored.version,
-            maps: &maps,
-        })?;
-    } else {
-        for m in &maps {
-            println!(
-                "version {}: {} ({} vertices, {} edges, epochs {:?}) -> {}, {}, {}, {} trajectories",
-                stored.version,
-                m.name,
-                m.vertices,
-                m.edges,
-                m.epochs,
-                m.g2o.display(),
-                m.map_yaml.display(),
-                m.png.display(),
-                m.trajectories.len()
-            );
-        }
+        return print_json(&report);
+    }
+    for m in &report.maps {
+        println!(
+            "version {}: {} ({} vertices, {} edges, epochs {:?}) -> {}, {}, {}, {} trajectories",
+            report.version,
+            m.name,
+            m.vertices,
+            m.edges,
+            m.epochs,
+            m.g2o.display(),
+            m.map_yaml.display(),
+            m.png.display(),
+            m.trajectories.len()
+        );
     }
     Ok(())
 }

@@ -26,20 +26,28 @@
 //! assert!(err.to_string().starts_with(&format!("{}: cannot read", dir.join("missing.g2o").display())));
 //! ```
 
+mod areas;
 mod assemble;
 mod atlas;
 #[cfg(feature = "cli")]
 pub mod cli;
+mod convert;
 mod error;
 mod grid_merge;
 mod optimize;
 mod session;
+mod store;
 
+pub use areas::{
+    load_hybrid_map, manage_areas, parse_area_position, route_between, AreasOptions, AreasProgress,
+    AreasReport,
+};
 pub use assemble::{
     arrival_order, assemble, default_params, load_segments, segment_name, Assembled, LoadedSegment,
     LoopLine, Order, ScanRef, TrajectorySource,
 };
 pub use atlas::{draw_graph, write_atlas};
+pub use convert::{convert, is_kitti_folder, ConvertReport};
 pub use error::{error_chain, JobError};
 pub use grid_merge::{
     grid_merge, load_map, GridMergeReport, GridMerged, HypothesisReport, TransformReport,
@@ -52,5 +60,10 @@ pub use optimize::{
 };
 pub use session::{
     build_grid, check_resolution, log_file_stem, read_log_or_bag, read_session_log,
-    read_session_log_with, slam_log, SlamSummary, DEFAULT_RESOLUTION_M,
+    read_session_log_with, slam_log, write_slam_outputs, SlamSummary, DEFAULT_RESOLUTION_M,
+    TUM_CLOCK_PERIOD_S,
+};
+pub use store::{
+    export_version, open_or_create_store, open_store, store_protrusions, ExportReport, ExportedMap,
+    ProtrusionAction, ProtrusionReport, RegionReport,
 };

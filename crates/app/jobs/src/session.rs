@@ -5,7 +5,10 @@ use std::path::Path;
 
 use mapmerge_engine::{run_slam, EngineParams, SlamInfo, SlamRun};
 use mapmerge_geometry::Se2;
-use mapmerge_grid::{InsertInfo, InsertParams, OccupancyGrid};
+use mapmerge_grid::{ClassThresholds, InsertInfo, InsertParams, OccupancyGrid};
+use mapmerge_io::{AnyGraph, GraphFormat, MapMode, RosMap};
+use mapmerge_posegraph::PoseGraph2;
+use mapmerge_render::{GraphStyle, Picture, PictureStyle, Rgb};
 use mapmerge_rosbag::{BagInfo, TopicChoice};
 use mapmerge_scan::LaserLog;
 use serde::Serialize;
@@ -133,6 +136,58 @@ impl SlamSummary {
             graph_edges: run.graph.num_edges(),
         }
     }
+}
+
+/// Seconds per scan of the clock a TUM file gets when the log's stamps do not increase.
+pub const TUM_CLOCK_PERIOD_S: f64 = 0.1;
+
+/// Writes a SLAM run's outputs into `dir` (created if missing): `trajectory.tum` (one pose per
+/// scan, with the scan's stamp, or [`TUM_CLOCK_PERIOD_S`] apart when the log's stamps do not
+/// increase: TUM readers such as evo pair poses by stamp), `graph.g2o`, the map from every scan at its final pose
+/// (`map.yaml` + `map.pgm`) and `map.png` with the trajectory and graph over it. Returns the
+/// map.
+pub fn write_slam_outputs(
+    dir: &Path,
+    log: &LaserLog,
+    trajectory: &[Se2],
+    graph: &PoseGraph2,
+    resolution_m: f64,
+    progress: impl FnMut(),
+) -> Result<OccupancyGrid, JobError> {
+    let failed = |what: String| move |e: &dyn std::error::Error| JobError::context(what, e);
+    std::fs::create_dir_all(dir).map_err(|e| failed(format!("creating {}", dir.display()))(&e))?;
+    let (stamps, _) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
+    let stamped: Vec<(f64, Se2)> = stamps.into_iter().zip(trajectory.iter().copied()).collect();
+    let path = dir.join("trajectory.tum");
+    mapmerge_io::write_tum_planar(&path, &stamped)
+        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+    let any = AnyGraph::Planar(graph.clone());
+    let path = dir.join("graph.g2o");
+    mapmerge_io::write_graph(&path, &any, GraphFormat::G2o)
+        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+    let (grid, _) = build_grid(
+        log,
+        trajectory,
+        resolution_m,
+        &InsertParams::default(),
+        progress,
+    )?;
+    let thresholds = ClassThresholds::default();
+    let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
+    mapmerge_io::write_ros_map(&dir.join("map.yaml"), &map)
+        .map_err(|e| failed("writing the map".to_owned())(&e))?;
+    let style = PictureStyle {
+        pixels_per_cell: 1,
+        classes: Some(thresholds),
+    };
+    let mut picture = Picture::of_grid(&grid, &style);
+    picture.draw_trajectory(trajectory, Rgb::RED, 1.0);
+    picture.draw_graph(graph, &GraphStyle::default());
+    let path = dir.join("map.png");
+    picture
+        .save_png(&path)
+        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+    Ok(grid)
 }
 
 #[cfg(test)]

@@ -8,7 +8,12 @@
 //!   cases and detectors, calibration, assembly, protrusions, doors, areas);
 //! - [`invalid_merge_eval`]: Holoch et al.'s forced merges and their results files, which
 //!   `mapmerge atlas --merge-results` also writes;
-//! - [`area_truth`]: door detection and the map manager scored against the simulator.
+//! - [`area_truth`]: door detection and the map manager scored against the simulator;
+//! - the data and cases the experiments run on: [`sim`] (`mapmerge sim`: simulated sessions
+//!   with their truth), [`sim_graph`] (`mapmerge sim-graph`: a Manhattan world), [`corrupt`]
+//!   (`mapmerge corrupt`: vertigo's false loop closures) and [`compare`] (`mapmerge compare`:
+//!   ATE between two graphs), [`split`] (`mapmerge split`: a corrected log cut into
+//!   segments for assembly, the truth kept apart).
 //!
 //! The studies behind single tables are `examples/` of this crate (place recognition,
 //! retrieval, association at scale, grid-match crops, door traces, the simulator's speed).
@@ -17,16 +22,22 @@ pub mod area_truth;
 mod areas_eval;
 mod assemble_eval;
 mod calibrate_eval;
+pub mod compare;
+pub mod corrupt;
 mod door_eval;
 mod eval;
 mod grid_merge_eval;
 pub mod invalid_merge_eval;
 mod protrusion_eval;
+pub mod sim;
+pub mod sim_graph;
+pub mod slam_judge;
+pub mod split;
 
 pub use eval::{run as run_eval, EvalArgs, INDEX_HEADER};
 
 // What every command shares with the binary's (one definition, in `mapmerge-jobs`).
 pub(crate) use mapmerge_jobs::cli::{
     bad_file, bad_input, check_resolution, job_error, load_posed_log, log_short_name, print_json,
-    progress_bar, read_config, read_log, BagTopics, PosedLog,
+    progress_bar, read_config, read_log, BadInput, BagTopics, PosedLog,
 };
