@@ -70,8 +70,8 @@ fn convert_kitti_folder(
         stride: 1,
     };
     let started = Instant::now();
-    let segment = mapmerge_assemble::load_kitti_folder(folder, &every_point)
-        .map_err(JobError::bad_input)?;
+    let segment =
+        mapmerge_assemble::load_kitti_folder(folder, &every_point).map_err(JobError::bad_input)?;
     let read_secs = started.elapsed().as_secs_f64();
     let written = mapmerge_rosbag::write_cloud_bag(output, &segment.poses, &segment.clouds, params)
         .map_err(|e| JobError::bad_file(&e))?;
