@@ -448,10 +448,8 @@ fn link_in_first_frame(hybrid: &HybridMap, id: usize) -> Option<Point2> {
 }
 
 fn write_json(path: &Path, value: &impl Serialize) -> Result<(), JobError> {
-    let failed =
-        |e: &dyn std::error::Error| JobError::context(format!("writing {}", path.display()), e);
-    let text = serde_json::to_string_pretty(value).map_err(|e| failed(&e))?;
-    std::fs::write(path, text + "\n").map_err(|e| failed(&e))
+    let text = serde_json::to_string_pretty(value).map_err(|e| JobError::writing(path, &e))?;
+    std::fs::write(path, text + "\n").map_err(|e| JobError::writing(path, &e))
 }
 
 /// The overview: the whole map in the first area's frame, each area's path in its colour, the
@@ -495,7 +493,7 @@ fn overview(
     }
     picture
         .save_png(path)
-        .map_err(|e| JobError::context(format!("writing {}", path.display()), &e))
+        .map_err(|e| JobError::writing(path, &e))
 }
 
 /// Reads the hybrid map of a folder written by `mapmerge areas` (its hybrid.json).

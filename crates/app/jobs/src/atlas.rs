@@ -97,7 +97,7 @@ pub fn draw_graph(
     }
     picture
         .save_png(path)
-        .map_err(|e| JobError::context(format!("writing {}", path.display()), &e))?;
+        .map_err(|e| JobError::writing(path, &e))?;
     Ok(())
 }
 
@@ -162,7 +162,7 @@ pub fn write_atlas(engine: &Engine, dir: &Path) -> Result<(), JobError> {
         }
         let path = dir.join(format!("{name}.g2o"));
         mapmerge_io::write_graph(&path, &AnyGraph::Planar(graph.clone()), GraphFormat::G2o)
-            .map_err(|e| JobError::context(format!("writing {}", path.display()), &e))?;
+            .map_err(|e| JobError::writing(&path, &e))?;
         draw_graph(graph, engine, &[], &dir.join(format!("{name}.png")))?;
     }
     Ok(())

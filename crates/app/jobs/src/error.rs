@@ -41,6 +41,11 @@ impl JobError {
         Self::Failed(format!("{context}: {}", error_chain(err)))
     }
 
+    /// A failure to write `path` (or create it, for a folder), with the cause chain of `err`.
+    pub fn writing(path: &std::path::Path, err: &dyn Error) -> Self {
+        Self::context(format!("writing {}", path.display()), err)
+    }
+
     /// The CLI's exit code: 2 for bad input, 1 otherwise.
     pub fn exit_code(&self) -> u8 {
         match self {

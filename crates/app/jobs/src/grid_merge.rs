@@ -233,7 +233,7 @@ pub fn grid_merge(
             &PairStyle::default(),
         )
         .save_png(&png)
-        .map_err(|e| JobError::context(format!("writing {}", png.display()), &e))?;
+        .map_err(|e| JobError::writing(&png, &e))?;
         report.png = Some(png);
     }
     if !matched.accepted {

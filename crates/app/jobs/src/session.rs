@@ -154,17 +154,16 @@ pub fn write_slam_outputs(
     resolution_m: f64,
     progress: impl FnMut(),
 ) -> Result<OccupancyGrid, JobError> {
-    let failed = |what: String| move |e: &dyn std::error::Error| JobError::context(what, e);
-    std::fs::create_dir_all(dir).map_err(|e| failed(format!("creating {}", dir.display()))(&e))?;
+    std::fs::create_dir_all(dir)
+        .map_err(|e| JobError::context(format!("creating {}", dir.display()), &e))?;
     let (stamps, _) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     let stamped: Vec<(f64, Se2)> = stamps.into_iter().zip(trajectory.iter().copied()).collect();
     let path = dir.join("trajectory.tum");
-    mapmerge_io::write_tum_planar(&path, &stamped)
-        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+    mapmerge_io::write_tum_planar(&path, &stamped).map_err(|e| JobError::writing(&path, &e))?;
     let any = AnyGraph::Planar(graph.clone());
     let path = dir.join("graph.g2o");
     mapmerge_io::write_graph(&path, &any, GraphFormat::G2o)
-        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+        .map_err(|e| JobError::writing(&path, &e))?;
     let (grid, _) = build_grid(
         log,
         trajectory,
@@ -175,7 +174,7 @@ pub fn write_slam_outputs(
     let thresholds = ClassThresholds::default();
     let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
     mapmerge_io::write_ros_map(&dir.join("map.yaml"), &map)
-        .map_err(|e| failed("writing the map".to_owned())(&e))?;
+        .map_err(|e| JobError::context("writing the map", &e))?;
     let style = PictureStyle {
         pixels_per_cell: 1,
         classes: Some(thresholds),
@@ -186,7 +185,7 @@ pub fn write_slam_outputs(
     let path = dir.join("map.png");
     picture
         .save_png(&path)
-        .map_err(|e| failed(format!("writing {}", path.display()))(&e))?;
+        .map_err(|e| JobError::writing(&path, &e))?;
     Ok(grid)
 }
 

@@ -211,10 +211,6 @@ pub fn export_version(
             site.display()
         )));
     };
-    let failed = |what: &Path| {
-        let what = what.display().to_string();
-        move |e: &dyn std::error::Error| JobError::context(format!("writing {what}"), e)
-    };
     std::fs::create_dir_all(output)
         .map_err(|e| JobError::context(format!("creating {}", output.display()), &e))?;
     let atlas = &stored.atlas;
@@ -229,7 +225,7 @@ pub fn export_version(
     for (name, graph) in graphs.filter(|(_, g)| g.num_vertices() > 0) {
         let g2o = output.join(format!("{name}.g2o"));
         mapmerge_io::write_graph(&g2o, &AnyGraph::Planar(graph.clone()), GraphFormat::G2o)
-            .map_err(|e| failed(&g2o)(&e))?;
+            .map_err(|e| JobError::writing(&g2o, &e))?;
         // The grid: the graph's local maps rendered (iRobot Sec. 3.3), else every keyframe's
         // beams from its vertex (a graph without local maps).
         let grid = match RenderedMap::render(graph, &atlas.local_maps, resolution_m)
@@ -260,7 +256,7 @@ pub fn export_version(
             &map_yaml,
             &RosMap::from_grid(&grid, MapMode::Trinary, &thresholds),
         )
-        .map_err(|e| failed(&map_yaml)(&e))?;
+        .map_err(|e| JobError::writing(&map_yaml, &e))?;
         let png = output.join(format!("{name}.png"));
         let style = PictureStyle {
             pixels_per_cell: 1,
@@ -280,11 +276,14 @@ pub fn export_version(
             let poses: Vec<Se2> = poses.iter().map(|(_, pose)| *pose).collect();
             picture.draw_trajectory(&poses, session_color(u64::from(*epoch)), 1.0);
         }
-        picture.save_png(&png).map_err(|e| failed(&png)(&e))?;
+        picture
+            .save_png(&png)
+            .map_err(|e| JobError::writing(&png, &e))?;
         let mut trajectories = Vec::new();
         for (epoch, poses) in &by_epoch {
             let path = output.join(format!("{name}-epoch-{epoch}.tum"));
-            mapmerge_io::write_tum_planar(&path, poses).map_err(|e| failed(&path)(&e))?;
+            mapmerge_io::write_tum_planar(&path, poses)
+                .map_err(|e| JobError::writing(&path, &e))?;
             trajectories.push(path);
         }
         maps.push(ExportedMap {
