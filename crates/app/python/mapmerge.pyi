@@ -29,6 +29,7 @@ __all__ = [
     "optimize",
     "read_graph",
     "read_log",
+    "run_atlas",
     "slam",
     "write_graph",
 ]
@@ -172,6 +173,25 @@ def assemble(
     """
 
 @final
+def run_atlas(
+    logs: Sequence[Union[str, os.PathLike[str]]],
+    output: Union[str, os.PathLike[str]],
+    *,
+    kidnap_at: Sequence[int] = (),
+    store: Optional[Union[str, os.PathLike[str]]] = None,
+    keep_versions: int = 10,
+    pictures: bool = True,
+    scan_topic: Optional[str] = None,
+    odom_topic: Optional[str] = None,
+) -> dict[str, Any]:
+    """A whole ``mapmerge atlas`` run over laser sessions (one log or bag each, in order).
+
+    The epoch ends with a restart between logs and with a kidnap at ``kidnap_at`` (scans
+    counted over all logs from 0). Writes ``output``'s ``events.jsonl``, ``atlas/`` and, with
+    ``pictures``, ``pictures/``; with ``store``, continues its newest atlas and commits one
+    version per session. Returns the fields of ``mapmerge atlas --json`` (no judging).
+    """
+
 class Atlas:
     """The lifelong mapping loop (``mapmerge atlas``'s engine, default parameters), scan by scan.
 

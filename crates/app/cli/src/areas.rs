@@ -9,8 +9,8 @@ use std::path::PathBuf;
 use clap::Args;
 use mapmerge_areas::ManagerParams;
 use mapmerge_jobs::{AreasOptions, AreasProgress};
+use mapmerge_lab::sim::simulated_sessions;
 use mapmerge_scan::LaserLog;
-use mapmerge_sim::{simulate, simulate_session_alone, SimParams};
 
 use crate::{bad_input, job_error, print_json};
 
@@ -73,28 +73,21 @@ fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<(String, LaserLog)>> {
                 Ok((path.display().to_string(), log))
             })
             .collect(),
-        ([], Some(world)) => {
-            let mut params = SimParams::default()
-                .with_preset_name(world)
-                .map_err(bad_input)?
-                .with_sessions(args.sessions)
-                .with_duration_secs(args.duration);
-            // The map manager tracks the robot; a kidnap is another problem (the atlas's).
-            params.kidnap.max_per_session = 0;
-            if let Some(index) = args.session_index {
-                let session =
-                    simulate_session_alone(&params, args.seed, index).map_err(bad_input)?;
-                let name = format!("sim {world} seed {} session {index}", args.seed);
-                return Ok(vec![(name, session.log)]);
-            }
-            let dataset = simulate(&params, args.seed).map_err(bad_input)?;
-            Ok(dataset
-                .sessions
-                .into_iter()
-                .enumerate()
-                .map(|(k, s)| (format!("sim {world} seed {} session {k}", args.seed), s.log))
-                .collect())
-        }
+        // The map manager tracks the robot; a kidnap is another problem (the atlas's).
+        ([], Some(world)) => Ok(simulated_sessions(
+            world,
+            args.sessions,
+            args.duration,
+            args.seed,
+            args.session_index,
+            false,
+        )?
+        .into_iter()
+        .map(|s| {
+            let name = format!("sim {world} seed {} session {}", args.seed, s.index);
+            (name, s.log)
+        })
+        .collect()),
         _ => Err(bad_input("give LOG..., --sim WORLD or --store FILE")),
     }
 }

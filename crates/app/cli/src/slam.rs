@@ -8,10 +8,9 @@ use std::process::ExitCode;
 
 use clap::Args;
 use mapmerge_engine::EngineParams;
-use mapmerge_eval::TrajectoryReport;
 use mapmerge_geometry::Se2;
 use mapmerge_jobs::{write_slam_outputs, TUM_CLOCK_PERIOD_S};
-use mapmerge_lab::slam_judge::{judge_slam, noisy_session, LoopPrecision};
+use mapmerge_lab::slam_judge::{judge_slam, noisy_session, LoopPrecision, TrajectoryReport};
 use serde::Serialize;
 
 use crate::{bad_input, check_resolution, job_error, print_json};

@@ -10,7 +10,8 @@
 //! - [`grid_merge`]: merge two map_server maps without a guess ([`GridMergeReport`]);
 //! - [`read_session_log`], [`slam_log`], [`build_grid`]: a CARMEN log or ROS 2 bag, SLAM on
 //!   it, its map;
-//! - [`load_segments`] + [`assemble`]: AutoMerge over segments.
+//! - [`load_segments`] + [`assemble`]: AutoMerge over segments;
+//! - [`AtlasJob`]: sessions through the lifelong engine, with a store ([`AtlasReport`]).
 //!
 //! ```
 //! use mapmerge_jobs::{optimize_file, OptimizeOptions};
@@ -34,6 +35,7 @@ pub mod cli;
 mod convert;
 mod error;
 mod grid_merge;
+mod lifelong;
 mod optimize;
 mod session;
 mod store;
@@ -53,6 +55,11 @@ pub use grid_merge::{
     grid_merge, load_map, GridMergeReport, GridMerged, HypothesisReport, TransformReport,
     DEFAULT_HYPOTHESES,
 };
+pub use lifelong::{
+    log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun, AtlasSession,
+    CommittedSession, MergeReport, SelfSimilarityReport, SiteMap, StoreRunReport, UnmergeReport,
+};
+pub use mapmerge_store::DEFAULT_KEEP_VERSIONS;
 pub use optimize::{
     load_graph, numerical_failure_message, optimize_file, optimize_loaded, AlgorithmChoice,
     BadInformationChoice, Choice, InitChoice, Initialised, OptimizeOptions, OptimizeProgress,

@@ -1,19 +1,24 @@
-//! The lifelong engine scan by scan: the `Atlas` class.
+//! The lifelong engine scan by scan (the `Atlas` class) and a whole `atlas` run
+//! (`run_atlas`).
 
 use mapmerge_atlas::EpochEndReason;
 use mapmerge_engine::{Engine, EngineParams};
 use std::sync::{Mutex, MutexGuard};
 
+use std::path::PathBuf;
+
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_io::AnyGraph;
+use mapmerge_jobs::{log_sessions, read_session_log_with, AtlasJob, AtlasOptions, JobError};
+use mapmerge_rosbag::TopicChoice;
 use mapmerge_scan::LaserScan;
 use numpy::{AllowTypeChange, PyArray1, PyArrayLike1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::convert::{to_python, vector};
+use crate::convert::{to_dict, to_python, vector};
 use crate::graph::Graph;
-use crate::{bad_input, MapmergeError};
+use crate::{bad_input, job_error, MapmergeError};
 
 /// The lifelong mapping loop (`mapmerge atlas`'s engine with its default parameters), fed
 /// one scan at a time: it tracks, inserts keyframes, closes loops, merges epochs by place
@@ -248,4 +253,55 @@ impl PyAtlas {
             engine.merge_log().len()
         ))
     }
+}
+
+/// A whole `mapmerge atlas` run over laser sessions (CARMEN logs or ROS 2 bags, one session
+/// each, in order), as the CLI runs it: the epoch ends with a restart between logs and with a
+/// kidnap at the scans of `kidnap_at` (counted over all logs from 0). Writes `output`'s
+/// `events.jsonl`, `atlas/` and, with `pictures`, `pictures/`; with `store`, continues the
+/// store's newest atlas and commits one version per session. Returns the fields of
+/// `mapmerge atlas --json` without the judging against a truth.
+#[pyfunction]
+#[pyo3(signature = (
+    logs, output, *, kidnap_at = Vec::new(), store = None,
+    keep_versions = mapmerge_jobs::DEFAULT_KEEP_VERSIONS, pictures = true, scan_topic = None,
+    odom_topic = None
+))]
+#[allow(clippy::too_many_arguments)]
+pub fn run_atlas<'py>(
+    py: Python<'py>,
+    logs: Vec<PathBuf>,
+    output: PathBuf,
+    kidnap_at: Vec<usize>,
+    store: Option<PathBuf>,
+    keep_versions: usize,
+    pictures: bool,
+    scan_topic: Option<String>,
+    odom_topic: Option<String>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let topics = TopicChoice {
+        scan_topic,
+        odom_topic,
+    };
+    let run = py
+        .detach(|| {
+            let job = AtlasJob::open(AtlasOptions {
+                params: EngineParams::default(),
+                output,
+                pictures,
+                store,
+                keep_versions,
+            })?;
+            let logs = logs
+                .iter()
+                .map(|path| {
+                    let log = read_session_log_with(path, &topics)?;
+                    Ok((path.display().to_string(), log))
+                })
+                .collect::<Result<Vec<_>, JobError>>()?;
+            let sessions = log_sessions(logs, &kidnap_at, false)?;
+            job.run(&sessions, |_| {})
+        })
+        .map_err(|e| job_error(py, e))?;
+    to_dict(py, &run.report)
 }

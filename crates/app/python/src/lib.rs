@@ -4,7 +4,8 @@
 //!
 //! - [`graph`]: `Graph`, `read_graph`, `write_graph`, `optimize`;
 //! - [`maps`]: `grid_merge`, `read_log`, `slam`, `assemble`;
-//! - [`atlas`]: the `Atlas` class (the lifelong engine, scan by scan).
+//! - [`atlas`]: the `Atlas` class (the lifelong engine, scan by scan) and `run_atlas` (a
+//!   whole `mapmerge atlas` run).
 //!
 //! Errors: every failure the CLI reports as `mapmerge: error: MESSAGE` raises
 //! `mapmerge.MapmergeError(MESSAGE)`; those the CLI exits with code 2 for (unreadable or
@@ -91,5 +92,6 @@ fn mapmerge(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(maps::slam, m)?)?;
     m.add_function(wrap_pyfunction!(maps::assemble, m)?)?;
     m.add_class::<atlas::PyAtlas>()?;
+    m.add_function(wrap_pyfunction!(atlas::run_atlas, m)?)?;
     Ok(())
 }

@@ -94,3 +94,26 @@ def test_bad_scans_and_reasons_are_bad_input():
     )
     assert report["keyframe"] == 0 and report["anchor"] == 0 and atlas.scans == 1
     np.testing.assert_array_equal(atlas.robot_pose, [0.0, 0.0, 0.0])
+
+
+def test_a_whole_run_is_the_clis_run(tmp_path):
+    """`run_atlas` is `mapmerge atlas` without its judging: the same merges and events."""
+    first = in_testdata("sim/office-aliased/session_0.log.xz")
+    second = truncated_log(
+        in_testdata("sim/office-aliased/session_2.log.xz"), tmp_path / "s2.log", SCANS_OF_SESSION_2
+    )
+    report = mapmerge.run_atlas([first, second], tmp_path / "py", pictures=False,
+                                store=tmp_path / "py.db")
+    code, out, err = run_cli("atlas", first, second, "-o", tmp_path / "cli", "--no-pictures",
+                             "--store", tmp_path / "cli.db", "--json")
+    assert code == 0, err
+    expected = json.loads(out)
+    assert [m["state"] for m in report["merges"]] == ["full"]
+    for key in ("sessions", "scans", "epochs", "merges", "unmerges", "hypotheses",
+                "epoch_outcomes"):
+        assert report[key] == expected[key], key
+    assert [c["version"] for c in report["store"]["committed"]] == [1, 2]
+    lines = lambda run: [json.loads(l) for l in open(tmp_path / run / "events.jsonl")]
+    assert lines("py") == lines("cli")
+    with pytest.raises(mapmerge.BadInputError, match="give one or more logs"):
+        mapmerge.run_atlas([], tmp_path / "none")

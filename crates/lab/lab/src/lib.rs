@@ -8,6 +8,8 @@
 //!   cases and detectors, calibration, assembly, protrusions, doors, areas);
 //! - [`invalid_merge_eval`]: Holoch et al.'s forced merges and their results files, which
 //!   `mapmerge atlas --merge-results` also writes;
+//! - [`atlas_judge`]: `mapmerge atlas` against the truth (simulated sessions, every merge
+//!   judged, ATE per committed session, epochs that revisit);
 //! - [`area_truth`]: door detection and the map manager scored against the simulator;
 //! - the data and cases the experiments run on: [`sim`] (`mapmerge sim`: simulated sessions
 //!   with their truth), [`sim_graph`] (`mapmerge sim-graph`: a Manhattan world), [`corrupt`]
@@ -21,6 +23,7 @@
 pub mod area_truth;
 mod areas_eval;
 mod assemble_eval;
+pub mod atlas_judge;
 mod calibrate_eval;
 pub mod compare;
 pub mod corrupt;

@@ -11,7 +11,10 @@ use mapmerge_grid::{ClassThresholds, OccupancyGrid};
 use mapmerge_io::{MapMode, RosMap};
 use mapmerge_render::{Picture, PictureStyle, Rgb};
 use mapmerge_scan::LaserLog;
-use mapmerge_sim::{simulate, Dataset, SessionData, SimParams, SlipSchedule, World, WorldPreset};
+use mapmerge_sim::{
+    simulate, simulate_session_alone, Dataset, SessionData, SimParams, SlipSchedule, World,
+    WorldPreset,
+};
 use serde::Serialize;
 
 use crate::{bad_input, check_resolution, print_json};
@@ -135,6 +138,32 @@ struct DatasetSummary<'a> {
     #[serde(skip_serializing_if = "Option::is_none")]
     corrected_log: Option<String>,
     sessions: Vec<SessionSummary<'a>>,
+}
+
+/// The sessions of a simulated world (`preset`, `sessions` of `duration_secs` each) that the
+/// product's commands run on with `--sim`; with `session_index`, that session alone (its
+/// changes, route and noise as in the whole simulation), as a robot lives with a store.
+/// Without `kidnaps` the robot is never kidnapped.
+pub fn simulated_sessions(
+    preset: &str,
+    sessions: usize,
+    duration_secs: f64,
+    seed: u64,
+    session_index: Option<usize>,
+    kidnaps: bool,
+) -> anyhow::Result<Vec<SessionData>> {
+    let mut params = SimParams::default()
+        .with_preset_name(preset)
+        .map_err(bad_input)?
+        .with_sessions(sessions)
+        .with_duration_secs(duration_secs);
+    if !kidnaps {
+        params.kidnap.max_per_session = 0;
+    }
+    Ok(match session_index {
+        Some(index) => vec![simulate_session_alone(&params, seed, index).map_err(bad_input)?],
+        None => simulate(&params, seed).map_err(bad_input)?.sessions,
+    })
 }
 
 /// Runs `mapmerge sim`.

@@ -6,9 +6,10 @@
 
 use mapmerge_atlas::LoopSource;
 use mapmerge_engine::SlamRun;
+pub use mapmerge_eval::TrajectoryReport;
 use mapmerge_eval::{
     add_odometry_noise, make_relations, scan_poses, trajectory_report, OdometryNoiseProfile,
-    RelationsParams, TrajectoryReport, DEFAULT_RPE_DELTAS,
+    RelationsParams, DEFAULT_RPE_DELTAS,
 };
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_scan::LaserLog;

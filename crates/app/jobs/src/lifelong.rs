@@ -1,0 +1,645 @@
+//! The `atlas` job: laser sessions through the lifelong engine (Holoch et al.'s merge
+//! decisions over Atlas's epochs), with the events, the atlas's graphs, pictures around every
+//! merge and, with a store, one committed version per session. [`AtlasJob::open`] opens the
+//! store and the engine (a refused store stops before any work); [`AtlasJob::run`] feeds the
+//! sessions and reports.
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use mapmerge_atlas::{AtlasEvent, AtlasSnapshot, EpochEndReason};
+use mapmerge_engine::{Decision, DetectorReading, Engine, EngineParams, EventKind, MergeState};
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_posegraph::NodeId;
+use mapmerge_scan::LaserLog;
+use mapmerge_store::{Store, StoreError};
+use serde::Serialize;
+
+use crate::{draw_graph, open_or_create_store, write_atlas, JobError};
+
+/// One session: a log fed scan by scan.
+pub struct AtlasSession {
+    pub name: String,
+    pub log: LaserLog,
+    /// Scans of this session where the robot was kidnapped: each starts a new epoch.
+    pub kidnaps: Vec<usize>,
+    /// A reference pose per scan (a corrected log's poses, a simulator's truth), kept for
+    /// every keyframe and committed with the atlas; none without.
+    pub reference: Option<Vec<Se2>>,
+}
+
+/// One session per log (`(name, log)`, in order); `kidnap_at` counts scans over all logs
+/// from 0. With `reference_from_poses`, each log's own poses are its reference (the public
+/// corrected logs).
+pub fn log_sessions(
+    logs: Vec<(String, LaserLog)>,
+    kidnap_at: &[usize],
+    reference_from_poses: bool,
+) -> Result<Vec<AtlasSession>, JobError> {
+    if logs.is_empty() {
+        return Err(JobError::bad_input(
+            "give one or more logs, or --sim PRESET",
+        ));
+    }
+    let mut sessions = Vec::with_capacity(logs.len());
+    let mut offset = 0;
+    for (name, log) in logs {
+        let n = log.scans.len();
+        let kidnaps = kidnap_at
+            .iter()
+            .filter(|&&k| k > offset && k < offset + n)
+            .map(|&k| k - offset)
+            .collect();
+        offset += n;
+        let reference = reference_from_poses.then(|| {
+            let mut previous = Se2::identity();
+            log.scans
+                .iter()
+                .map(|s| {
+                    previous = s.odom_from_robot.unwrap_or(previous);
+                    previous
+                })
+                .collect()
+        });
+        sessions.push(AtlasSession {
+            name,
+            log,
+            kidnaps,
+            reference,
+        });
+    }
+    if let Some(k) = kidnap_at.iter().find(|&&k| k >= offset) {
+        return Err(JobError::bad_input(format!(
+            "--kidnap-at {k} is beyond the {offset} scans of the logs"
+        )));
+    }
+    Ok(sessions)
+}
+
+/// What the atlas job does besides mapping.
+pub struct AtlasOptions {
+    pub params: EngineParams,
+    /// Output folder: `events.jsonl`, `atlas/` and `pictures/`.
+    pub output: PathBuf,
+    /// Draw the graph before and after every merge, unmerge and conditional merge.
+    pub pictures: bool,
+    /// The lifelong store (created when missing), and how many newest versions keep their
+    /// atlas.
+    pub store: Option<PathBuf>,
+    pub keep_versions: usize,
+}
+
+/// Where the job is: a session starts, or one scan was fed.
+pub enum AtlasProgress<'a> {
+    Session(&'a str),
+    Scan,
+}
+
+/// A merge as reported: one per merge decision (conditional, full, rejected or undone).
+#[derive(Clone, Debug, Serialize)]
+pub struct MergeReport {
+    /// The atlas's merge id, once merged fully.
+    pub merge: Option<u64>,
+    /// The hypothesis it came from (none for a forced merge).
+    pub hypothesis: Option<u64>,
+    /// Scan and travel when it was first decided (conditional, else full).
+    pub scan: usize,
+    pub travel_m: f64,
+    /// The epoch that merged, and the inactive graph with its epochs.
+    pub epoch: u32,
+    pub map: u32,
+    pub epochs: Vec<u32>,
+    /// Merge edges (observations and overlap loops) and, when full, the overlap edges the
+    /// full merge found.
+    pub loop_edges: usize,
+    pub overlap_edges: usize,
+    /// `conditional`, `full`, `rejected` (a conditional merge dropped) or `undone`.
+    pub state: MergeState,
+    pub conditional_at_scan: Option<usize>,
+    pub full_at_scan: Option<usize>,
+    /// Travel from conditional to full (m).
+    pub full_after_m: Option<f64>,
+    /// Why it was rejected or undone.
+    pub reason: Option<String>,
+    /// Judged against the reference poses (the lab's judge fills these): `true` when most
+    /// merge edges are within 0.5 m and 10° of it, and the median edge's error `[m, deg]`.
+    pub correct: Option<bool>,
+    pub error_m_deg: Option<[f64; 2]>,
+    /// When it was rejected or undone: scan, and robot travel from the first decision (m).
+    pub undone_at_scan: Option<usize>,
+    pub undone_after_m: Option<f64>,
+    /// When its epoch ended (a full merge became final): travel after the merge (m).
+    pub final_after_m: Option<f64>,
+    /// What the detector (first) and its components read while the merge was judged.
+    pub readings: Vec<DetectorReading>,
+}
+
+/// An unmerge: the merges it undid and why.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnmergeReport {
+    pub scan: usize,
+    pub travel_m: f64,
+    pub merges: Vec<u64>,
+    pub reason: String,
+}
+
+/// Views of inactive graphs searched for another placement of their own local map.
+#[derive(Clone, Debug, Serialize)]
+pub struct SelfSimilarityReport {
+    pub views: usize,
+    /// Those that fit themselves elsewhere (from `decisions.self_similar_from_score` on).
+    pub self_similar: usize,
+    /// Joint local maps of a hypothesis's self-similar views searched
+    /// (`decisions.joint_views`) …
+    pub joint_searched: usize,
+    /// … and those that fit nowhere else (their views then count in full).
+    pub joint_unique: usize,
+    pub seconds: f64,
+}
+
+/// `--store`: the version continued and the versions committed.
+#[derive(Clone, Debug, Serialize)]
+pub struct StoreRunReport {
+    pub path: PathBuf,
+    /// The version the run continued (none for a new store).
+    pub resumed_from: Option<i64>,
+    /// Opening the store, loading its newest atlas and rebuilding the place index (s).
+    pub open_secs: f64,
+    pub committed: Vec<CommittedSession>,
+}
+
+/// One committed session.
+#[derive(Clone, Debug, Serialize)]
+pub struct CommittedSession {
+    #[serde(flatten)]
+    pub version: mapmerge_store::VersionInfo,
+    /// Ending the session, maintaining, snapshotting and committing the atlas (s).
+    pub commit_secs: f64,
+    /// ATE (m) of the session's keyframes, and of every keyframe of the graph the robot
+    /// ended in, against their reference poses (the lab's judge fills these).
+    pub session_ate_m: Option<f64>,
+    pub map_ate_m: Option<f64>,
+    /// What maintenance did before the commit (included in `commit_secs`).
+    pub maintenance: mapmerge_atlas::MaintenanceReport,
+    /// The site map (the largest graph) alone: counts and mapped area.
+    pub site: Option<SiteMap>,
+    /// Graphs in the atlas.
+    pub graphs: usize,
+    /// The session's first node, and every vertex of the graph the robot ended in as
+    /// mapped, before maintenance thinned it.
+    #[serde(skip)]
+    pub first_node: NodeId,
+    #[serde(skip)]
+    pub mapped_poses: Vec<(NodeId, Se2)>,
+}
+
+/// The site map's size.
+#[derive(Clone, Debug, Serialize)]
+pub struct SiteMap {
+    pub nodes: usize,
+    pub edges: usize,
+    pub keyframes: usize,
+    pub local_maps: usize,
+    pub mapped_area_m2: f64,
+}
+
+impl SiteMap {
+    fn of(atlas: &AtlasSnapshot) -> Option<Self> {
+        let graph = atlas.site_graph()?;
+        let holds = |node: &NodeId| graph.contains_vertex(*node);
+        Some(Self {
+            nodes: graph.num_vertices(),
+            edges: graph.num_edges(),
+            keyframes: atlas.keyframes.keys().filter(|n| holds(n)).count(),
+            local_maps: atlas.local_maps.keys().filter(|n| holds(n)).count(),
+            mapped_area_m2: atlas.graph_area_m2(graph, 0.05),
+        })
+    }
+}
+
+/// The atlas job's report (the object `mapmerge atlas --json` prints, with the lab's
+/// verdicts beside it when judged).
+#[derive(Clone, Debug, Serialize)]
+pub struct AtlasReport {
+    pub sessions: usize,
+    pub scans: usize,
+    pub epochs: usize,
+    /// Epochs that had a map to merge into: all but the first, or all when the run continued
+    /// a stored atlas.
+    pub epochs_with_a_map: usize,
+    pub merges: Vec<MergeReport>,
+    pub unmerges: Vec<UnmergeReport>,
+    pub hypotheses: mapmerge_engine::HypothesisSummary,
+    /// Every epoch: its merge hypotheses and how far they got (why a later epoch did or did
+    /// not merge).
+    pub epoch_outcomes: Vec<mapmerge_engine::EpochOutcome>,
+    pub ambiguous_keyframes: usize,
+    /// Views of inactive graphs searched for another placement of their own local map, those
+    /// found self-similar (ambiguous), and the time it took.
+    pub self_similarity: SelfSimilarityReport,
+    /// Where the time went: the tracker's and the constraint builder's counters.
+    pub tracker: mapmerge_slam::TrackerInfo,
+    pub constraints: mapmerge_atlas::ConstraintInfo,
+    pub pictures: Vec<PathBuf>,
+    pub events: PathBuf,
+    /// With a store: what was continued and what was committed.
+    pub store: Option<StoreRunReport>,
+    pub seconds: f64,
+    pub ms_per_scan: f64,
+}
+
+/// A finished run: the engine, the reference pose of every keyframe (this run's and the
+/// store's), and the report.
+pub struct AtlasRun {
+    pub engine: Engine,
+    pub reference_of_node: BTreeMap<NodeId, Se2>,
+    pub report: AtlasReport,
+}
+
+/// The atlas job between [`AtlasJob::open`] and [`AtlasJob::run`].
+pub struct AtlasJob {
+    options: AtlasOptions,
+    engine: Engine,
+    store: Option<Store>,
+    reference_of_node: BTreeMap<NodeId, Se2>,
+    resumed_from: Option<i64>,
+    open_secs: f64,
+    started: Instant,
+}
+
+impl AtlasJob {
+    /// Opens the store (continuing its newest atlas) and the engine. A store that cannot be
+    /// opened or loaded and parameters the engine refuses are bad input.
+    pub fn open(options: AtlasOptions) -> Result<Self, JobError> {
+        let started = Instant::now();
+        let store = match &options.store {
+            Some(path) => {
+                let mut store = open_or_create_store(path)?;
+                store.keep_versions(options.keep_versions);
+                Some(store)
+            }
+            None => None,
+        };
+        let stored = match &store {
+            Some(store) => match store.load(None) {
+                Ok(stored) => stored,
+                // Versions written by schema 1 hold no atlas: the lifelong atlas starts now.
+                Err(StoreError::NoAtlas { .. }) => None,
+                Err(e) => return Err(JobError::bad_file(&e)),
+            },
+            None => None,
+        };
+        let resumed_from = stored.as_ref().map(|s| s.version);
+        let params = options.params.clone();
+        let (engine, reference_of_node) = match stored {
+            Some(stored) => (
+                Engine::resume(params, stored.atlas).map_err(|e| JobError::bad_file(&e))?,
+                stored.reference_poses,
+            ),
+            None => (
+                Engine::new(params).map_err(JobError::bad_input)?,
+                BTreeMap::new(),
+            ),
+        };
+        Ok(Self {
+            options,
+            engine,
+            store,
+            reference_of_node,
+            resumed_from,
+            open_secs: started.elapsed().as_secs_f64(),
+            started,
+        })
+    }
+
+    /// The stored version this run continues.
+    pub fn resumed_from(&self) -> Option<i64> {
+        self.resumed_from
+    }
+
+    /// Feeds every session in order (a new session ends the epoch as a restart; a kidnap
+    /// ends it too), commits each with a store, and writes the events, the atlas and the
+    /// pictures.
+    pub fn run(
+        mut self,
+        sessions: &[AtlasSession],
+        mut progress: impl FnMut(AtlasProgress<'_>),
+    ) -> Result<AtlasRun, JobError> {
+        let output = self.options.output.clone();
+        let pictures_dir = output.join("pictures");
+        std::fs::create_dir_all(&pictures_dir)
+            .map_err(|e| JobError::context(format!("creating {}", pictures_dir.display()), &e))?;
+        let mut pictures = Pictures {
+            dir: pictures_dir,
+            drawn: 0,
+            paths: Vec::new(),
+        };
+        let mut committed = Vec::new();
+        for (s, session) in sessions.iter().enumerate() {
+            progress(AtlasProgress::Session(&session.name));
+            let events_before = self.engine.events().len();
+            let first_node = self.engine.atlas().next_node_id();
+            // A restart ends the epoch, unless the last session ended it (a store).
+            if (s > 0 || self.resumed_from.is_some())
+                && self.engine.atlas().active().num_vertices() > 0
+            {
+                self.engine
+                    .end_epoch(EpochEndReason::Restart)
+                    .map_err(|e| JobError::failed(&e))?;
+            }
+            self.feed(session, &mut pictures, &mut progress)?;
+            if let Some(store) = self.store.as_mut() {
+                committed.push(commit_session(
+                    store,
+                    &mut self.engine,
+                    &session.name,
+                    events_before,
+                    first_node,
+                    &self.reference_of_node,
+                )?);
+            }
+        }
+        let events = write_events(&self.engine, &output.join("events.jsonl"))?;
+        write_atlas(&self.engine, &output.join("atlas"))?;
+        let engine = &self.engine;
+        let (merges, unmerges) = summarise(engine);
+        let epochs = engine
+            .events()
+            .iter()
+            .filter(|e| matches!(e.atlas(), Some(AtlasEvent::EpochStarted { .. })))
+            .count();
+        let threshold = engine.params().decisions.self_similar_from_score;
+        let view_scores = mapmerge_engine::view_self_similarity(engine.events());
+        let fitting_elsewhere = |scores: &mut dyn Iterator<Item = &f64>| {
+            scores.filter(|&&score| score >= threshold).count()
+        };
+        let joint = engine.joint_self_similarity();
+        let seconds = self.started.elapsed().as_secs_f64();
+        let report = AtlasReport {
+            sessions: sessions.len(),
+            scans: engine.scans(),
+            epochs,
+            epochs_with_a_map: if self.resumed_from.is_some() {
+                epochs
+            } else {
+                epochs.saturating_sub(1)
+            },
+            merges,
+            unmerges,
+            hypotheses: mapmerge_engine::hypothesis_summary(engine.events()),
+            epoch_outcomes: mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m()),
+            ambiguous_keyframes: mapmerge_engine::ambiguous_views(engine.events()).len(),
+            self_similarity: SelfSimilarityReport {
+                views: view_scores.len(),
+                self_similar: fitting_elsewhere(&mut view_scores.values()),
+                joint_searched: joint.len(),
+                joint_unique: joint.len() - fitting_elsewhere(&mut joint.values()),
+                seconds: engine.self_similarity_seconds(),
+            },
+            tracker: engine.tracker_info(),
+            constraints: engine.atlas().constraint_info(),
+            pictures: pictures.paths,
+            events,
+            store: self.options.store.as_ref().map(|path| StoreRunReport {
+                path: path.clone(),
+                resumed_from: self.resumed_from,
+                open_secs: self.open_secs,
+                committed,
+            }),
+            seconds,
+            ms_per_scan: 1e3 * seconds / engine.scans().max(1) as f64,
+        };
+        Ok(AtlasRun {
+            engine: self.engine,
+            reference_of_node: self.reference_of_node,
+            report,
+        })
+    }
+
+    /// One session's scans; its kidnaps end the epoch.
+    fn feed(
+        &mut self,
+        session: &AtlasSession,
+        pictures: &mut Pictures,
+        progress: &mut impl FnMut(AtlasProgress<'_>),
+    ) -> Result<(), JobError> {
+        let engine = &mut self.engine;
+        let mut previous_odometry = None;
+        for (k, record) in session.log.scans.iter().enumerate() {
+            progress(AtlasProgress::Scan);
+            if session.kidnaps.contains(&k) {
+                engine
+                    .end_epoch(EpochEndReason::Kidnap)
+                    .map_err(|e| JobError::failed(&e))?;
+            }
+            let odometry = record
+                .odom_from_robot
+                .or(previous_odometry)
+                .unwrap_or_else(Se2::identity);
+            previous_odometry = Some(odometry);
+            let report = engine
+                .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
+                .map_err(|e| JobError::context(format!("{}: scan {k}", session.name), &e))?;
+            if let (Some(node), Some(reference)) = (
+                report.keyframe,
+                session.reference.as_ref().and_then(|r| r.get(k)),
+            ) {
+                self.reference_of_node.insert(node, *reference);
+            }
+            if !self.options.pictures {
+                continue;
+            }
+            let fresh: Vec<&'static str> = report
+                .events
+                .iter()
+                .filter_map(|e| match &e.event {
+                    EventKind::Atlas(AtlasEvent::Merged(_)) => Some("merge"),
+                    EventKind::Atlas(AtlasEvent::Unmerged(_)) => Some("unmerge"),
+                    EventKind::Decision(Decision::ConditionalMerge { .. }) => Some("conditional"),
+                    _ => None,
+                })
+                .collect();
+            for kind in fresh {
+                let stem = format!("{:03}-{kind}", pictures.drawn);
+                pictures.drawn += 1;
+                if let Some(before) = engine.before_last_change() {
+                    let path = pictures.dir.join(format!("{stem}-before.png"));
+                    draw_graph(before, engine, &[], &path)?;
+                    pictures.paths.push(path);
+                }
+                let path = pictures.dir.join(format!("{stem}-after.png"));
+                draw_graph(
+                    engine.map_graph(),
+                    engine,
+                    &engine.conditional_edges(),
+                    &path,
+                )?;
+                pictures.paths.push(path);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The pictures around merges: their folder, how many changes were drawn, the files.
+struct Pictures {
+    dir: PathBuf,
+    drawn: usize,
+    paths: Vec<PathBuf>,
+}
+
+/// Every event, one JSON object per line.
+fn write_events(engine: &Engine, path: &Path) -> Result<PathBuf, JobError> {
+    let write = || -> std::io::Result<()> {
+        let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+        for event in engine.events() {
+            serde_json::to_writer(&mut out, event)?;
+            writeln!(out)?;
+        }
+        out.flush()
+    };
+    write().map_err(|e| JobError::writing(path, &e))?;
+    Ok(path.to_path_buf())
+}
+
+/// Merges from the engine's merge log, unmerges from the events.
+fn summarise(engine: &Engine) -> (Vec<MergeReport>, Vec<UnmergeReport>) {
+    let merges = engine
+        .merge_log()
+        .iter()
+        .map(|record| {
+            let merged = engine.events().iter().find_map(|e| match e.atlas() {
+                Some(AtlasEvent::Merged(m)) if Some(m.merge.0) == record.merge => Some(m),
+                _ => None,
+            });
+            let scan = record
+                .conditional_at_scan
+                .or(record.full_at_scan)
+                .unwrap_or_default();
+            let travel_m = record
+                .conditional_travel_m
+                .or(record.full_travel_m)
+                .unwrap_or_default();
+            // A full merge kept becomes final when its epoch ends.
+            let final_after_m = (record.state == MergeState::Full)
+                .then(|| {
+                    engine.events().iter().find_map(|e| match e.atlas() {
+                        Some(AtlasEvent::EpochEnded { epoch, .. }) if epoch.0 == record.epoch => {
+                            Some(e.travel_m - record.full_travel_m.unwrap_or(travel_m))
+                        }
+                        _ => None,
+                    })
+                })
+                .flatten();
+            MergeReport {
+                merge: record.merge,
+                hypothesis: record.hypothesis,
+                scan,
+                travel_m,
+                epoch: record.epoch,
+                map: record.map,
+                epochs: merged
+                    .map(|m| m.merged_epochs.iter().map(|x| x.0).collect())
+                    .unwrap_or_default(),
+                loop_edges: merged.map_or(record.edges.len(), |m| m.loop_edges),
+                overlap_edges: merged.map_or(0, |m| m.overlap_edges),
+                state: record.state,
+                conditional_at_scan: record.conditional_at_scan,
+                full_at_scan: record.full_at_scan,
+                full_after_m: record.full_after_m(),
+                reason: record.reason.clone(),
+                correct: None,
+                error_m_deg: None,
+                undone_at_scan: record.ended_at_scan,
+                undone_after_m: record.ended_after_m(),
+                final_after_m,
+                readings: record.readings.clone(),
+            }
+        })
+        .collect();
+    let unmerges = engine
+        .events()
+        .iter()
+        .filter_map(|e| match e.atlas() {
+            Some(AtlasEvent::Unmerged(u)) => Some(UnmergeReport {
+                scan: e.scan,
+                travel_m: e.travel_m,
+                merges: u.merges.iter().map(|m| m.0).collect(),
+                reason: match &u.reason {
+                    mapmerge_atlas::UnmergeReason::InvalidMerge {
+                        detector,
+                        invalidity,
+                    } => format!("{detector} invalidity {invalidity:.2}"),
+                    mapmerge_atlas::UnmergeReason::Requested { note } => note.clone(),
+                },
+            }),
+            _ => None,
+        })
+        .collect();
+    (merges, unmerges)
+}
+
+/// Ends the session ([`Engine::end_session`]: its epoch ends, the atlas is maintained) and
+/// commits it: the atlas, the session's events and the reference poses.
+fn commit_session(
+    store: &mut Store,
+    engine: &mut Engine,
+    session: &str,
+    events_before: usize,
+    first_node: NodeId,
+    reference_of_node: &BTreeMap<NodeId, Se2>,
+) -> Result<CommittedSession, JobError> {
+    let started = Instant::now();
+    engine.finish().map_err(|e| JobError::failed(&e))?;
+    let mapped_poses = engine
+        .atlas()
+        .active()
+        .vertices()
+        .map(|(n, v)| (n, v.pose))
+        .collect();
+    let maintenance = engine
+        .end_session(first_node)
+        .map_err(|e| JobError::failed(&e))?;
+    let atlas = engine
+        .atlas()
+        .snapshot()
+        .map_err(|e| JobError::failed(&e))?;
+    let events = engine
+        .events()
+        .get(events_before..)
+        .unwrap_or_default()
+        .iter()
+        .map(serde_json::to_string)
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| JobError::failed(&e))?;
+    let version = store
+        .commit_session(&mapmerge_store::SessionCommit {
+            session,
+            atlas: &atlas,
+            events: &events,
+            reference_poses: reference_of_node,
+        })
+        .map_err(|e| JobError::bad_file(&e))?;
+    let commit_secs = started.elapsed().as_secs_f64();
+    let version = store
+        .versions()
+        .map_err(|e| JobError::bad_file(&e))?
+        .into_iter()
+        .find(|v| v.version == version)
+        .ok_or_else(|| {
+            JobError::Failed(format!("version {version} was committed but is not listed"))
+        })?;
+    Ok(CommittedSession {
+        version,
+        commit_secs,
+        session_ate_m: None,
+        map_ate_m: None,
+        maintenance,
+        site: SiteMap::of(&atlas),
+        graphs: atlas.graphs().filter(|g| g.num_vertices() > 0).count(),
+        first_node,
+        mapped_poses,
+    })
+}
