@@ -3,12 +3,13 @@
 
 Reads IN.mcap (LaserScan, Odometry, TFMessage; e.g. from `mapmerge convert`) with `mcap` +
 `mcap-ros2-support`, which decode by the file's own message definitions, then writes the same
-messages three times:
+messages four times:
 
   OUT/rosbags-mcap/      a rosbag2 bag directory, MCAP storage, by `rosbags`
   OUT/rosbags-db3/       a rosbag2 bag directory, SQLite storage, by `rosbags`
   OUT/mcap-ros2.mcap     one MCAP file by `mcap-ros2-support`'s writer, with the message
-                         definitions `rosbags` generates (not the input's)
+                         definitions `rosbags` generates (not the input's), zstd chunks
+  OUT/mcap-ros2-lz4.mcap the same with lz4 chunks
 
 Every message is rebuilt field by field from the decoded values and serialised by each tool's
 own CDR encoder, so mapmerge reading these bags back checks its decoder against independent
@@ -22,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 from mcap.reader import make_reader
+from mcap.writer import CompressionType
 from mcap_ros2.decoder import DecoderFactory
 from mcap_ros2.writer import Writer as McapRos2Writer
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -138,9 +140,9 @@ def write_rosbags(messages, path, storage):
             writer.write(connections[topic], log_time, STORE.serialize_cdr(message, msgtype))
 
 
-def write_mcap_ros2(messages, path):
+def write_mcap_ros2(messages, path, compression):
     with open(path, "wb") as f:
-        writer = McapRos2Writer(f)
+        writer = McapRos2Writer(f, compression=compression)
         schemas = {}
         for topic, msgtype, log_time, message in messages:
             if msgtype not in schemas:
@@ -158,7 +160,8 @@ def main():
     messages = read(source)
     write_rosbags(messages, out / "rosbags-mcap", StoragePlugin.MCAP)
     write_rosbags(messages, out / "rosbags-db3", StoragePlugin.SQLITE3)
-    write_mcap_ros2(messages, out / "mcap-ros2.mcap")
+    write_mcap_ros2(messages, out / "mcap-ros2.mcap", CompressionType.ZSTD)
+    write_mcap_ros2(messages, out / "mcap-ros2-lz4.mcap", CompressionType.LZ4)
     print(f"{len(messages)} messages from {source} rewritten into {out}")
 
 

@@ -2,7 +2,7 @@
 //! the serialized messages of the topics asked for, in log-time order.
 //!
 //! - MCAP (rosbag2's default since Iron): schemas named `pkg/msg/Type`, channels with
-//!   `message_encoding: cdr`; chunks may be zstd- or lz4-compressed (the `mcap` crate).
+//!   `message_encoding: cdr`; chunks may be zstd- or lz4-compressed (pure-Rust decoders).
 //! - SQLite `.db3` (the default before): tables `topics(id, name, type,
 //!   serialization_format, …)` and `messages(id, topic_id, timestamp, data)`.
 //! - A bag directory: `metadata.yaml` names the storage and the files, read in order.
@@ -311,12 +311,19 @@ fn chunk_records(
         })?;
     let records = match header.compression.as_str() {
         "" => data.to_vec(),
-        "zstd" => zstd::bulk::decompress(data, size)
-            .map_err(|e| format!("a zstd chunk does not decompress: {e}"))?,
+        "zstd" => {
+            let mut out = Vec::with_capacity(size);
+            ruzstd::decoding::StreamingDecoder::new(data)
+                .map_err(std::io::Error::other)
+                .and_then(|decoder| decoder.take(size as u64 + 1).read_to_end(&mut out))
+                .map_err(|e| format!("a zstd chunk does not decompress: {e}"))?;
+            out
+        }
         "lz4" => {
             let mut out = Vec::with_capacity(size);
-            lz4::Decoder::new(data)
-                .and_then(|decoder| decoder.take(size as u64 + 1).read_to_end(&mut out))
+            lz4_flex::frame::FrameDecoder::new(data)
+                .take(size as u64 + 1)
+                .read_to_end(&mut out)
                 .map_err(|e| format!("an lz4 chunk does not decompress: {e}"))?;
             out
         }

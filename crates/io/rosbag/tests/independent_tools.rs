@@ -49,6 +49,7 @@ fn bags_written_by_rosbags_and_mcap_ros2_read_back_as_the_carmen_logs() {
             (rewritten.join("rosbags-mcap"), Storage::Mcap),
             (rewritten.join("rosbags-db3"), Storage::Sqlite3),
             (rewritten.join("mcap-ros2.mcap"), Storage::Mcap),
+            (rewritten.join("mcap-ros2-lz4.mcap"), Storage::Mcap),
         ] {
             let session = read_bag(&bag, &TopicChoice::default()).unwrap();
             assert_eq!(session.info.storage, storage, "{}", bag.display());
