@@ -4,9 +4,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use mapmerge_store::Store;
 
 /// One simulated session of the office, continued from and committed to `site`.

@@ -2,7 +2,7 @@
 //! force.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use std::f64::consts::{FRAC_PI_4, PI};
 

@@ -9,12 +9,10 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{ok_json, p, scratch};
+use crate::common::{ok_json, p, scratch};
 
 use mapmerge_testkit::PUBLIC_LOGS as LOGS;
 

@@ -3,11 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::path::Path;
 
-use common::{ok_json, p, run, scratch, testdata};
+use crate::common::{ok_json, p, run, scratch, testdata};
 use mapmerge_grid::{CellClass, ClassThresholds};
 
 /// The arguments that made `testdata/sim/office-aliased` (see README.md).

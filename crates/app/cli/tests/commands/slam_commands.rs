@@ -3,9 +3,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch, testdata};
+use crate::common::{ok_json, p, run, scratch, testdata};
 
 #[test]
 fn slam_on_the_simulated_session_writes_graph_map_picture_and_trajectory() {

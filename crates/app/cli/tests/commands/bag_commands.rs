@@ -3,11 +3,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::path::Path;
 
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 
 /// `mapmerge assemble A B … -o OUT --no-pictures --json` with `extra` arguments; its report.
 fn assemble(a: &Path, b: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {

@@ -3,7 +3,7 @@
 //! that session's world, brute force.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use mapmerge_sim::{simulate, ChangeParams, SimParams, WorldChange, WorldPreset};
 

@@ -3,9 +3,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 
 /// Every line of `events.jsonl` as JSON.
 fn events(dir: &std::path::Path) -> Vec<serde_json::Value> {

@@ -1,7 +1,7 @@
 //! Kidnaps: the truth jumps, the odometry does not.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_sim::{simulate, KidnapParams, KidnapTarget, SimParams, WorldPreset};

@@ -2,9 +2,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 
 #[test]
 fn areas_splits_a_session_at_its_doors_and_routes_between_them() {

@@ -3,9 +3,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use mapmerge_geometry::{LieGroup, Se2};
 
 /// `a` and `b` within `tolerance` (m and rad).

@@ -5,11 +5,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::path::Path;
 
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, GridGeometry, Point2};
 use mapmerge_io::{MapMode, RosMap};

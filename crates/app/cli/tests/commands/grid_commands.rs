@@ -2,11 +2,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use mapmerge_grid::{CellClass, ClassThresholds};
 
 /// Spread (m) of the occupied cells of a map between the 1st and 99th percentile, x and y.

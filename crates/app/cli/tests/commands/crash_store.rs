@@ -9,13 +9,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::collections::BTreeMap;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{p, scratch, BIN};
+use crate::common::{p, scratch, BIN};
 use mapmerge_store::{Store, StoredAtlas};
 
 /// A small deterministic generator (xorshift64*): kill times that a failure can be replayed

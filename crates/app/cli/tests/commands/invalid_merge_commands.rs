@@ -5,13 +5,11 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::collections::BTreeSet;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use serde_json::Value;
 
 const CASE_FIELDS: [&str; 10] = [

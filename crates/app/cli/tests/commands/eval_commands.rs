@@ -8,8 +8,7 @@ use std::path::{Path, PathBuf};
 use mapmerge_io::{read_graph, AnyGraph};
 use mapmerge_posegraph::{EdgeId, EdgeKind};
 
-mod common;
-use common::{ok_json, p, run, scratch, testdata};
+use crate::common::{ok_json, p, run, scratch, testdata};
 
 fn planar(path: &Path) -> mapmerge_posegraph::PoseGraph2 {
     match read_graph(path).unwrap().graph {

@@ -3,7 +3,7 @@
 //! every accepted loop must be right, and recall must not fall below what was measured.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-#[path = "../examples/support/place_eval.rs"]
+#[path = "../../examples/support/place_eval.rs"]
 mod place_eval;
 
 use place_eval::BenchConfig;

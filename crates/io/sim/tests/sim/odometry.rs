@@ -2,7 +2,7 @@
 //! drift grows with time, slips happen at the configured rate and scale the reported motion.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_sim::{

@@ -5,11 +5,9 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 
 /// A loop edge is true within this of `truth(from)⁻¹ · truth(to)` (m, deg).

@@ -3,9 +3,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
-
-use common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch};
 
 fn intel() -> Option<std::path::PathBuf> {
     mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz")
