@@ -80,6 +80,12 @@ def test_two_sessions_merge_as_the_cli_merges_them(tmp_path):
     assert atlas.events == lines
     assert [e["scan"] for e in lines if e["event"] == "merged"] == [merge["full_at_scan"]]
     atlas.finish()
+    # The whole run as one call: the CLI's job without its judging.
+    report = mapmerge.run_atlas([first, second], tmp_path / "py", pictures=False)
+    for key in ("sessions", "scans", "epochs", "merges", "unmerges", "hypotheses",
+                "epoch_outcomes"):
+        assert report[key] == expected[key], key
+    assert [json.loads(l) for l in open(tmp_path / "py" / "events.jsonl")] == lines
 
 
 def test_bad_scans_and_reasons_are_bad_input():
@@ -96,24 +102,18 @@ def test_bad_scans_and_reasons_are_bad_input():
     np.testing.assert_array_equal(atlas.robot_pose, [0.0, 0.0, 0.0])
 
 
-def test_a_whole_run_is_the_clis_run(tmp_path):
-    """`run_atlas` is `mapmerge atlas` without its judging: the same merges and events."""
-    first = in_testdata("sim/office-aliased/session_0.log.xz")
-    second = truncated_log(
-        in_testdata("sim/office-aliased/session_2.log.xz"), tmp_path / "s2.log", SCANS_OF_SESSION_2
-    )
-    report = mapmerge.run_atlas([first, second], tmp_path / "py", pictures=False,
-                                store=tmp_path / "py.db")
-    code, out, err = run_cli("atlas", first, second, "-o", tmp_path / "cli", "--no-pictures",
-                             "--store", tmp_path / "cli.db", "--json")
-    assert code == 0, err
-    expected = json.loads(out)
-    assert [m["state"] for m in report["merges"]] == ["full"]
-    for key in ("sessions", "scans", "epochs", "merges", "unmerges", "hypotheses",
-                "epoch_outcomes"):
-        assert report[key] == expected[key], key
+
+def test_a_whole_run_commits_each_session_to_a_store(tmp_path):
+    """`run_atlas` with a store: one version per session, and bad input is refused."""
+    logs = [
+        truncated_log(in_testdata(f"sim/office-aliased/session_{k}.log.xz"), tmp_path / f"s{k}.log", 150)
+        for k in (0, 1)
+    ]
+    report = mapmerge.run_atlas(logs, tmp_path / "out", pictures=False, store=tmp_path / "a.db")
+    assert report["sessions"] == 2 and report["scans"] == 300
+    assert report["store"]["resumed_from"] is None
     assert [c["version"] for c in report["store"]["committed"]] == [1, 2]
-    lines = lambda run: [json.loads(l) for l in open(tmp_path / run / "events.jsonl")]
-    assert lines("py") == lines("cli")
+    again = mapmerge.run_atlas(logs[:1], tmp_path / "again", pictures=False, store=tmp_path / "a.db")
+    assert again["store"]["resumed_from"] == 2
     with pytest.raises(mapmerge.BadInputError, match="give one or more logs"):
         mapmerge.run_atlas([], tmp_path / "none")
