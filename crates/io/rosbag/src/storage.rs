@@ -496,4 +496,66 @@ mod tests {
         let err = read_raw_bag(dir.path(), &|_| true).unwrap_err().to_string();
         assert!(err.contains("unknown storage 'rosbag_v1'"), "{err}");
     }
+
+    /// Bags written by mapmerge have uncompressed chunks, so the fuzz companions in
+    /// tests/never_panics.rs do not reach the decoders: this mutates compressed chunks here.
+    #[test]
+    fn compressed_chunks_decode_and_mutated_ones_are_errors_not_panics() {
+        use std::io::Write as _;
+        let records: Vec<u8> = (0..20_000u32)
+            .flat_map(|k| (k % 251).to_le_bytes())
+            .collect();
+        let zstd = ruzstd::encoding::compress_to_vec(
+            &records[..],
+            ruzstd::encoding::CompressionLevel::Fastest,
+        );
+        let mut lz4 = lz4_flex::frame::FrameEncoder::new(Vec::new());
+        lz4.write_all(&records).unwrap();
+        let lz4 = lz4.finish().unwrap();
+        let header = |compression: &str, data: &[u8], size: usize| mcap::records::ChunkHeader {
+            message_start_time: 0,
+            message_end_time: 0,
+            uncompressed_size: size as u64,
+            uncompressed_crc: crc32fast::hash(&records),
+            compression: compression.to_owned(),
+            compressed_size: data.len() as u64,
+        };
+        let limit = 4 * records.len();
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut next = move || {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            state.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        };
+        for (name, data) in [("zstd", &zstd), ("lz4", &lz4)] {
+            assert!(
+                data.len() < records.len() / 2,
+                "{name}: {} bytes",
+                data.len()
+            );
+            let decoded = chunk_records(&header(name, data, records.len()), data, limit);
+            assert_eq!(decoded.as_deref(), Ok(&records[..]), "{name}");
+            // A chunk that claims more than the file can hold is refused before decoding.
+            assert!(chunk_records(&header(name, data, limit + 1), data, limit).is_err());
+            let mut failed = 0;
+            for round in 0..3000 {
+                let mut mutated = data.clone();
+                if round % 4 == 0 {
+                    mutated.truncate(next() as usize % data.len());
+                } else {
+                    for _ in 0..1 + next() % 4 {
+                        let at = next() as usize % mutated.len();
+                        mutated[at] = next() as u8;
+                    }
+                }
+                let header = header(name, &mutated, records.len());
+                failed += usize::from(chunk_records(&header, &mutated, limit).is_err());
+            }
+            assert!(
+                failed > 1000,
+                "{name}: only {failed} of 3000 mutations were errors"
+            );
+        }
+    }
 }
