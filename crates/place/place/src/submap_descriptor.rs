@@ -28,7 +28,8 @@
 //! rotation-invariant too but egocentric: on 90 synthetic office places seen by a 360° scan it
 //! found the right place after a 0.5 / 1 / 2 m move in 58 / 10 / 4 of 90 trials; the
 //! translation-invariant spectrum above in 86 / 68 / 24 (the ignored test
-//! `translation_retrieval_table` in tests/descriptor.rs prints the current numbers).
+//! `translation_retrieval_table` in crates/merge/assemble/tests/descriptor.rs prints the
+//! current numbers).
 //!
 //! Dropping the phase loses the yaw, which is recovered separately
 //! ([`SubmapDescriptor::relative_yaw`]) from egocentric polar images (soft-binned counts,
