@@ -116,6 +116,51 @@ pub fn carried_log(
     })
 }
 
+/// One session per log (`(name, log)`), each carried and noised with `seed` (plus its index):
+/// `kidnap_at` counts the original scans over all logs from 0, and a log without one gets its
+/// kidnaps drawn ([`draw_carries`]). Every session carries its reference and its announced
+/// kidnaps.
+pub fn carried_sessions(
+    logs: Vec<(String, LaserLog)>,
+    kidnap_at: &[usize],
+    noise: &str,
+    seed: u64,
+) -> anyhow::Result<(Vec<mapmerge_jobs::AtlasSession>, Vec<Vec<Carry>>)> {
+    if logs.is_empty() {
+        return Err(bad_input("give one or more logs, or --sim PRESET"));
+    }
+    let mut sessions = Vec::with_capacity(logs.len());
+    let mut all_carries = Vec::with_capacity(logs.len());
+    let mut offset = 0;
+    for (k, (name, log)) in logs.into_iter().enumerate() {
+        let n = log.scans.len();
+        let here: Vec<usize> = kidnap_at
+            .iter()
+            .filter(|&&a| a >= offset && a < offset + n)
+            .map(|&a| a - offset)
+            .collect();
+        offset += n;
+        let session_seed = seed.wrapping_add(k as u64);
+        let poses = scan_poses(&log).map_err(bad_input)?;
+        let carries = draw_carries(&poses, &here, session_seed)
+            .map_err(|e| bad_input(format!("{name}: {e}")))?;
+        let carried = carried_log(&log, &carries, noise, session_seed)?;
+        sessions.push(mapmerge_jobs::AtlasSession {
+            name,
+            log: carried.log,
+            kidnaps: carried.kidnaps,
+            reference: Some(carried.reference),
+        });
+        all_carries.push(carries);
+    }
+    if let Some(k) = kidnap_at.iter().find(|&&k| k >= offset) {
+        return Err(bad_input(format!(
+            "--kidnap-at {k} is beyond the {offset} scans of the logs"
+        )));
+    }
+    Ok((sessions, all_carries))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -178,49 +223,4 @@ mod tests {
         assert!(draw_carries(&poses, &[100, 110], 3).is_err());
         assert!(draw_carries(&poses, &[2999], 3).is_err());
     }
-}
-
-/// One session per log (`(name, log)`), each carried and noised with `seed` (plus its index):
-/// `kidnap_at` counts the original scans over all logs from 0, and a log without one gets its
-/// kidnaps drawn ([`draw_carries`]). Every session carries its reference and its announced
-/// kidnaps.
-pub fn carried_sessions(
-    logs: Vec<(String, LaserLog)>,
-    kidnap_at: &[usize],
-    noise: &str,
-    seed: u64,
-) -> anyhow::Result<(Vec<mapmerge_jobs::AtlasSession>, Vec<Vec<Carry>>)> {
-    if logs.is_empty() {
-        return Err(bad_input("give one or more logs, or --sim PRESET"));
-    }
-    let mut sessions = Vec::with_capacity(logs.len());
-    let mut all_carries = Vec::with_capacity(logs.len());
-    let mut offset = 0;
-    for (k, (name, log)) in logs.into_iter().enumerate() {
-        let n = log.scans.len();
-        let here: Vec<usize> = kidnap_at
-            .iter()
-            .filter(|&&a| a >= offset && a < offset + n)
-            .map(|&a| a - offset)
-            .collect();
-        offset += n;
-        let session_seed = seed.wrapping_add(k as u64);
-        let poses = scan_poses(&log).map_err(bad_input)?;
-        let carries = draw_carries(&poses, &here, session_seed)
-            .map_err(|e| bad_input(format!("{name}: {e}")))?;
-        let carried = carried_log(&log, &carries, noise, session_seed)?;
-        sessions.push(mapmerge_jobs::AtlasSession {
-            name,
-            log: carried.log,
-            kidnaps: carried.kidnaps,
-            reference: Some(carried.reference),
-        });
-        all_carries.push(carries);
-    }
-    if let Some(k) = kidnap_at.iter().find(|&&k| k >= offset) {
-        return Err(bad_input(format!(
-            "--kidnap-at {k} is beyond the {offset} scans of the logs"
-        )));
-    }
-    Ok((sessions, all_carries))
 }
