@@ -25,6 +25,7 @@ use mapmerge_lab::atlas_judge::{
     judge_atlas, simulated_sessions, write_merge_results, AtlasJudgement, REVISIT_MIN_M,
     REVISIT_RADIUS_M, UNDO_WITHIN_M,
 };
+use mapmerge_lab::carried::{carried_sessions, Carry};
 use serde::Serialize;
 
 use crate::{job_error, print_json};
@@ -53,7 +54,7 @@ pub struct AtlasArgs {
     /// Robot time per simulated session (s).
     #[arg(long, default_value_t = 120.0)]
     pub duration: f64,
-    /// Seed of the simulation.
+    /// Seed of the simulation, or of `--odometry-noise` (noise and drawn kidnaps).
     #[arg(long, default_value_t = 12)]
     pub seed: u64,
     /// Simulate only this session of the world (its changes, route and noise as in the
@@ -80,6 +81,14 @@ pub struct AtlasArgs {
     /// poses are the reference; merge edges must lie within 0.5 m and 10°).
     #[arg(long, conflicts_with = "sim")]
     pub judge_with_log_poses: bool,
+    /// Replace each corrected log's poses by seeded wheel odometry (`default`, `harsh` or
+    /// `none`, the model of `slam --odometry-noise`, drawn with `--seed`) and kidnap the robot:
+    /// at each kidnap it is carried further along the log (5–15 % of its scans are never seen)
+    /// while its odometry goes on as if it had not moved. Kidnaps are `--kidnap-at`'s, else
+    /// drawn with the seed (one per 150 m of travel, one to four per log). Every merge is then
+    /// judged against the corrected poses.
+    #[arg(long, conflicts_with_all = ["sim", "judge_with_log_poses"])]
+    pub odometry_noise: Option<String>,
     /// Skip the pictures (faster).
     #[arg(long)]
     pub no_pictures: bool,
@@ -108,6 +117,9 @@ struct Report<'a> {
     run: &'a AtlasReport,
     #[serde(flatten)]
     judgement: AtlasJudgement,
+    /// With `--odometry-noise`: each log's carries (original scan numbers).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    carries: Option<Vec<Vec<Carry>>>,
 }
 
 /// Runs `mapmerge atlas`.
@@ -125,6 +137,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         keep_versions: args.keep_versions,
     })
     .map_err(job_error)?;
+    let mut carries = None;
     let sessions = match &args.sim {
         Some(preset) => simulated_sessions(
             preset,
@@ -144,7 +157,16 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                     ))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            log_sessions(logs, &args.kidnap_at, args.judge_with_log_poses).map_err(job_error)?
+            match &args.odometry_noise {
+                Some(noise) => {
+                    let (sessions, carried) =
+                        carried_sessions(logs, &args.kidnap_at, noise, args.seed)?;
+                    carries = Some(carried);
+                    sessions
+                }
+                None => log_sessions(logs, &args.kidnap_at, args.judge_with_log_poses)
+                    .map_err(job_error)?,
+            }
         }
     };
     let total: usize = sessions.iter().map(|s| s.log.scans.len()).sum();
@@ -178,6 +200,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let report = Report {
         run: &run.report,
         judgement,
+        carries,
     };
     if args.json {
         print_json(&report)?;

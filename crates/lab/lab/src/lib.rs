@@ -25,6 +25,7 @@ mod areas_eval;
 mod assemble_eval;
 pub mod atlas_judge;
 mod calibrate_eval;
+pub mod carried;
 pub mod compare;
 pub mod corrupt;
 mod door_eval;

@@ -226,6 +226,61 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
 }
 
 #[test]
+fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("atlas-intel-noisy");
+    let report = ok_json(&[
+        "atlas",
+        p(&log),
+        "--odometry-noise",
+        "default",
+        "--seed",
+        "1",
+        "--no-pictures",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    // Kidnaps drawn by the seed: each carry's scans are missing, each starts an epoch.
+    let carries = report["carries"][0].as_array().unwrap();
+    assert!(!carries.is_empty() && carries.len() <= 4, "{report}");
+    let skipped: u64 = carries
+        .iter()
+        .map(|c| c["resume"].as_u64().unwrap() - c["at"].as_u64().unwrap())
+        .sum();
+    assert_eq!(report["scans"].as_u64().unwrap(), 910 - skipped, "{report}");
+    assert_eq!(
+        report["epochs"].as_u64().unwrap() as usize,
+        1 + carries.len()
+    );
+    let ended: Vec<_> = events(&dir)
+        .into_iter()
+        .filter(|e| e["event"] == "epoch_ended")
+        .collect();
+    assert!(ended.iter().all(|e| e["reason"] == "kidnap"), "{ended:?}");
+    // Judged against the corrected poses, as the simulator's runs are.
+    assert!(report["wrong_merges"].is_u64() && report["epoch_revisits"].is_array());
+    // The same seed draws the same run; a bad profile is bad input.
+    let again = ok_json(&[
+        "atlas",
+        p(&log),
+        "--odometry-noise",
+        "default",
+        "--seed",
+        "1",
+        "--no-pictures",
+        "-o",
+        p(&dir.join("again")),
+        "--json",
+    ]);
+    assert_eq!(again["merges"], report["merges"]);
+    let out = run(&["atlas", p(&log), "--odometry-noise", "wild", "-o", p(&dir)]);
+    assert_eq!(out.status.code(), Some(2));
+}
+
+#[test]
 fn a_public_log_cut_by_a_kidnap_gives_two_epochs() {
     let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
         return;
