@@ -56,8 +56,9 @@ pub use grid_merge::{
     DEFAULT_HYPOTHESES,
 };
 pub use lifelong::{
-    log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun, AtlasSession,
-    CommittedSession, MergeReport, SelfSimilarityReport, SiteMap, StoreRunReport, UnmergeReport,
+    kidnaps_per_log, log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun,
+    AtlasSession, CommittedSession, MergeReport, SelfSimilarityReport, SiteMap, StoreRunReport,
+    UnmergeReport,
 };
 pub use mapmerge_store::DEFAULT_KEEP_VERSIONS;
 pub use optimize::{

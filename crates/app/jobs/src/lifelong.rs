@@ -43,16 +43,10 @@ pub fn log_sessions(
             "give one or more logs, or --sim PRESET",
         ));
     }
+    let lengths: Vec<usize> = logs.iter().map(|(_, log)| log.scans.len()).collect();
+    let kidnaps = kidnaps_per_log(kidnap_at, &lengths)?;
     let mut sessions = Vec::with_capacity(logs.len());
-    let mut offset = 0;
-    for (name, log) in logs {
-        let n = log.scans.len();
-        let kidnaps = kidnap_at
-            .iter()
-            .filter(|&&k| k > offset && k < offset + n)
-            .map(|&k| k - offset)
-            .collect();
-        offset += n;
+    for ((name, log), kidnaps) in logs.into_iter().zip(kidnaps) {
         let reference = reference_from_poses.then(|| {
             let mut previous = Se2::identity();
             log.scans
@@ -66,16 +60,39 @@ pub fn log_sessions(
         sessions.push(AtlasSession {
             name,
             log,
-            kidnaps,
+            // A log's first scan starts an epoch anyway (a restart).
+            kidnaps: kidnaps.into_iter().filter(|&k| k > 0).collect(),
             reference,
         });
     }
-    if let Some(k) = kidnap_at.iter().find(|&&k| k >= offset) {
+    Ok(sessions)
+}
+
+/// `kidnap_at`, scans counted over all logs from 0, as each log's own scans; logs of
+/// `lengths` scans in order. A kidnap beyond the last log is bad input.
+pub fn kidnaps_per_log(
+    kidnap_at: &[usize],
+    lengths: &[usize],
+) -> Result<Vec<Vec<usize>>, JobError> {
+    let total: usize = lengths.iter().sum();
+    if let Some(k) = kidnap_at.iter().find(|&&k| k >= total) {
         return Err(JobError::bad_input(format!(
-            "--kidnap-at {k} is beyond the {offset} scans of the logs"
+            "--kidnap-at {k} is beyond the {total} scans of the logs"
         )));
     }
-    Ok(sessions)
+    let mut offset = 0;
+    Ok(lengths
+        .iter()
+        .map(|&n| {
+            let here = kidnap_at
+                .iter()
+                .filter(|&&k| k >= offset && k < offset + n)
+                .map(|&k| k - offset)
+                .collect();
+            offset += n;
+            here
+        })
+        .collect())
 }
 
 /// What the atlas job does besides mapping.
@@ -642,4 +659,23 @@ fn commit_session(
         first_node,
         mapped_poses,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kidnaps_are_cut_into_each_logs_own_scans() {
+        assert_eq!(
+            kidnaps_per_log(&[0, 5, 10, 12, 29], &[10, 5, 15]).unwrap(),
+            vec![vec![0, 5], vec![0, 2], vec![14]]
+        );
+        let err = kidnaps_per_log(&[30], &[10, 5, 15]).unwrap_err();
+        assert_eq!(err.exit_code(), 2);
+        assert_eq!(
+            err.message(),
+            "--kidnap-at 30 is beyond the 30 scans of the logs"
+        );
+    }
 }

@@ -129,17 +129,11 @@ pub fn carried_sessions(
     if logs.is_empty() {
         return Err(bad_input("give one or more logs, or --sim PRESET"));
     }
+    let lengths: Vec<usize> = logs.iter().map(|(_, log)| log.scans.len()).collect();
+    let kidnaps = mapmerge_jobs::kidnaps_per_log(kidnap_at, &lengths).map_err(crate::job_error)?;
     let mut sessions = Vec::with_capacity(logs.len());
     let mut all_carries = Vec::with_capacity(logs.len());
-    let mut offset = 0;
-    for (k, (name, log)) in logs.into_iter().enumerate() {
-        let n = log.scans.len();
-        let here: Vec<usize> = kidnap_at
-            .iter()
-            .filter(|&&a| a >= offset && a < offset + n)
-            .map(|&a| a - offset)
-            .collect();
-        offset += n;
+    for (k, ((name, log), here)) in logs.into_iter().zip(kidnaps).enumerate() {
         let session_seed = seed.wrapping_add(k as u64);
         let poses = scan_poses(&log).map_err(bad_input)?;
         let carries = draw_carries(&poses, &here, session_seed)
@@ -152,11 +146,6 @@ pub fn carried_sessions(
             reference: Some(carried.reference),
         });
         all_carries.push(carries);
-    }
-    if let Some(k) = kidnap_at.iter().find(|&&k| k >= offset) {
-        return Err(bad_input(format!(
-            "--kidnap-at {k} is beyond the {offset} scans of the logs"
-        )));
     }
     Ok((sessions, all_carries))
 }
