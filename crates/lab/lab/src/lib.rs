@@ -32,6 +32,8 @@ mod door_eval;
 mod eval;
 mod grid_merge_eval;
 pub mod invalid_merge_eval;
+mod lifelong_eval;
+pub mod map_judge;
 mod protrusion_eval;
 pub mod sim;
 pub mod sim_graph;

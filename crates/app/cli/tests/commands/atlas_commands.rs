@@ -262,6 +262,43 @@ fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
     assert!(ended.iter().all(|e| e["reason"] == "kidnap"), "{ended:?}");
     // Judged against the corrected poses, as the simulator's runs are.
     assert!(report["wrong_merges"].is_u64() && report["epoch_revisits"].is_array());
+    // Every kept scan is in one map's trajectory exactly once, as maps.json lists it, and the
+    // judgement from those files covers every segment.
+    let maps: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("maps.json")).unwrap()).unwrap();
+    assert_eq!(maps, report["maps"]);
+    let mut seen = vec![0u32; report["scans"].as_u64().unwrap() as usize];
+    for map in maps.as_array().unwrap() {
+        let mut listed = 0;
+        for epoch in map["epochs"].as_array().unwrap() {
+            for range in epoch["scan_ranges"].as_array().unwrap() {
+                let (a, b) = (range[0].as_u64().unwrap(), range[1].as_u64().unwrap());
+                for k in a..=b {
+                    seen[k as usize] += 1;
+                }
+                listed += b + 1 - a;
+            }
+        }
+        let tum = std::fs::read_to_string(map["trajectory"].as_str().unwrap()).unwrap();
+        assert_eq!(tum.lines().count() as u64, listed, "{map}");
+        assert_eq!(map["scans"].as_u64().unwrap(), listed);
+        let reference = dir
+            .join("maps")
+            .join(map["map"].as_str().unwrap())
+            .join("reference.tum");
+        assert_eq!(
+            std::fs::read_to_string(reference).unwrap().lines().count() as u64,
+            listed
+        );
+    }
+    assert!(seen.iter().all(|&n| n == 1), "{seen:?}");
+    let judged = &report["from_trajectories"];
+    assert_eq!(judged["scans_in_no_map"], 0, "{judged}");
+    assert_eq!(
+        judged["segments"].as_array().unwrap().len(),
+        1 + carries.len(),
+        "{judged}"
+    );
     // The same seed draws the same run; a bad profile is bad input.
     let again = ok_json(&[
         "atlas",
