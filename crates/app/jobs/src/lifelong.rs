@@ -313,14 +313,21 @@ fn write_maps(
         .collect();
     let mut reports = Vec::new();
     for trajectory in engine.map_trajectories() {
+        // Each scan's (session, scan in the session).
+        let at: Vec<(usize, usize)> = trajectory
+            .scans
+            .iter()
+            .map(|s| {
+                let k = session_starts
+                    .partition_point(|&start| start <= s.scan)
+                    .saturating_sub(1);
+                (k, s.scan - session_starts.get(k).copied().unwrap_or(0))
+            })
+            .collect();
         // Epochs with scans in scan order (an epoch's scans are consecutive), then the
         // stored ones.
         let mut epochs: Vec<MapEpoch> = Vec::new();
-        for scan in &trajectory.scans {
-            let s = session_starts
-                .partition_point(|&start| start <= scan.scan)
-                .saturating_sub(1);
-            let local = scan.scan - session_starts.get(s).copied().unwrap_or(0);
+        for (scan, &(s, local)) in trajectory.scans.iter().zip(&at) {
             match epochs.last_mut() {
                 Some(e) if e.epoch == scan.epoch && e.session_index == Some(s) => {
                     match e.scan_ranges.last_mut() {
@@ -353,17 +360,7 @@ fn write_maps(
                 .join("trajectory.tum")
         });
         if let Some(path) = &path {
-            // (session, scan) of each line, its stamp and, when known, its reference pose.
-            let at: Vec<(usize, usize)> = trajectory
-                .scans
-                .iter()
-                .map(|s| {
-                    let k = session_starts
-                        .partition_point(|&start| start <= s.scan)
-                        .saturating_sub(1);
-                    (k, s.scan - session_starts.get(k).copied().unwrap_or(0))
-                })
-                .collect();
+            // Each line's stamp and, when known, its reference pose.
             let stamp = |(k, scan): (usize, usize)| {
                 stamps
                     .get(k)

@@ -235,11 +235,20 @@ fn run_one(
     let judged = judge_maps(&output, sessions, frames)?;
     let report = &done.report;
     let starts = session_starts(sessions);
+    let epochs = epoch_starts(report)?;
+    // The epoch the engine was in at a scan: the last one started at or before it.
+    let epoch_at = |scan: usize| {
+        epochs
+            .iter()
+            .take_while(|(at, _)| *at <= scan)
+            .last()
+            .map(|(_, epoch)| *epoch)
+    };
     let mut lost = LostAt::default();
     let (mut to_conditional_m, mut to_full_m) = (Vec::new(), Vec::new());
     for segment in judged.segments.iter().filter(|s| s.revisits) {
         let last = starts[segment.session] + last_scan(segment, sessions);
-        let epoch = epoch_at(report, last);
+        let epoch = epoch_at(last);
         if segment.merged_correctly {
             let first = segment.first_revisit_scan.unwrap_or(0);
             let truth = sessions[segment.session]
@@ -320,24 +329,21 @@ fn last_scan(segment: &SegmentJudgement, sessions: &[AtlasSession]) -> usize {
     end.saturating_sub(1)
 }
 
-/// The epoch the engine was in at scan `scan`: the last one started at or before it, from
-/// the run's `events.jsonl`.
-fn epoch_at(report: &AtlasReport, scan: usize) -> Option<u32> {
-    let events = std::fs::read_to_string(&report.events).ok()?;
-    let mut epoch = None;
-    for line in events.lines() {
-        let Ok(event) = serde_json::from_str::<serde_json::Value>(line) else {
-            continue;
-        };
+/// Where each epoch started (scan, epoch), from the run's `events.jsonl`.
+fn epoch_starts(report: &AtlasReport) -> anyhow::Result<Vec<(usize, u32)>> {
+    let path = &report.events;
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
+    let mut starts = Vec::new();
+    for line in text.lines() {
+        let event: serde_json::Value = serde_json::from_str(line)?;
         if event["event"] == "epoch_started" {
-            let at = event["scan"].as_u64()? as usize;
-            if at > scan {
-                break;
+            if let (Some(scan), Some(epoch)) = (event["scan"].as_u64(), event["epoch"].as_u64()) {
+                starts.push((scan as usize, epoch as u32));
             }
-            epoch = event["epoch"].as_u64().map(|e| e as u32);
         }
     }
-    epoch
+    Ok(starts)
 }
 
 /// Travel (m) along `truth` from scan `from` to scan `to` (0 when `to` is not later).

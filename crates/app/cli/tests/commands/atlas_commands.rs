@@ -357,3 +357,39 @@ fn bad_input_is_refused_with_exit_code_2() {
     let out = run(&["atlas", "-o", p(&dir)]);
     assert_eq!(out.status.code(), Some(2), "{out:?}");
 }
+
+#[test]
+fn eval_lifelong_judges_a_kidnapped_robot_from_its_maps() {
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("eval-lifelong");
+    let report = ok_json(&[
+        "eval",
+        "lifelong",
+        p(&log),
+        "--seeds",
+        "1",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    let run = &report["runs"][0];
+    assert_eq!(run["run"], "intel-s1", "{report}");
+    // Seed 1 carries the robot three times; all three later segments come back where an
+    // earlier one had been, and each ends merged into one map and placed there.
+    assert_eq!(run["segments"], 4, "{run}");
+    assert_eq!(run["revisiting"], 3, "{run}");
+    assert_eq!(run["merged"], 3, "{run}");
+    assert_eq!(run["misplaced"], 0, "{run}");
+    // A relocalization distance per merged segment, the full merge after the conditional.
+    let (conditional, full) = (
+        run["to_conditional_m"].as_array().unwrap(),
+        run["to_full_m"].as_array().unwrap(),
+    );
+    assert_eq!(full.len(), 3);
+    for (c, f) in conditional.iter().zip(full) {
+        assert!(c.as_f64().unwrap() <= f.as_f64().unwrap(), "{run}");
+    }
+    assert!(dir.join("intel-s1/maps.json").exists());
+}
