@@ -250,3 +250,7 @@ class Atlas:
     @property
     def graphs(self) -> list[Graph]:
         """Every graph: the active one, then the inactive maps."""
+    def trajectories(self) -> list[dict[str, Any]]:
+        """Every map with the scans that hang on it, as ``atlas -o DIR`` writes ``DIR/maps/``:
+        ``map``, ``epochs``, and per scan ``scans`` (numbers from 0), ``scan_epochs``,
+        ``stamps`` (NaN where none was given) and ``poses`` (``(N, 3)`` in the map's frame)."""

@@ -26,6 +26,7 @@ use mapmerge_lab::atlas_judge::{
     REVISIT_RADIUS_M, UNDO_WITHIN_M,
 };
 use mapmerge_lab::carried::{carried_sessions, Carry};
+use mapmerge_lab::map_judge::{judge_maps, Frames, MapsJudgement, PLACED_WITHIN_M};
 use serde::Serialize;
 
 use crate::{job_error, print_json};
@@ -117,6 +118,9 @@ struct Report<'a> {
     run: &'a AtlasReport,
     #[serde(flatten)]
     judgement: AtlasJudgement,
+    /// With a reference: the per-map trajectories judged against it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    from_trajectories: Option<MapsJudgement>,
     /// With `--odometry-noise`: each log's carries (original scan numbers).
     #[serde(skip_serializing_if = "Option::is_none")]
     carries: Option<Vec<Vec<Carry>>>,
@@ -180,6 +184,16 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         .map_err(job_error)?;
     bar.finish_and_clear();
     let judgement = judge_atlas(&mut run, &sessions);
+    // Simulated sessions share the world's frame; each corrected log has its own.
+    let frames = match args.sim {
+        Some(_) => Frames::Shared,
+        None => Frames::PerSession,
+    };
+    let from_trajectories = sessions
+        .iter()
+        .all(|s| s.reference.is_some())
+        .then(|| judge_maps(&args.output, &sessions, frames))
+        .transpose()?;
     if let Some(path) = &args.merge_results {
         let group = args
             .results_group
@@ -200,17 +214,22 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
     let report = Report {
         run: &run.report,
         judgement,
+        from_trajectories,
         carries,
     };
     if args.json {
         print_json(&report)?;
     } else {
-        print_text(report.run, &report.judgement);
+        print_text(
+            report.run,
+            &report.judgement,
+            report.from_trajectories.as_ref(),
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
 
-fn print_text(run: &AtlasReport, judgement: &AtlasJudgement) {
+fn print_text(run: &AtlasReport, judgement: &AtlasJudgement, maps: Option<&MapsJudgement>) {
     println!(
         "{} sessions, {} scans, {} epochs; {} merge decisions, {} unmerges in {:.1} s",
         run.sessions,
@@ -307,6 +326,21 @@ fn print_text(run: &AtlasReport, judgement: &AtlasJudgement) {
         println!(
             "  {m} of the {r} later epochs that travelled {REVISIT_MIN_M} m or more within {REVISIT_RADIUS_M} m of an earlier epoch's path end merged correctly"
         );
+    }
+    if let Some(maps) = maps {
+        println!(
+            "  from the per-map trajectories: {} of {} revisiting segments end merged and placed within {PLACED_WITHIN_M} m; {} segments placed further off beside another; {} scans in no map",
+            maps.revisiting_merged_correctly, maps.segments_revisiting, maps.misplaced, maps.scans_in_no_map
+        );
+        for m in maps.maps.iter().filter(|m| m.segments.len() > 1) {
+            println!(
+                "    {}: segments {:?}, whole-map ATE {} m, worst segment {} m beyond its own error",
+                m.map,
+                m.segments,
+                m.whole_ate_m.map_or_else(|| "-".to_owned(), |a| format!("{a:.2}")),
+                m.worst_placed_off_m.map_or_else(|| "-".to_owned(), |a| format!("{a:.2}")),
+            );
+        }
     }
     if let Some(store) = &run.store {
         let continued = store

@@ -24,6 +24,7 @@
 mod decisions;
 mod epochs;
 mod reports;
+mod trajectories;
 
 use std::collections::BTreeSet;
 use std::sync::Arc;
@@ -58,6 +59,7 @@ pub use epochs::{epoch_outcomes, EpochEnd, EpochOutcome};
 /// `conditional`, `full`, `rejected_conditional`, `expired`).
 pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;
 pub use reports::{ambiguous_views, hypothesis_summary, view_self_similarity};
+pub use trajectories::{MapScan, MapTrajectory};
 
 /// What can go wrong.
 #[derive(Debug, thiserror::Error)]
@@ -234,6 +236,9 @@ pub struct Engine {
     conditional: Option<Conditional>,
     /// The tracker's pose of the previous keyframe (the EKF's motion update).
     previous_keyframe_local: Option<Se2>,
+    /// Every scan of the run on its keyframe, and its stamp as fed.
+    anchors: ScanAnchors,
+    stamps: Vec<Option<f64>>,
 }
 
 /// At most this many views of a hypothesis are joined for `decisions.joint_views`.
@@ -288,6 +293,8 @@ impl Engine {
             self_similarity_seconds: 0.0,
             conditional: None,
             previous_keyframe_local: None,
+            anchors: ScanAnchors::new(),
+            stamps: Vec::new(),
             tracker: LocalTracker::new(params.tracker.clone())?,
             atlas: Atlas::new(params.atlas.clone())?,
             params,
@@ -442,7 +449,12 @@ impl Engine {
     pub fn end_session(&mut self, first_node: NodeId) -> Result<MaintenanceReport, EngineError> {
         self.end_epoch(EpochEndReason::Restart)?;
         let params = self.params.atlas.maintenance.clone();
-        Ok(self.atlas.maintain(&params, first_node)?)
+        let before = self.nodes_before();
+        let report = self.atlas.maintain(&params, first_node)?;
+        let atlas = &self.atlas;
+        self.anchors
+            .reanchor(&before, |node| atlas.pose_of(node).is_some());
+        Ok(report)
     }
 
     /// Optimises once more if loops wait (call after a log's last scan).
@@ -459,12 +471,14 @@ impl Engine {
         stamp_secs: Option<f64>,
     ) -> Result<ScanReport<'_>, EngineError> {
         let before = self.events.len();
-        self.scans += 1;
-        // 1. Track.
+        // 1. Track (a scan the tracker refuses is not counted).
         let tracked = self
             .tracker
             .add_scan(odom_from_robot, scan, self.atlas.next_node_id())?;
+        self.scans += 1;
         let anchor = tracked.anchor;
+        self.anchors.push(anchor.0, anchor.1);
+        self.stamps.push(stamp_secs);
         let Some(insertion) = tracked.keyframe else {
             return Ok(ScanReport {
                 anchor,
@@ -1412,11 +1426,9 @@ pub fn run_slam(
     let started = std::time::Instant::now();
     let mut odometry = Se2::identity();
     let mut keyframe_scans = Vec::new();
-    let mut anchors = ScanAnchors::new();
     for (index, record) in log.scans.iter().enumerate() {
         odometry = record.odom_from_robot.unwrap_or(odometry);
         let report = engine.add_scan(&odometry, &record.scan, None)?;
-        anchors.push(report.anchor.0, report.anchor.1);
         if report.keyframe.is_some() {
             keyframe_scans.push(index);
         }
@@ -1425,7 +1437,8 @@ pub fn run_slam(
     engine.finish()?;
     let seconds = started.elapsed().as_secs_f64();
     let graph = engine.atlas.active().clone();
-    let trajectory = anchors
+    let trajectory = engine
+        .anchors
         .trajectory(&graph)
         .into_iter()
         .map(|pose| pose.unwrap_or_else(Se2::identity))

@@ -150,11 +150,12 @@ pub fn write_atlas(engine: &Engine, dir: &Path) -> Result<(), JobError> {
     std::fs::create_dir_all(dir)
         .map_err(|e| JobError::context(format!("creating {}", dir.display()), &e))?;
     let atlas = engine.atlas();
-    let mut graphs: Vec<(String, &PoseGraph2)> = vec![("active".to_owned(), atlas.active())];
+    let mut graphs: Vec<(String, &PoseGraph2)> =
+        vec![(mapmerge_atlas::map_name(None), atlas.active())];
     graphs.extend(
         atlas
             .inactive_maps()
-            .map(|(id, g)| (format!("inactive-{}", id.0), g)),
+            .map(|(id, g)| (mapmerge_atlas::map_name(Some(id)), g)),
     );
     for (name, graph) in graphs {
         if graph.num_vertices() == 0 {

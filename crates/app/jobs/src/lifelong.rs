@@ -15,7 +15,7 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::NodeId;
 use mapmerge_scan::LaserLog;
 use mapmerge_store::{Store, StoreError};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::{draw_graph, open_or_create_store, write_atlas, JobError};
 
@@ -261,10 +261,146 @@ pub struct AtlasReport {
     pub constraints: mapmerge_atlas::ConstraintInfo,
     pub pictures: Vec<PathBuf>,
     pub events: PathBuf,
+    /// Every map with its epochs and their scans (`maps.json`; each map's scans in
+    /// `maps/<map>/trajectory.tum`).
+    pub maps: Vec<MapReport>,
     /// With a store: what was continued and what was committed.
     pub store: Option<StoreRunReport>,
     pub seconds: f64,
     pub ms_per_scan: f64,
+}
+
+/// A graph of the atlas as written to `maps/<map>/`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MapReport {
+    /// `active` or `inactive-K`, as in `atlas/`.
+    pub map: String,
+    /// `maps/<map>/trajectory.tum`: every scan of this run the map holds, in the map's frame,
+    /// stamped with the scan's log time (a clock of `TUM_CLOCK_PERIOD_S` per scan for a log
+    /// whose stamps do not increase), in the order of `epochs` and their `scan_ranges` (none
+    /// when the map holds no scan of this run). Beside it, `reference.tum` holds the same
+    /// scans' reference poses when the sessions carry them.
+    pub trajectory: Option<PathBuf>,
+    pub scans: usize,
+    pub epochs: Vec<MapEpoch>,
+}
+
+/// One epoch of a map: the session it was taken in and its scans there.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MapEpoch {
+    pub epoch: u32,
+    /// The session (its name and its place in this run); none for an epoch of the stored
+    /// atlas the run continued.
+    pub session: Option<String>,
+    pub session_index: Option<usize>,
+    /// Inclusive runs `[first, last]` of the session's own scan numbers.
+    pub scan_ranges: Vec<[usize; 2]>,
+}
+
+/// Writes `maps/<map>/trajectory.tum` for every map and `maps.json`; sessions started at
+/// the engine's scans `session_starts` (in order, the first at 0).
+fn write_maps(
+    engine: &Engine,
+    sessions: &[AtlasSession],
+    session_starts: &[usize],
+    output: &Path,
+) -> Result<Vec<MapReport>, JobError> {
+    // TUM stamps must increase (readers such as evo pair poses by them): each session's own,
+    // or a clock where they do not.
+    let stamps: Vec<Vec<f64>> = sessions
+        .iter()
+        .map(|s| s.log.increasing_scan_stamps(crate::TUM_CLOCK_PERIOD_S).0)
+        .collect();
+    let mut reports = Vec::new();
+    for trajectory in engine.map_trajectories() {
+        // Each scan's (session, scan in the session).
+        let at: Vec<(usize, usize)> = trajectory
+            .scans
+            .iter()
+            .map(|s| {
+                let k = session_starts
+                    .partition_point(|&start| start <= s.scan)
+                    .saturating_sub(1);
+                (k, s.scan - session_starts.get(k).copied().unwrap_or(0))
+            })
+            .collect();
+        // Epochs with scans in scan order (an epoch's scans are consecutive), then the
+        // stored ones.
+        let mut epochs: Vec<MapEpoch> = Vec::new();
+        for (scan, &(s, local)) in trajectory.scans.iter().zip(&at) {
+            match epochs.last_mut() {
+                Some(e) if e.epoch == scan.epoch && e.session_index == Some(s) => {
+                    match e.scan_ranges.last_mut() {
+                        Some(range) if range[1] + 1 == local => range[1] = local,
+                        _ => e.scan_ranges.push([local, local]),
+                    }
+                }
+                _ => epochs.push(MapEpoch {
+                    epoch: scan.epoch,
+                    session: sessions.get(s).map(|x| x.name.clone()),
+                    session_index: Some(s),
+                    scan_ranges: vec![[local, local]],
+                }),
+            }
+        }
+        for &epoch in &trajectory.epochs {
+            if !epochs.iter().any(|e| e.epoch == epoch) {
+                epochs.push(MapEpoch {
+                    epoch,
+                    session: None,
+                    session_index: None,
+                    scan_ranges: Vec::new(),
+                });
+            }
+        }
+        let path = (!trajectory.scans.is_empty()).then(|| {
+            output
+                .join("maps")
+                .join(&trajectory.map)
+                .join("trajectory.tum")
+        });
+        if let Some(path) = &path {
+            // Each line's stamp and, when known, its reference pose.
+            let stamp = |(k, scan): (usize, usize)| {
+                stamps
+                    .get(k)
+                    .and_then(|x| x.get(scan))
+                    .copied()
+                    .unwrap_or(scan as f64)
+            };
+            let poses: Vec<(f64, Se2)> = at
+                .iter()
+                .zip(&trajectory.scans)
+                .map(|(&a, s)| (stamp(a), s.map_from_robot))
+                .collect();
+            let reference: Option<Vec<(f64, Se2)>> = at
+                .iter()
+                .map(|&(k, scan)| {
+                    let pose = sessions.get(k)?.reference.as_ref()?.get(scan)?;
+                    Some((stamp((k, scan)), *pose))
+                })
+                .collect();
+            if let Some(dir) = path.parent() {
+                std::fs::create_dir_all(dir).map_err(|e| JobError::writing(dir, &e))?;
+            }
+            mapmerge_io::write_tum_planar(path, &poses).map_err(|e| JobError::writing(path, &e))?;
+            if let Some(reference) = reference {
+                let path = path.with_file_name("reference.tum");
+                mapmerge_io::write_tum_planar(&path, &reference)
+                    .map_err(|e| JobError::writing(&path, &e))?;
+            }
+        }
+        reports.push(MapReport {
+            map: trajectory.map,
+            trajectory: path,
+            scans: trajectory.scans.len(),
+            epochs,
+        });
+    }
+    let path = output.join("maps.json");
+    let text = serde_json::to_string_pretty(&reports).map_err(|e| JobError::failed(&e))?;
+    std::fs::write(&path, text + "\n").map_err(|e| JobError::writing(&path, &e))?;
+    Ok(reports)
 }
 
 /// A finished run: the engine, the reference pose of every keyframe (this run's and the
@@ -354,8 +490,10 @@ impl AtlasJob {
             paths: Vec::new(),
         };
         let mut committed = Vec::new();
+        let mut session_starts = Vec::with_capacity(sessions.len());
         for (s, session) in sessions.iter().enumerate() {
             progress(AtlasProgress::Session(&session.name));
+            session_starts.push(self.engine.scans());
             let events_before = self.engine.events().len();
             let first_node = self.engine.atlas().next_node_id();
             // A restart ends the epoch, unless the last session ended it (a store).
@@ -378,8 +516,11 @@ impl AtlasJob {
                 )?);
             }
         }
+        // Loops still waiting are closed before anything is written (a store's commit did).
+        self.engine.finish().map_err(|e| JobError::failed(&e))?;
         let events = write_events(&self.engine, &output.join("events.jsonl"))?;
         write_atlas(&self.engine, &output.join("atlas"))?;
+        let maps = write_maps(&self.engine, sessions, &session_starts, &output)?;
         let engine = &self.engine;
         let (merges, unmerges) = summarise(engine);
         let epochs = engine
@@ -419,6 +560,7 @@ impl AtlasJob {
             constraints: engine.atlas().constraint_info(),
             pictures: pictures.paths,
             events,
+            maps,
             store: self.options.store.as_ref().map(|path| StoreRunReport {
                 path: path.clone(),
                 resumed_from: self.resumed_from,

@@ -16,7 +16,7 @@ use numpy::{AllowTypeChange, PyArray1, PyArrayLike1};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use crate::convert::{to_dict, to_python, vector};
+use crate::convert::{planar_poses, to_dict, to_python, vector};
 use crate::graph::Graph;
 use crate::{bad_input, job_error, MapmergeError};
 
@@ -244,6 +244,43 @@ impl PyAtlas {
         Ok(list)
     }
 
+    /// Every map (as `mapmerge atlas -o DIR` writes `DIR/maps/<map>/trajectory.tum`): a list
+    /// of dicts with `map` (`active` or `inactive-K`), `epochs` (every epoch it holds), and,
+    /// for the scans that hang on it in scan order, `scans` (their numbers from 0), `scan_epochs`,
+    /// `stamps` (s, NaN where none was given) and `poses` (`(N, 3)` `[x, y, yaw]` in the map's
+    /// frame).
+    fn trajectories<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let list = PyList::empty(py);
+        for trajectory in self.engine()?.map_trajectories() {
+            let dict = PyDict::new(py);
+            let scans = &trajectory.scans;
+            dict.set_item("map", &trajectory.map)?;
+            dict.set_item("epochs", trajectory.epochs.iter().collect::<Vec<_>>())?;
+            dict.set_item(
+                "scans",
+                vector(py, scans.iter().map(|s| s.scan as u64).collect()),
+            )?;
+            dict.set_item(
+                "scan_epochs",
+                vector(py, scans.iter().map(|s| s.epoch).collect()),
+            )?;
+            dict.set_item(
+                "stamps",
+                vector(
+                    py,
+                    scans
+                        .iter()
+                        .map(|s| s.stamp_secs.unwrap_or(f64::NAN))
+                        .collect(),
+                ),
+            )?;
+            let poses: Vec<Se2> = scans.iter().map(|s| s.map_from_robot).collect();
+            dict.set_item("poses", planar_poses(py, &poses))?;
+            list.append(dict)?;
+        }
+        Ok(list)
+    }
+
     fn __repr__(&self) -> PyResult<String> {
         let engine = self.engine()?;
         Ok(format!(
@@ -258,7 +295,8 @@ impl PyAtlas {
 /// A whole `mapmerge atlas` run over laser sessions (CARMEN logs or ROS 2 bags, one session
 /// each, in order), as the CLI runs it: the epoch ends with a restart between logs and with a
 /// kidnap at the scans of `kidnap_at` (counted over all logs from 0). Writes `output`'s
-/// `events.jsonl`, `atlas/` and, with `pictures`, `pictures/`; with `store`, continues the
+/// `events.jsonl`, `atlas/`, `maps/<map>/trajectory.tum` with `maps.json` and, with
+/// `pictures`, `pictures/`; with `store`, continues the
 /// store's newest atlas and commits one version per session. Returns the fields of
 /// `mapmerge atlas --json` without the judging against a truth.
 #[pyfunction]

@@ -80,6 +80,21 @@ def test_two_sessions_merge_as_the_cli_merges_them(tmp_path):
     assert atlas.events == lines
     assert [e["scan"] for e in lines if e["event"] == "merged"] == [merge["full_at_scan"]]
     atlas.finish()
+    # Every map's scans as the CLI writes them to maps/<map>/trajectory.tum.
+    listed = {m["map"]: m for m in expected["maps"]}
+    for trajectory in atlas.trajectories():
+        entry = listed.pop(trajectory["map"])
+        assert sorted(e["epoch"] for e in entry["epochs"]) == trajectory["epochs"]
+        assert entry["scans"] == len(trajectory["scans"])
+        if entry["scans"] == 0:
+            continue
+        written = np.loadtxt(entry["trajectory"], ndmin=2)
+        poses = trajectory["poses"]
+        np.testing.assert_allclose(written[:, 1:3], poses[:, :2], atol=1e-9)
+        yaw = 2 * np.arctan2(written[:, 6], written[:, 7])
+        np.testing.assert_allclose(np.angle(np.exp(1j * (yaw - poses[:, 2]))), 0, atol=1e-9)
+        np.testing.assert_array_equal(written[:, 0], trajectory["stamps"])
+    assert listed == {}
     # The whole run as one call: the CLI's job without its judging.
     report = mapmerge.run_atlas([first, second], tmp_path / "py", pictures=False)
     for key in ("sessions", "scans", "epochs", "merges", "unmerges", "hypotheses",

@@ -17,7 +17,7 @@ mod keyframe;
 mod submap;
 mod tracker;
 
-pub use anchors::ScanAnchors;
+pub use anchors::{NodesBefore, ScanAnchors};
 pub use keyframe::KeyframePolicy;
 pub use submap::Submap;
 pub use tracker::{

@@ -84,6 +84,10 @@ enum EvalCommand {
     /// The map manager's global tracking and topological loop closure on long simulated
     /// tours: door revisits found, closures true, link-point ATE.
     Areas(crate::areas_eval::AreasEvalArgs),
+    /// The lifelong engine under real conditions: corrected logs as kidnapped robots with
+    /// noisy odometry recorded them (seeded), and simulated worlds, judged from each run's
+    /// per-map trajectories (merged and placed, misplaced, where lost, relocalization).
+    Lifelong(crate::lifelong_eval::LifelongEvalArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -186,6 +190,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::Protrusions(a) => crate::protrusion_eval::run(a),
         EvalCommand::Doors(a) => crate::door_eval::run(a),
         EvalCommand::Areas(a) => crate::areas_eval::run(a),
+        EvalCommand::Lifelong(a) => crate::lifelong_eval::run(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

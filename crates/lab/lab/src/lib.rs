@@ -10,6 +10,10 @@
 //!   `mapmerge atlas --merge-results` also writes;
 //! - [`atlas_judge`]: `mapmerge atlas` against the truth (simulated sessions, every merge
 //!   judged, ATE per committed session, epochs that revisit);
+//! - [`map_judge`]: `mapmerge atlas`'s written per-map trajectories against the truth, as evo
+//!   would judge them (segments merged and placed, misplaced ones, whole-map error), which
+//!   `mapmerge eval lifelong` runs over corrected logs as kidnapped robots recorded them
+//!   ([`carried`]) and over simulated worlds;
 //! - [`area_truth`]: door detection and the map manager scored against the simulator;
 //! - the data and cases the experiments run on: [`sim`] (`mapmerge sim`: simulated sessions
 //!   with their truth), [`sim_graph`] (`mapmerge sim-graph`: a Manhattan world), [`corrupt`]
@@ -32,6 +36,8 @@ mod door_eval;
 mod eval;
 mod grid_merge_eval;
 pub mod invalid_merge_eval;
+mod lifelong_eval;
+pub mod map_judge;
 mod protrusion_eval;
 pub mod sim;
 pub mod sim_graph;

@@ -62,3 +62,12 @@ impl std::fmt::Display for MergeId {
         write!(f, "merge {}", self.0)
     }
 }
+
+/// The name a graph of the atlas goes by in files: `active` for the active graph, else
+/// `inactive-K` (`atlas/<name>.g2o`, `maps/<name>/`).
+pub fn map_name(map: Option<MapId>) -> String {
+    match map {
+        None => "active".to_owned(),
+        Some(id) => format!("inactive-{}", id.0),
+    }
+}

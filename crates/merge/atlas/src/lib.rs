@@ -67,7 +67,7 @@ pub use events::{
     pose_array, read_events, AtlasEvent, EpochEndReason, EventLogWriter, MergeEvent, MergeReason,
     UnmergeEvent, UnmergeReason,
 };
-pub use ids::{EpochId, MapId, MergeId};
+pub use ids::{map_name, EpochId, MapId, MergeId};
 pub use keyframes::{KeyframeRecord, KeyframeStore};
 pub use local_maps::{LocalMapGrid, RenderedMap, LOG_ODDS_STEP};
 pub use maintenance::{MaintenanceParams, MaintenanceReport, ViewUse};

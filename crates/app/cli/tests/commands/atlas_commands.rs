@@ -262,6 +262,43 @@ fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
     assert!(ended.iter().all(|e| e["reason"] == "kidnap"), "{ended:?}");
     // Judged against the corrected poses, as the simulator's runs are.
     assert!(report["wrong_merges"].is_u64() && report["epoch_revisits"].is_array());
+    // Every kept scan is in one map's trajectory exactly once, as maps.json lists it, and the
+    // judgement from those files covers every segment.
+    let maps: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("maps.json")).unwrap()).unwrap();
+    assert_eq!(maps, report["maps"]);
+    let mut seen = vec![0u32; report["scans"].as_u64().unwrap() as usize];
+    for map in maps.as_array().unwrap() {
+        let mut listed = 0;
+        for epoch in map["epochs"].as_array().unwrap() {
+            for range in epoch["scan_ranges"].as_array().unwrap() {
+                let (a, b) = (range[0].as_u64().unwrap(), range[1].as_u64().unwrap());
+                for k in a..=b {
+                    seen[k as usize] += 1;
+                }
+                listed += b + 1 - a;
+            }
+        }
+        let tum = std::fs::read_to_string(map["trajectory"].as_str().unwrap()).unwrap();
+        assert_eq!(tum.lines().count() as u64, listed, "{map}");
+        assert_eq!(map["scans"].as_u64().unwrap(), listed);
+        let reference = dir
+            .join("maps")
+            .join(map["map"].as_str().unwrap())
+            .join("reference.tum");
+        assert_eq!(
+            std::fs::read_to_string(reference).unwrap().lines().count() as u64,
+            listed
+        );
+    }
+    assert!(seen.iter().all(|&n| n == 1), "{seen:?}");
+    let judged = &report["from_trajectories"];
+    assert_eq!(judged["scans_in_no_map"], 0, "{judged}");
+    assert_eq!(
+        judged["segments"].as_array().unwrap().len(),
+        1 + carries.len(),
+        "{judged}"
+    );
     // The same seed draws the same run; a bad profile is bad input.
     let again = ok_json(&[
         "atlas",
@@ -319,4 +356,40 @@ fn bad_input_is_refused_with_exit_code_2() {
     assert_eq!(out.status.code(), Some(2), "{out:?}");
     let out = run(&["atlas", "-o", p(&dir)]);
     assert_eq!(out.status.code(), Some(2), "{out:?}");
+}
+
+#[test]
+fn eval_lifelong_judges_a_kidnapped_robot_from_its_maps() {
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("eval-lifelong");
+    let report = ok_json(&[
+        "eval",
+        "lifelong",
+        p(&log),
+        "--seeds",
+        "1",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    let run = &report["runs"][0];
+    assert_eq!(run["run"], "intel-s1", "{report}");
+    // Seed 1 carries the robot three times; all three later segments come back where an
+    // earlier one had been, and each ends merged into one map and placed there.
+    assert_eq!(run["segments"], 4, "{run}");
+    assert_eq!(run["revisiting"], 3, "{run}");
+    assert_eq!(run["merged"], 3, "{run}");
+    assert_eq!(run["misplaced"], 0, "{run}");
+    // A relocalization distance per merged segment, the full merge after the conditional.
+    let (conditional, full) = (
+        run["to_conditional_m"].as_array().unwrap(),
+        run["to_full_m"].as_array().unwrap(),
+    );
+    assert_eq!(full.len(), 3);
+    for (c, f) in conditional.iter().zip(full) {
+        assert!(c.as_f64().unwrap() <= f.as_f64().unwrap(), "{run}");
+    }
+    assert!(dir.join("intel-s1/maps.json").exists());
 }

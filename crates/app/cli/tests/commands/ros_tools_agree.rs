@@ -1,6 +1,7 @@
 //! Results the field's tools agree with.
 //! - evo (`evo_ape tum --align`) reports the ATE `mapmerge eval ate` reports on the TUM files
-//!   `mapmerge slam` writes, within 1 mm, on every public log. `MAPMERGE_EVO_APE` names the
+//!   `mapmerge slam` writes, within 1 mm, on every public log, and the whole-map error the
+//!   lab reports for the merged maps `mapmerge atlas` writes (`maps/<map>/`). `MAPMERGE_EVO_APE` names the
 //!   `evo_ape` to run (`.ci/run` installs evo); without it the test skips, except under CI.
 //! - Maps load by ROS map_server's rules: `scripts/map_server_load.py`, written to the
 //!   map_server documentation with Python's standard library, classifies every cell of the maps
@@ -81,6 +82,53 @@ fn evo_reports_the_ate_mapmerge_reports_on_every_public_log() {
         assert!(
             (ours_m - theirs_m).abs() < 1e-3,
             "{name}: mapmerge {ours_m} m, evo {theirs_m} m"
+        );
+    }
+}
+
+#[test]
+fn evo_reports_the_whole_map_error_the_lab_reports_on_a_merged_map() {
+    let Some(evo) =
+        mapmerge_testkit::tool_from_env("MAPMERGE_EVO_APE", "the evo_ape of a Python with evo")
+    else {
+        return;
+    };
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("evo-atlas");
+    let report = ok_json(&[
+        "atlas",
+        p(&log),
+        "--odometry-noise",
+        "default",
+        "--seed",
+        "1",
+        "--no-pictures",
+        "-o",
+        p(&dir),
+        "--json",
+    ]);
+    let maps = report["from_trajectories"]["maps"].as_array().unwrap();
+    // Seed 1's kidnapped robot ends with its epochs merged into one map.
+    assert!(
+        maps.iter()
+            .any(|m| m["segments"].as_array().unwrap().len() > 1),
+        "{maps:?}"
+    );
+    for map in maps {
+        let Some(ours_m) = map["whole_ate_m"].as_f64() else {
+            continue;
+        };
+        let folder = dir.join("maps").join(map["map"].as_str().unwrap());
+        let theirs_m = evo_rmse_m(
+            &folder.join("reference.tum"),
+            &folder.join("trajectory.tum"),
+            &evo,
+        );
+        assert!(
+            (ours_m - theirs_m).abs() < 1e-3,
+            "{map}: mapmerge {ours_m} m, evo {theirs_m} m"
         );
     }
 }
