@@ -595,6 +595,17 @@ impl Engine {
                         .map(|edge| merge_match(conditional.map, edge)),
                 );
             }
+        } else if let Some(every) = decisions.track_every_keyframes {
+            if self.keyframes_in_epoch() % every.max(1) == 0 {
+                if let (Some((map, estimate)), Some(robot)) =
+                    (self.tracked_hypothesis(), self.atlas.robot_node())
+                {
+                    let found = self
+                        .atlas
+                        .confirm_at(map, &estimate, &[robot], &self.verifier);
+                    merge_matches.extend(found.into_iter().map(|edge| merge_match(map, edge)));
+                }
+            }
         }
         for (map, edge, covariance) in merge_matches {
             accepted_hypotheses.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
@@ -1085,6 +1096,30 @@ impl Engine {
     /// Keyframes of the current epoch so far.
     fn keyframes_in_epoch(&self) -> usize {
         self.tracker.info().keyframes
+    }
+
+    /// The live merge hypothesis with the most weighted observations (the newest observed
+    /// among equals), with its map and estimate (`decisions.track_every_keyframes`).
+    fn tracked_hypothesis(&self) -> Option<(MapId, Se2)> {
+        let weight = self.params.decisions.filter.ambiguous_weight;
+        let best = self
+            .filter
+            .hypotheses()
+            .filter(|h| h.state() == HypothesisState::Tentative)
+            .filter(|h| matches!(h.target(), Target::Merge { .. }))
+            .max_by(|a, b| {
+                let (ca, cb) = (a.counts(weight), b.counts(weight));
+                ca.weighted_observations
+                    .total_cmp(&cb.weighted_observations)
+                    .then(
+                        a.last_observation_travel_m()
+                            .total_cmp(&b.last_observation_travel_m()),
+                    )
+            })?;
+        let Target::Merge { map } = best.target() else {
+            return None;
+        };
+        Some((MapId(map), self.estimate_of(best)?))
     }
 
     /// `active_from_inactive` of a merge hypothesis from its EKF state: the robot's pose in

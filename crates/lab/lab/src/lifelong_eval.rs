@@ -8,11 +8,13 @@
 //! each merge (iRobot Sec. 6: travel from the first true revisit to the conditional and to
 //! the full merge) and the time per scan.
 
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use clap::Args;
 use mapmerge_engine::{EngineParams, EpochEnd};
 use mapmerge_jobs::{AtlasJob, AtlasOptions, AtlasReport, AtlasSession};
+use mapmerge_posegraph::NodeId;
 use serde::Serialize;
 
 use crate::map_judge::{judge_maps, Frames, MapsJudgement, SegmentJudgement};
@@ -47,10 +49,42 @@ pub struct LifelongEvalArgs {
     /// Folder for every run's outputs (`<run>/maps/…`).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Trace every merge query (`atlas.recognition.trace`) and count, over the queries at
+    /// true revisits, where they were lost: retrieval, the descriptor gate, verification or
+    /// acceptance (verification runs twice for them, so the times are not comparable).
+    #[arg(long)]
+    pub diagnose: bool,
     /// Print JSON.
     #[arg(long)]
     pub json: bool,
 }
+
+/// Merge queries at true revisits, stage by stage (`--diagnose`): a query keyframe whose true
+/// pose lies within [`REVISIT_QUERY_M`] of a keyframe of an earlier epoch.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct QueryStages {
+    pub revisit_queries: usize,
+    /// A retrieved keyframe truly within [`TRUE_CANDIDATE_M`] …
+    pub retrieved_true: usize,
+    /// … admitted by the descriptor distance …
+    pub admitted_true: usize,
+    /// … verified to the true relative pose (within 0.5 m, 10°) at any score …
+    pub verified_true: usize,
+    /// … and at the acceptance score.
+    pub verified_true_above: usize,
+    /// Accepted (score and confidence): to the true pose, and wrongly.
+    pub accepted_true: usize,
+    pub accepted_wrong: usize,
+    /// Scores of every verified candidate (every query), to the true pose and not: where the
+    /// acceptance score separates them.
+    pub scores_true: Vec<f64>,
+    pub scores_wrong: Vec<f64>,
+}
+
+/// A query is at a true revisit within this of an earlier epoch's keyframe (m) …
+const REVISIT_QUERY_M: f64 = 2.0;
+/// … and a retrieved keyframe is the true place within this of the query (m).
+const TRUE_CANDIDATE_M: f64 = 3.0;
 
 /// Where a revisiting segment that did not end merged and placed was lost, from its last
 /// epoch's outcome.
@@ -86,6 +120,8 @@ pub struct RunRow {
     pub ms_per_scan: f64,
     /// Maps holding several segments: whole-map ATE beside the worst segment's excess (m).
     pub merged_maps: Vec<(String, Option<f64>, Option<f64>)>,
+    /// With `--diagnose`.
+    pub queries: Option<QueryStages>,
 }
 
 #[derive(Serialize)]
@@ -101,11 +137,14 @@ struct Report {
     to_full_p90_m: Option<f64>,
     /// Total time over total scans (ms).
     ms_per_scan: f64,
+    /// With `--diagnose`, over every run.
+    queries: Option<QueryStages>,
 }
 
 /// Runs `mapmerge eval lifelong`.
 pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
-    let params: EngineParams = crate::read_config(args.config.as_deref())?;
+    let mut params: EngineParams = crate::read_config(args.config.as_deref())?;
+    params.atlas.recognition.trace |= args.diagnose;
     let mut runs = Vec::new();
     for path in &args.logs {
         let name = crate::log_short_name(path);
@@ -159,6 +198,21 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         to_full_median_m: quantile(&full, 0.5),
         to_full_p90_m: quantile(&full, 0.9),
         ms_per_scan: ms / scans.max(1) as f64,
+        queries: args.diagnose.then(|| {
+            let mut all = QueryStages::default();
+            for q in runs.iter().filter_map(|r| r.queries.as_ref()) {
+                all.revisit_queries += q.revisit_queries;
+                all.retrieved_true += q.retrieved_true;
+                all.admitted_true += q.admitted_true;
+                all.verified_true += q.verified_true;
+                all.verified_true_above += q.verified_true_above;
+                all.accepted_true += q.accepted_true;
+                all.accepted_wrong += q.accepted_wrong;
+                all.scores_true.extend(&q.scores_true);
+                all.scores_wrong.extend(&q.scores_wrong);
+            }
+            all
+        }),
         runs,
     };
     if args.json {
@@ -211,6 +265,18 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         m(report.to_full_p90_m),
         report.ms_per_scan
     );
+    if let Some(q) = &report.queries {
+        println!(
+            "merge queries at true revisits: {}; a true place retrieved {}, admitted {}, verified to the true pose {} ({} at the acceptance score), accepted {}; wrong matches accepted {}",
+            q.revisit_queries,
+            q.retrieved_true,
+            q.admitted_true,
+            q.verified_true,
+            q.verified_true_above,
+            q.accepted_true,
+            q.accepted_wrong
+        );
+    }
     Ok(())
 }
 
@@ -293,7 +359,80 @@ fn run_one(
         to_full_m,
         ms_per_scan: report.ms_per_scan,
         merged_maps: merged_maps(&judged),
+        queries: args.diagnose.then(|| query_stages(&done, params)),
     })
+}
+
+/// The traced merge queries of `run` at true revisits, stage by stage (one truth frame: a
+/// single log, or a simulated world).
+fn query_stages(run: &mapmerge_jobs::AtlasRun, params: &EngineParams) -> QueryStages {
+    use mapmerge_geometry::{LieGroup, Se2};
+    let atlas = run.engine.atlas();
+    let truth = &run.reference_of_node;
+    let epoch = |n: NodeId| atlas.epoch_of(n).map(|e| e.0);
+    let near = |a: NodeId, b: NodeId, within_m: f64| {
+        truth
+            .get(&a)
+            .zip(truth.get(&b))
+            .is_some_and(|(x, y)| (x.translation() - y.translation()).norm() <= within_m)
+    };
+    let is_true = |query: NodeId, candidate: NodeId, candidate_from_query: &Se2| {
+        let (Some(q), Some(c)) = (truth.get(&query), truth.get(&candidate)) else {
+            return false;
+        };
+        let error = c.between(q).between(candidate_from_query);
+        error.translation().norm() <= crate::atlas_judge::TRUE_WITHIN.0
+            && error.theta_rad.abs() <= crate::atlas_judge::TRUE_WITHIN.1
+    };
+    let min_score = params.atlas.recognition.place.min_score;
+    // Each query once, over every graph it searched.
+    let mut by_query: BTreeMap<NodeId, Vec<&mapmerge_atlas::MergeQueryTrace>> = BTreeMap::new();
+    for record in atlas.merge_trace() {
+        by_query.entry(record.query).or_default().push(record);
+    }
+    let mut stages = QueryStages::default();
+    for (query, records) in by_query {
+        let Some(query_epoch) = epoch(query) else {
+            continue;
+        };
+        let revisit = truth
+            .keys()
+            .any(|&k| epoch(k).is_some_and(|e| e < query_epoch) && near(query, k, REVISIT_QUERY_M));
+        for (node, verified) in records.iter().flat_map(|r| r.verified.iter()) {
+            if let Some((from, score)) = verified {
+                if is_true(query, *node, from) {
+                    stages.scores_true.push(*score);
+                } else {
+                    stages.scores_wrong.push(*score);
+                }
+            }
+        }
+        let accepted = records.iter().filter_map(|r| r.accepted.as_ref());
+        for (node, from, _, _) in accepted.clone() {
+            if is_true(query, *node, from) {
+                stages.accepted_true += usize::from(revisit);
+            } else {
+                stages.accepted_wrong += 1;
+            }
+        }
+        if !revisit {
+            continue;
+        }
+        stages.revisit_queries += 1;
+        let retrieved = records.iter().flat_map(|r| r.retrieved.iter());
+        let true_retrieved: Vec<&(NodeId, f64, bool)> = retrieved
+            .filter(|(n, _, _)| near(query, *n, TRUE_CANDIDATE_M))
+            .collect();
+        stages.retrieved_true += usize::from(!true_retrieved.is_empty());
+        stages.admitted_true += usize::from(true_retrieved.iter().any(|(_, _, a)| *a));
+        let verified = records.iter().flat_map(|r| r.verified.iter());
+        let true_verified: Vec<f64> = verified
+            .filter_map(|(n, v)| v.filter(|(from, _)| is_true(query, *n, from)).map(|v| v.1))
+            .collect();
+        stages.verified_true += usize::from(!true_verified.is_empty());
+        stages.verified_true_above += usize::from(true_verified.iter().any(|&s| s >= min_score));
+    }
+    stages
 }
 
 fn merged_maps(judged: &MapsJudgement) -> Vec<(String, Option<f64>, Option<f64>)> {

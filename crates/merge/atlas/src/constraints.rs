@@ -286,6 +286,8 @@ pub(crate) struct ConstraintBuilder {
     /// Matches the drift gate refused since the last search returned them.
     gated: Vec<LoopRecord>,
     pub(crate) info: ConstraintInfo,
+    /// Every merge query, with `recognition.trace`.
+    pub(crate) trace: Vec<crate::MergeQueryTrace>,
 }
 
 impl ConstraintBuilder {
@@ -323,6 +325,7 @@ impl ConstraintBuilder {
             loops: Vec::new(),
             gated: Vec::new(),
             info: ConstraintInfo::default(),
+            trace: Vec::new(),
         })
     }
 
@@ -526,7 +529,11 @@ impl<B: BackupStore> Atlas<B> {
             self.constraints.keyframes_since_merge_search = 0;
             let started = Instant::now();
             if !self.inactive.is_empty() {
-                found.merge_candidates = self.find_merges(verifier);
+                let mut trace = Vec::new();
+                let tracing = self.params.recognition.trace;
+                found.merge_candidates =
+                    self.find_merges_traced(verifier, tracing.then_some(&mut trace));
+                self.constraints.trace.extend(trace);
                 self.constraints.info.merge_queries += 1;
                 self.constraints.info.merge_matches += found.merge_candidates.len();
             }
@@ -918,12 +925,40 @@ impl<B: BackupStore> Atlas<B> {
     /// and rated against rival places of the same graph. One proposal per matched graph,
     /// best score first.
     pub fn find_merges(&self, verifier: &dyn GeometricVerifier) -> Vec<MergeProposal> {
+        self.find_merges_traced(verifier, None)
+    }
+
+    /// Every merge query, with `recognition.trace` (oldest first).
+    pub fn merge_trace(&self) -> &[crate::MergeQueryTrace] {
+        &self.constraints.trace
+    }
+
+    /// [`Atlas::find_merges`], each graph's query appended to `trace` when given.
+    fn find_merges_traced(
+        &self,
+        verifier: &dyn GeometricVerifier,
+        mut trace: Option<&mut Vec<crate::MergeQueryTrace>>,
+    ) -> Vec<MergeProposal> {
         let Some(query) = self.newest_query() else {
             return Vec::new();
         };
         let mut proposals = Vec::new();
         for (map, graph) in &self.inactive {
-            let Some(found) = self.recognise(&query, graph, |_| true, verifier) else {
+            let mut record = trace.is_some().then(|| crate::MergeQueryTrace {
+                query: query.node,
+                map: *map,
+                retrieved: Vec::new(),
+                verified: Vec::new(),
+                accepted: None,
+            });
+            let found = self.recognise(&query, graph, |_| true, verifier, record.as_mut());
+            if let (Some(trace), Some(mut record)) = (trace.as_deref_mut(), record) {
+                record.accepted = found
+                    .as_ref()
+                    .map(|f| (NodeId(f.b.0), f.b_from_a, f.score, f.confidence));
+                trace.push(record);
+            }
+            let Some(found) = found else {
                 continue;
             };
             let b = NodeId(found.b.0);
@@ -969,6 +1004,7 @@ impl<B: BackupStore> Atlas<B> {
             &self.active,
             |node| !self.is_current_epoch(node),
             verifier,
+            None,
         )?;
         let view = NodeId(found.b.0);
         let map_from_view = self.active.vertex(view)?.pose;
@@ -1060,6 +1096,7 @@ impl<B: BackupStore> Atlas<B> {
         graph: &mapmerge_posegraph::PoseGraph2,
         keep: impl Fn(NodeId) -> bool,
         verifier: &dyn GeometricVerifier,
+        mut trace: Option<&mut crate::MergeQueryTrace>,
     ) -> Option<mapmerge_place::VerifiedLoop> {
         let p = &self.params.recognition;
         let c = &self.constraints;
@@ -1087,6 +1124,18 @@ impl<B: BackupStore> Atlas<B> {
                     .then(x.keyframe.0.cmp(&y.keyframe.0))
             });
             retrieved.truncate(k);
+        }
+        if let Some(trace) = trace.as_deref_mut() {
+            trace.retrieved = retrieved
+                .iter()
+                .map(|r| {
+                    (
+                        NodeId(r.keyframe.0),
+                        r.descriptor_distance,
+                        p.place.admits(r),
+                    )
+                })
+                .collect();
         }
         let nodes: Vec<(NodeId, f64, usize)> = retrieved
             .iter()
@@ -1121,6 +1170,19 @@ impl<B: BackupStore> Atlas<B> {
                 })
             })
             .collect();
+        if let Some(trace) = trace {
+            trace.verified = candidates
+                .iter()
+                .map(|c| {
+                    let guess = Se2::new(0.0, 0.0, c.yaw_rad);
+                    let v = verifier.verify(&query.keyframe, c.keyframe, &guess);
+                    (
+                        NodeId(c.keyframe.id.0),
+                        v.map(|v| (v.candidate_from_query, v.score)),
+                    )
+                })
+                .collect();
+        }
         verify_candidates(&query.keyframe, &candidates, &Dyn(verifier), &p.place)
             .filter(|found| found.confidence >= p.min_confidence)
     }

@@ -76,5 +76,7 @@ pub use protrusion::{
     align_graphs, new_regions, remove_regions, FeatureSet, LabelledRegion, ProtrusionClassifier,
     ProtrusionParams, Region, RegionFeatures, DEFAULT_DEPTH, DEFAULT_MIN_LEAF,
 };
-pub use recognition::{default_verifier, KeyframeParams, MergeProposal, RecognitionParams};
+pub use recognition::{
+    default_verifier, KeyframeParams, MergeProposal, MergeQueryTrace, RecognitionParams,
+};
 pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};

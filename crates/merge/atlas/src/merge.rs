@@ -563,6 +563,41 @@ impl<B: BackupStore> Atlas<B> {
         )
     }
 
+    /// The keyframes `nodes` of the active graph verified against the nearest vertices of
+    /// inactive graph `map` placed at `active_from_inactive` (a merge hypothesis's estimate),
+    /// as [`Atlas::confirm_in_preview`] verifies them in G': matches within the overlap gate
+    /// are loop edges; none are added.
+    pub fn confirm_at(
+        &self,
+        map: MapId,
+        active_from_inactive: &Se2,
+        nodes: &[NodeId],
+        verifier: &dyn GeometricVerifier,
+    ) -> Vec<LoopEdge> {
+        let Some(inactive) = self.inactive.get(&map) else {
+            return Vec::new();
+        };
+        let mut moved = PoseGraph2::new();
+        for (id, vertex) in inactive.vertices() {
+            let mut vertex = *vertex;
+            vertex.pose = active_from_inactive.compose(&vertex.pose);
+            let _ = moved.add_vertex(id, vertex);
+        }
+        // Both sides' vertices in one graph: local maps are built along each epoch's vertices.
+        let mut placed = moved.clone();
+        for (id, vertex) in self.active.vertices() {
+            let _ = placed.add_vertex(id, *vertex);
+        }
+        self.overlap_loops(
+            &placed,
+            nodes,
+            &moved,
+            &BTreeSet::new(),
+            GatedVerifier::new(verifier, self.params.merge.overlap.min_score),
+            None,
+        )
+    }
+
     /// Undoes *all* merges into the active graph (Sec. III-B, on an invalid-merge detection):
     /// every merged inactive graph comes back from its backup exactly (poses, edges and their
     /// ids, metadata) under its old id; every other-epoch vertex leaves the active graph with

@@ -87,6 +87,26 @@ pub struct RecognitionParams {
     /// passing 0.5–1 m beside its earlier path ranks the true place low). Empty: the query
     /// as seen from the robot only (default).
     pub lateral_offsets_m: Vec<f64>,
+    /// Keep a trace of every merge query against every inactive graph (what was retrieved,
+    /// each admitted candidate's verification, what was accepted) for diagnosis
+    /// ([`Atlas::merge_trace`]); verifies each admitted candidate once more (default: false).
+    pub trace: bool,
+}
+
+/// One merge query against one inactive graph (`recognition.trace`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MergeQueryTrace {
+    /// The query keyframe and the graph searched.
+    pub query: NodeId,
+    pub map: MapId,
+    /// Retrieved keyframes with their descriptor distance, nearest first, and whether the
+    /// distance admitted them to verification.
+    pub retrieved: Vec<(NodeId, f64, bool)>,
+    /// Each admitted candidate verified: node, `candidate_from_query`, score (none when the
+    /// verifier found no alignment).
+    pub verified: Vec<(NodeId, Option<(Se2, f64)>)>,
+    /// The accepted match: node, `candidate_from_query`, score, confidence.
+    pub accepted: Option<(NodeId, Se2, f64, f64)>,
 }
 
 impl Default for RecognitionParams {
@@ -103,6 +123,7 @@ impl Default for RecognitionParams {
             min_epoch_keyframes: 10,
             verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
             lateral_offsets_m: Vec::new(),
+            trace: false,
         }
     }
 }

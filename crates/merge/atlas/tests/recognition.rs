@@ -433,3 +433,41 @@ fn maintenance_keeps_the_atlas_bounded_and_its_map_close_to_the_unpruned_one() {
         "{differ} of {known} cells differ"
     );
 }
+
+#[test]
+fn a_hypothesis_placed_right_is_confirmed_where_it_puts_the_robot_and_one_placed_wrong_is_not() {
+    let world = world();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let old_path = along(&[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)]);
+    let old = add_epoch(&mut atlas, &world, &old_path, &Se2::identity());
+    atlas.end_epoch(EpochEndReason::Kidnap);
+    let start = Se2::new(1.0, 8.0, -1.2);
+    let path = along(&[(1.0, 8.0), (1.5, 4.0), (2.0, 0.5), (9.0, 0.5)]);
+    let new = add_epoch(&mut atlas, &world, &path, &start);
+    let verifier = default_verifier().unwrap();
+    let robot = *new.last().unwrap();
+    // The true placement: the newest keyframe matches the old epoch's nearest vertex, on the
+    // true relative pose.
+    let truth = start.inverse();
+    let found = atlas.confirm_at(MapId(0), &truth, &[robot], &verifier);
+    assert_eq!(found.len(), 1, "{found:?}");
+    let world_of: HashMap<NodeId, Se2> = old
+        .into_iter()
+        .zip(old_path)
+        .chain(new.iter().copied().zip(path.iter().copied()))
+        .collect();
+    let l = found[0];
+    let error = world_of[&l.inactive]
+        .between(&world_of[&l.active])
+        .between(&l.inactive_from_active);
+    assert!(error.translation().norm() < 0.1, "{error:?}");
+    // Placed 1.5 m off, beyond the overlap gate: nothing confirms it.
+    let wrong = truth.compose(&Se2::new(1.5, 0.0, 0.0));
+    assert!(atlas
+        .confirm_at(MapId(0), &wrong, &[robot], &verifier)
+        .is_empty());
+    // An unknown map confirms nothing.
+    assert!(atlas
+        .confirm_at(MapId(7), &truth, &[robot], &verifier)
+        .is_empty());
+}

@@ -370,6 +370,7 @@ fn eval_lifelong_judges_a_kidnapped_robot_from_its_maps() {
         p(&log),
         "--seeds",
         "1",
+        "--diagnose",
         "-o",
         p(&dir),
         "--json",
@@ -392,4 +393,23 @@ fn eval_lifelong_judges_a_kidnapped_robot_from_its_maps() {
         assert!(c.as_f64().unwrap() <= f.as_f64().unwrap(), "{run}");
     }
     assert!(dir.join("intel-s1/maps.json").exists());
+    // The merge queries at true revisits, stage by stage: each stage keeps at most what the
+    // one before it kept, and the merges came from accepted true matches.
+    let q = &run["queries"];
+    let stage = |name: &str| q[name].as_u64().unwrap();
+    let stages = [
+        "revisit_queries",
+        "retrieved_true",
+        "admitted_true",
+        "verified_true",
+        "verified_true_above",
+    ];
+    for pair in stages.windows(2) {
+        assert!(stage(pair[0]) >= stage(pair[1]), "{q}");
+    }
+    assert!(
+        stage("accepted_true") >= 3 && stage("accepted_wrong") == 0,
+        "{q}"
+    );
+    assert!(!q["scores_true"].as_array().unwrap().is_empty());
 }
