@@ -81,6 +81,20 @@ pub struct QueryStages {
     pub scores_wrong: Vec<f64>,
 }
 
+impl QueryStages {
+    fn add(&mut self, other: &Self) {
+        self.revisit_queries += other.revisit_queries;
+        self.retrieved_true += other.retrieved_true;
+        self.admitted_true += other.admitted_true;
+        self.verified_true += other.verified_true;
+        self.verified_true_above += other.verified_true_above;
+        self.accepted_true += other.accepted_true;
+        self.accepted_wrong += other.accepted_wrong;
+        self.scores_true.extend(&other.scores_true);
+        self.scores_wrong.extend(&other.scores_wrong);
+    }
+}
+
 /// A query is at a true revisit within this of an earlier epoch's keyframe (m) …
 const REVISIT_QUERY_M: f64 = 2.0;
 /// … and a retrieved keyframe is the true place within this of the query (m).
@@ -101,6 +115,16 @@ pub struct LostAt {
     /// Merged and kept, but not placed within 0.5 m, or merged into a map without an
     /// earlier segment.
     pub misplaced: usize,
+}
+
+impl LostAt {
+    fn add(&mut self, other: &Self) {
+        self.no_match += other.no_match;
+        self.hypothesis += other.hypothesis;
+        self.conditional += other.conditional;
+        self.undone += other.undone;
+        self.misplaced += other.misplaced;
+    }
 }
 
 /// One run.
@@ -176,11 +200,7 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
     let sum = |f: fn(&RunRow) -> usize| runs.iter().map(f).sum::<usize>();
     let mut lost = LostAt::default();
     for r in &runs {
-        lost.no_match += r.lost.no_match;
-        lost.hypothesis += r.lost.hypothesis;
-        lost.conditional += r.lost.conditional;
-        lost.undone += r.lost.undone;
-        lost.misplaced += r.lost.misplaced;
+        lost.add(&r.lost);
     }
     let all = |f: fn(&RunRow) -> &Vec<f64>| -> Vec<f64> {
         runs.iter().flat_map(|r| f(r).iter().copied()).collect()
@@ -201,15 +221,7 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         queries: args.diagnose.then(|| {
             let mut all = QueryStages::default();
             for q in runs.iter().filter_map(|r| r.queries.as_ref()) {
-                all.revisit_queries += q.revisit_queries;
-                all.retrieved_true += q.retrieved_true;
-                all.admitted_true += q.admitted_true;
-                all.verified_true += q.verified_true;
-                all.verified_true_above += q.verified_true_above;
-                all.accepted_true += q.accepted_true;
-                all.accepted_wrong += q.accepted_wrong;
-                all.scores_true.extend(&q.scores_true);
-                all.scores_wrong.extend(&q.scores_wrong);
+                all.add(q);
             }
             all
         }),
