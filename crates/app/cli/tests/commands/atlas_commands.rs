@@ -225,24 +225,32 @@ fn the_simulated_office_runs_end_to_end_and_every_unmerge_undoes_earlier_merges(
     assert!(lines.iter().all(|l| l["log"] == "sim-office-aliased"));
 }
 
-#[test]
-fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
-    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
-        return;
-    };
-    let dir = scratch("atlas-intel-noisy");
-    let report = ok_json(&[
+/// `mapmerge atlas LOG --odometry-noise default --seed 1 --no-pictures -o DIR --json`.
+pub(crate) fn noisy_atlas_seed_1(
+    log: &std::path::Path,
+    dir: &std::path::Path,
+) -> serde_json::Value {
+    ok_json(&[
         "atlas",
-        p(&log),
+        p(log),
         "--odometry-noise",
         "default",
         "--seed",
         "1",
         "--no-pictures",
         "-o",
-        p(&dir),
+        p(dir),
         "--json",
-    ]);
+    ])
+}
+
+#[test]
+fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
+    let Some(log) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let dir = scratch("atlas-intel-noisy");
+    let report = noisy_atlas_seed_1(&log, &dir);
     // Kidnaps drawn by the seed: each carry's scans are missing, each starts an epoch.
     let carries = report["carries"][0].as_array().unwrap();
     assert!(!carries.is_empty() && carries.len() <= 4, "{report}");
@@ -300,18 +308,7 @@ fn a_carried_robot_with_noisy_odometry_is_judged_against_the_corrected_poses() {
         "{judged}"
     );
     // The same seed draws the same run; a bad profile is bad input.
-    let again = ok_json(&[
-        "atlas",
-        p(&log),
-        "--odometry-noise",
-        "default",
-        "--seed",
-        "1",
-        "--no-pictures",
-        "-o",
-        p(&dir.join("again")),
-        "--json",
-    ]);
+    let again = noisy_atlas_seed_1(&log, &dir.join("again"));
     assert_eq!(again["merges"], report["merges"]);
     let out = run(&["atlas", p(&log), "--odometry-noise", "wild", "-o", p(&dir)]);
     assert_eq!(out.status.code(), Some(2));

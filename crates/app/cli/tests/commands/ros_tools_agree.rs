@@ -97,18 +97,7 @@ fn evo_reports_the_whole_map_error_the_lab_reports_on_a_merged_map() {
         return;
     };
     let dir = scratch("evo-atlas");
-    let report = ok_json(&[
-        "atlas",
-        p(&log),
-        "--odometry-noise",
-        "default",
-        "--seed",
-        "1",
-        "--no-pictures",
-        "-o",
-        p(&dir),
-        "--json",
-    ]);
+    let report = crate::atlas_commands::noisy_atlas_seed_1(&log, &dir);
     let maps = report["from_trajectories"]["maps"].as_array().unwrap();
     // Seed 1's kidnapped robot ends with its epochs merged into one map.
     assert!(
