@@ -232,31 +232,26 @@ mod tests {
         Keyframe::new(0, points).with_rays(0.1, rays)
     }
 
-    /// Rows of racks every 5 m along y with uprights every 2.7 m, seen from an aisle: the map fits itself one row
-    /// over. An irregular room does not fit itself anywhere else.
-    #[test]
-    fn periodic_rows_fit_themselves_one_row_over_and_a_room_does_not() {
+    /// Rows of racks 1 m deep every 5 m along y (the first at `y0`, while ≤ `y1`), 18 m long,
+    /// with uprights every 2.7 m standing out of both faces.
+    fn rack_rows(y0: f64, y1: f64) -> Vec<Point2> {
         let mut rows = Vec::new();
-        for k in -2..=2 {
-            let y = 5.0 * k as f64 + 2.5;
+        let mut y = y0;
+        while y <= y1 {
             rows.extend(wall(Point2::new(-9.0, y), Point2::new(9.0, y)));
             rows.extend(wall(Point2::new(-9.0, y + 1.0), Point2::new(9.0, y + 1.0)));
-            // Uprights every 2.7 m stand out of both faces.
             for j in -3..=3 {
                 let x = 2.7 * j as f64;
                 rows.extend(wall(Point2::new(x, y - 0.2), Point2::new(x, y)));
                 rows.extend(wall(Point2::new(x, y + 1.0), Point2::new(x, y + 1.2)));
             }
+            y += 5.0;
         }
-        let search =
-            SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
-                .unwrap();
-        let (placement, proof) = search.best_other_placement(&keyframe(rows)).unwrap();
-        assert!(proof.score > 0.95, "{proof:?}");
-        assert!(placement.translation().norm() > 1.5, "{placement:?}");
+        rows
+    }
 
-        let mut room = Vec::new();
-        // An L-shaped room with a niche.
+    /// An L-shaped room with a niche, seen from the origin.
+    fn l_room() -> Keyframe {
         let corners = [
             Point2::new(-3.0, -2.5),
             Point2::new(5.0, -2.5),
@@ -267,12 +262,28 @@ mod tests {
             Point2::new(-1.0, 3.0),
             Point2::new(-3.0, 3.0),
         ];
+        let mut room = Vec::new();
         for (i, a) in corners.iter().enumerate() {
             room.extend(wall(*a, corners[(i + 1) % corners.len()]));
         }
+        keyframe(room)
+    }
+
+    /// Rows of racks every 5 m along y with uprights every 2.7 m, seen from an aisle: the map fits itself one row
+    /// over. An irregular room does not fit itself anywhere else.
+    #[test]
+    fn periodic_rows_fit_themselves_one_row_over_and_a_room_does_not() {
+        let rows = rack_rows(-7.5, 12.5);
+        let search =
+            SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
+                .unwrap();
+        let (placement, proof) = search.best_other_placement(&keyframe(rows)).unwrap();
+        assert!(proof.score > 0.95, "{proof:?}");
+        assert!(placement.translation().norm() > 1.5, "{placement:?}");
+
         // Its best other placement (half turned, where the long walls cross) agrees over part
         // of a small overlap only: below the 0.9 from which the engine calls a view ambiguous.
-        let other = search.best_other_placement(&keyframe(room));
+        let other = search.best_other_placement(&l_room());
         assert!(
             other.as_ref().is_none_or(|(_, proof)| proof.score < 0.85),
             "{other:?}"
@@ -297,28 +308,13 @@ mod tests {
     /// itself is never reported; matched in a room that fits only one way, it has none.
     #[test]
     fn a_match_in_periodic_rows_has_a_rival_one_row_over() {
-        let rows_between = |y0: f64, y1: f64| {
-            let mut rows = Vec::new();
-            let mut y = y0;
-            while y <= y1 {
-                rows.extend(wall(Point2::new(-9.0, y), Point2::new(9.0, y)));
-                rows.extend(wall(Point2::new(-9.0, y + 1.0), Point2::new(9.0, y + 1.0)));
-                for j in -3..=3 {
-                    let x = 2.7 * j as f64;
-                    rows.extend(wall(Point2::new(x, y - 0.2), Point2::new(x, y)));
-                    rows.extend(wall(Point2::new(x, y + 1.0), Point2::new(x, y + 1.2)));
-                }
-                y += 5.0;
-            }
-            rows
-        };
         let search =
             SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
                 .unwrap();
         // The target: five rows; the query: two of them, seen from 1 m beside the match.
-        let target = keyframe(rows_between(-7.5, 12.5));
+        let target = keyframe(rack_rows(-7.5, 12.5));
         let target_from_query = Se2::new(0.5, 1.0, 0.1);
-        let query_points: Vec<Point2> = rows_between(-2.5, 2.5)
+        let query_points: Vec<Point2> = rack_rows(-2.5, 2.5)
             .iter()
             .map(|p| target_from_query.inverse().transform_point(p))
             .collect();
@@ -331,21 +327,7 @@ mod tests {
         assert!(shift.norm() > 1.5, "{rival:?}");
 
         // An L-shaped room: the query is the room itself, matched at the identity.
-        let corners = [
-            Point2::new(-3.0, -2.5),
-            Point2::new(5.0, -2.5),
-            Point2::new(5.0, 0.5),
-            Point2::new(1.0, 0.5),
-            Point2::new(1.0, 4.0),
-            Point2::new(-1.0, 4.0),
-            Point2::new(-1.0, 3.0),
-            Point2::new(-3.0, 3.0),
-        ];
-        let mut room = Vec::new();
-        for (i, a) in corners.iter().enumerate() {
-            room.extend(wall(*a, corners[(i + 1) % corners.len()]));
-        }
-        let room = keyframe(room);
+        let room = l_room();
         let other = search.best_rival_placement(&room, &room, &Se2::identity());
         assert!(
             other.as_ref().is_none_or(|(_, proof)| proof.score < 0.85),
