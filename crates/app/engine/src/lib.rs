@@ -244,6 +244,12 @@ pub struct Engine {
 /// At most this many views of a hypothesis are joined for `decisions.joint_views`.
 const JOINT_VIEWS_MAX: usize = 8;
 
+/// The surroundings a predicted match's rival is searched in (`decisions.track_unique`): at
+/// most this many views …
+const RIVAL_VIEWS: usize = 8;
+/// … at least this far apart (m).
+const RIVAL_SPACING_M: f64 = 2.0;
+
 impl Engine {
     /// A new engine: epoch 0 starts.
     pub fn new(params: EngineParams) -> Result<Self, EngineError> {
@@ -573,42 +579,63 @@ impl Engine {
         }
         // Matches in inactive graphs: merge evidence; while a merge is conditional, the new
         // keyframe verified where G' puts it (the robot behaves as localised, Sec. 5.2).
-        let mut merge_matches: Vec<(MapId, LoopEdge, Matrix3<f64>)> = found
+        let merge_matches: Vec<(MapId, LoopEdge, Matrix3<f64>)> = found
             .merge_candidates
             .iter()
             .filter_map(|p| Some((p.map, *p.loops.first()?, p.covariance)))
             .collect();
+        // Matches verified where a hypothesis puts the robot (G' of a conditional merge, or
+        // the tracked hypothesis's estimate): they are checked for a rival placement nearby
+        // (`decisions.track_unique`).
+        let mut predicted: Vec<(MapId, LoopEdge)> = Vec::new();
         if let Some(conditional) = &self.conditional {
             if self.keyframes_in_epoch() % decisions.confirm_every_keyframes.max(1) == 0 {
-                let node = self.atlas.robot_node();
-                let confirmed = node.map_or_else(Vec::new, |node| {
-                    self.atlas.confirm_in_preview(
-                        &conditional.graph,
-                        conditional.map,
-                        &[node],
-                        &self.verifier,
-                    )
-                });
-                merge_matches.extend(
-                    confirmed
-                        .into_iter()
-                        .map(|edge| merge_match(conditional.map, edge)),
-                );
+                if let Some(node) = self.atlas.robot_node() {
+                    predicted.extend(
+                        self.atlas
+                            .confirm_in_preview(
+                                &conditional.graph,
+                                conditional.map,
+                                &[node],
+                                &self.verifier,
+                            )
+                            .into_iter()
+                            .map(|edge| (conditional.map, edge)),
+                    );
+                }
             }
         } else if let Some(every) = decisions.track_every_keyframes {
             if self.keyframes_in_epoch() % every.max(1) == 0 {
                 if let (Some((map, estimate)), Some(robot)) =
                     (self.tracked_hypothesis(), self.atlas.robot_node())
                 {
-                    let found = self
-                        .atlas
-                        .confirm_at(map, &estimate, &[robot], &self.verifier);
-                    merge_matches.extend(found.into_iter().map(|edge| merge_match(map, edge)));
+                    predicted.extend(
+                        self.atlas
+                            .confirm_at(map, &estimate, &[robot], &self.verifier)
+                            .into_iter()
+                            .map(|edge| (map, edge)),
+                    );
                 }
             }
         }
         for (map, edge, covariance) in merge_matches {
-            accepted_hypotheses.extend(self.observe_merge_match(map, edge, &covariance, travel_m));
+            accepted_hypotheses.extend(self.observe_merge_match(
+                map,
+                edge,
+                &covariance,
+                false,
+                travel_m,
+            ));
+        }
+        for (map, edge) in predicted {
+            let ambiguous = decisions.track_unique && self.has_rival(map, &edge);
+            accepted_hypotheses.extend(self.observe_merge_match(
+                map,
+                edge,
+                &covariance_of(&edge),
+                ambiguous,
+                travel_m,
+            ));
         }
         let newly = self.ambiguity.update(travel_m);
         if !newly.is_empty() {
@@ -628,13 +655,15 @@ impl Engine {
     /// A verified match of active keyframe `edge.active` against view `edge.inactive` of
     /// inactive graph `map` as a merge observation (Eq. 3), made at robot travel `travel_m`;
     /// the view is searched for self-similarity first. A keyframe older than the robot's is
-    /// brought into the robot's frame along the active graph. Returns the hypotheses it made
-    /// fully accepted.
+    /// brought into the robot's frame along the active graph. The observation is ambiguous
+    /// when its view is, or when `ambiguous` says so (a predicted match with a rival). Returns
+    /// the hypotheses it made fully accepted.
     fn observe_merge_match(
         &mut self,
         map: MapId,
         edge: LoopEdge,
         covariance: &Matrix3<f64>,
+        ambiguous: bool,
         travel_m: f64,
     ) -> Vec<Hypothesis<ObservedEdge>> {
         let Some(map_from_view) = self
@@ -665,7 +694,7 @@ impl Engine {
             robot: edge.active.0,
             robot_from_target: robot_from_inactive,
             covariance: self.params.decisions.observation_covariance(covariance),
-            ambiguous: self.ambiguity.is_ambiguous(edge.inactive.0),
+            ambiguous: ambiguous || self.ambiguity.is_ambiguous(edge.inactive.0),
             edge: ObservedEdge::Merge(edge),
         };
         let (id, accepted) = self.observe(observation, travel_m);
@@ -674,6 +703,34 @@ impl Engine {
             accepted.extend(self.count_jointly_unique_views(id, map));
         }
         accepted
+    }
+
+    /// True when the active keyframe of `edge` fits the surroundings of its view in inactive
+    /// graph `map` at another place as well (from `decisions.self_similar_from_score`): the
+    /// rival search of `decisions.track_unique`, logged as an event. False when
+    /// `decisions.self_similarity` is off or a local map is missing.
+    fn has_rival(&mut self, map: MapId, edge: &LoopEdge) -> bool {
+        let Some(search) = self.self_similarity.as_ref() else {
+            return false;
+        };
+        let started = std::time::Instant::now();
+        let radius_m = search.params().radius_m;
+        let score = self
+            .atlas
+            .view_surroundings(map, edge.inactive, radius_m, RIVAL_SPACING_M, RIVAL_VIEWS)
+            .zip(self.atlas.query_keyframe(edge.active))
+            .and_then(|(surroundings, query)| {
+                search.best_rival_placement(&surroundings, &query, &edge.inactive_from_active)
+            })
+            .map_or(0.0, |(_, proof)| proof.score);
+        self.self_similarity_seconds += started.elapsed().as_secs_f64();
+        self.log_decision(Decision::TrackedRival {
+            map,
+            view: edge.inactive.0,
+            robot: edge.active.0,
+            score,
+        });
+        score >= self.params.decisions.self_similar_from_score
     }
 
     /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself
@@ -1367,12 +1424,6 @@ impl Engine {
         }
         self.atlas_events_seen = self.atlas.events().len();
     }
-}
-
-/// A verified edge into map `map` as a merge observation: the map, the edge and its
-/// covariance ([`covariance_of`]).
-fn merge_match(map: MapId, edge: LoopEdge) -> (MapId, LoopEdge, Matrix3<f64>) {
-    (map, edge, covariance_of(&edge))
 }
 
 /// A loop edge's covariance (zero where its information cannot be inverted; the

@@ -8,7 +8,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId, MapId};
-use mapmerge_engine::{Engine, EngineParams, EpochEnd, EventKind, MergeState};
+use mapmerge_engine::{Decision, Engine, EngineParams, EpochEnd, EventKind, MergeState};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_hypothesis::{FilterEvent, RejectReason};
 use mapmerge_posegraph::{NodeId, PoseGraph2};
@@ -548,4 +548,41 @@ fn a_conditional_bound_that_is_no_distance_is_refused() {
     let mut engine_params = EngineParams::default();
     engine_params.decisions.conditional_max_m = None;
     assert!(Engine::new(engine_params).is_ok());
+}
+
+#[test]
+fn a_match_verified_where_a_hypothesis_says_is_searched_for_a_rival_nearby() {
+    // The warehouse's aisles repeat: a match verified where a tracked hypothesis puts the
+    // robot can fit one aisle over as well (`decisions.track_unique`), seed 7 of the fitting
+    // seeds (the self-similarity test's).
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.track_every_keyframes = Some(2);
+    engine_params.decisions.track_unique = true;
+    let (engine, _) = run_with(engine_params.clone(), "warehouse", 7, 3, 120.0);
+    let threshold = engine.params().decisions.self_similar_from_score;
+    let rivals: Vec<f64> = engine
+        .events()
+        .iter()
+        .filter_map(|e| match &e.event {
+            EventKind::Decision(Decision::TrackedRival { score, .. }) => Some(*score),
+            _ => None,
+        })
+        .collect();
+    assert!(!rivals.is_empty(), "no predicted match searched");
+    assert!(rivals.iter().all(|s| (0.0..=1.0).contains(s)), "{rivals:?}");
+    assert!(
+        rivals.iter().any(|s| *s >= threshold),
+        "no rival: {rivals:?}"
+    );
+    assert!(
+        rivals.iter().any(|s| *s < threshold),
+        "all rivals: {rivals:?}"
+    );
+    // Off, nothing is searched.
+    engine_params.decisions.track_unique = false;
+    let (engine, _) = run_with(engine_params, "warehouse", 7, 3, 120.0);
+    assert!(!engine
+        .events()
+        .iter()
+        .any(|e| matches!(&e.event, EventKind::Decision(Decision::TrackedRival { .. }))));
 }

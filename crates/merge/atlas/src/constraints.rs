@@ -1057,6 +1057,47 @@ impl<B: BackupStore> Atlas<B> {
         )
     }
 
+    /// The surroundings of view `node` of inactive graph `map` as one keyframe in the view's
+    /// frame: the local maps of the view and of up to `max_views − 1` other vertices within
+    /// `radius_m` of it, nearest first, each at least `spacing_m` from those taken (what a
+    /// rival placement of a match on this view would land on). `None` for an unknown graph
+    /// or vertex.
+    pub fn view_surroundings(
+        &self,
+        map: MapId,
+        node: NodeId,
+        radius_m: f64,
+        spacing_m: f64,
+        max_views: usize,
+    ) -> Option<mapmerge_place::Keyframe> {
+        let graph = self.inactive.get(&map)?;
+        let centre = graph.vertex(node)?.pose.translation();
+        let mut near: Vec<(f64, NodeId, nalgebra::Vector2<f64>)> = graph
+            .vertices()
+            .filter(|(id, _)| *id != node)
+            .map(|(id, v)| {
+                (
+                    (v.pose.translation() - centre).norm(),
+                    id,
+                    v.pose.translation(),
+                )
+            })
+            .filter(|(d, _, _)| *d <= radius_m)
+            .collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let mut taken = vec![(node, centre)];
+        for (_, id, at) in near {
+            if taken.len() >= max_views.max(1) {
+                break;
+            }
+            if taken.iter().all(|(_, t)| (t - at).norm() >= spacing_m) {
+                taken.push((id, at));
+            }
+        }
+        let nodes: Vec<NodeId> = taken.into_iter().map(|(id, _)| id).collect();
+        self.joint_view_keyframe(map, &nodes)
+    }
+
     /// Vertex `node` of the active graph as the merge search's query: its local map (see
     /// [`crate::KeyframeParams`]); `None` for an unknown vertex.
     pub fn query_keyframe(&self, node: NodeId) -> Option<mapmerge_place::Keyframe> {

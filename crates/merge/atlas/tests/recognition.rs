@@ -471,3 +471,47 @@ fn a_hypothesis_placed_right_is_confirmed_where_it_puts_the_robot_and_one_placed
         .confirm_at(MapId(7), &truth, &[robot], &verifier)
         .is_empty());
 }
+
+/// A view's surroundings join the local maps of the view and of neighbours within the
+/// radius, spaced as asked, in the view's frame: its own points are among them, and a wider
+/// radius or closer spacing joins more.
+#[test]
+fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
+    let world = world();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let old_path = along(&[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)]);
+    let old = add_epoch(&mut atlas, &world, &old_path, &Se2::identity());
+    atlas.end_epoch(EpochEndReason::Kidnap);
+    let view = old[10];
+    let alone = atlas.view_keyframe(MapId(0), view).unwrap();
+    let near = atlas
+        .view_surroundings(MapId(0), view, 0.1, 2.0, 8)
+        .unwrap();
+    // Nothing else within 0.1 m: the view's own local map.
+    assert_eq!(
+        near.points_in_keyframe.len(),
+        alone.points_in_keyframe.len()
+    );
+    let wide = atlas
+        .view_surroundings(MapId(0), view, 12.0, 2.0, 8)
+        .unwrap();
+    assert!(wide.points_in_keyframe.len() > alone.points_in_keyframe.len());
+    // Every joined point lies on a wall of the world, seen from the view's true pose.
+    let world_from_view = old_path[10];
+    for p in wide.points_in_keyframe.iter().step_by(7) {
+        let w = world_from_view.transform_point(p);
+        let on_wall = world.iter().any(|(a, b)| {
+            let t = ((w - a).dot(&(b - a)) / (b - a).norm_squared()).clamp(0.0, 1.0);
+            (a + (b - a) * t - w).norm() < 0.15
+        });
+        assert!(on_wall, "{p:?} at {w:?}");
+    }
+    // One view at most: the view alone.
+    let one = atlas
+        .view_surroundings(MapId(0), view, 12.0, 2.0, 1)
+        .unwrap();
+    assert_eq!(one.points_in_keyframe.len(), alone.points_in_keyframe.len());
+    assert!(atlas
+        .view_surroundings(MapId(3), view, 12.0, 2.0, 8)
+        .is_none());
+}

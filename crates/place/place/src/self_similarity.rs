@@ -10,7 +10,8 @@
 //! fit; the placements found are scored on the whole-map scale ([`crate::evidence`]), as a
 //! match between two places would be.
 
-use mapmerge_geometry::Se2;
+use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_scan::transform_points;
 use mapmerge_scanmatch::{
     match_scan_above, ScanMatchError, ScanMatchParams, ScanMatcher, SearchWindow,
 };
@@ -100,6 +101,11 @@ impl SelfSimilarity {
         })
     }
 
+    /// Its parameters.
+    pub fn params(&self) -> &SelfSimilarityParams {
+        &self.params
+    }
+
     /// The search windows `(guess, window)` that together cover every placement within
     /// `radius_m` that is `min_shift_m` or `min_turn_rad` away from the identity, and none
     /// that is closer on both.
@@ -157,12 +163,29 @@ impl SelfSimilarity {
     /// (scored without a flip penalty); `None` when no placement reaches the floor or the
     /// keyframe has no points.
     pub fn best_other_placement(&self, keyframe: &Keyframe) -> Option<(Se2, Evidence)> {
-        let points = &keyframe.points_in_keyframe;
-        let target = self.matcher.target(points).ok()?;
+        self.best_rival_placement(keyframe, keyframe, &Se2::identity())
+    }
+
+    /// The best placement of `query` in `target` that is another place than
+    /// `target_from_query` (`min_shift_m` or `min_turn_rad` away from it, within
+    /// `radius_m`), with its evidence: whether a match could as well have been made
+    /// elsewhere in the target's surroundings (a look-alike aisle beside the matched one, a
+    /// hall turned half round). The search is [`SelfSimilarity::best_other_placement`]'s
+    /// around the match; `None` when no placement reaches the floor (a fraction of the
+    /// match's own fit) or either keyframe has no points.
+    pub fn best_rival_placement(
+        &self,
+        target: &Keyframe,
+        query: &Keyframe,
+        target_from_query: &Se2,
+    ) -> Option<(Se2, Evidence)> {
+        let target_grid = self.matcher.target(&target.points_in_keyframe).ok()?;
+        // The query in the target's frame at the match: rivals are displacements of it.
+        let points = transform_points(target_from_query, &query.points_in_keyframe);
         let identity = match_scan_above(
-            target.correlative(),
-            points,
-            &Se2::new(0.0, 0.0, 0.0),
+            target_grid.correlative(),
+            &points,
+            &Se2::identity(),
             &SearchWindow::new(2.0 * self.params.resolution_m, 1f64.to_radians()),
             0.0,
         )?;
@@ -171,22 +194,17 @@ impl SelfSimilarity {
         let mut best: Option<(Se2, Evidence)> = None;
         for (guess, window) in self.windows() {
             let Some(found) =
-                match_scan_above(target.correlative(), points, &guess, &window, floor)
+                match_scan_above(target_grid.correlative(), &points, &guess, &window, floor)
             else {
                 continue;
             };
             if !self.is_other_place(&found.target_from_query) {
                 continue;
             }
-            let proof = evidence(
-                keyframe,
-                keyframe,
-                &found.target_from_query,
-                0.0,
-                &self.evidence,
-            );
+            let placement = found.target_from_query.compose(target_from_query);
+            let proof = evidence(query, target, &placement, 0.0, &self.evidence);
             if best.as_ref().is_none_or(|(_, b)| proof.score > b.score) {
-                best = Some((found.target_from_query, proof));
+                best = Some((placement, proof));
             }
         }
         best
@@ -214,31 +232,26 @@ mod tests {
         Keyframe::new(0, points).with_rays(0.1, rays)
     }
 
-    /// Rows of racks every 5 m along y with uprights every 2.7 m, seen from an aisle: the map fits itself one row
-    /// over. An irregular room does not fit itself anywhere else.
-    #[test]
-    fn periodic_rows_fit_themselves_one_row_over_and_a_room_does_not() {
+    /// Rows of racks 1 m deep every 5 m along y (the first at `y0`, while ≤ `y1`), 18 m long,
+    /// with uprights every 2.7 m standing out of both faces.
+    fn rack_rows(y0: f64, y1: f64) -> Vec<Point2> {
         let mut rows = Vec::new();
-        for k in -2..=2 {
-            let y = 5.0 * k as f64 + 2.5;
+        let mut y = y0;
+        while y <= y1 {
             rows.extend(wall(Point2::new(-9.0, y), Point2::new(9.0, y)));
             rows.extend(wall(Point2::new(-9.0, y + 1.0), Point2::new(9.0, y + 1.0)));
-            // Uprights every 2.7 m stand out of both faces.
             for j in -3..=3 {
                 let x = 2.7 * j as f64;
                 rows.extend(wall(Point2::new(x, y - 0.2), Point2::new(x, y)));
                 rows.extend(wall(Point2::new(x, y + 1.0), Point2::new(x, y + 1.2)));
             }
+            y += 5.0;
         }
-        let search =
-            SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
-                .unwrap();
-        let (placement, proof) = search.best_other_placement(&keyframe(rows)).unwrap();
-        assert!(proof.score > 0.95, "{proof:?}");
-        assert!(placement.translation().norm() > 1.5, "{placement:?}");
+        rows
+    }
 
-        let mut room = Vec::new();
-        // An L-shaped room with a niche.
+    /// An L-shaped room with a niche, seen from the origin.
+    fn l_room() -> Keyframe {
         let corners = [
             Point2::new(-3.0, -2.5),
             Point2::new(5.0, -2.5),
@@ -249,12 +262,28 @@ mod tests {
             Point2::new(-1.0, 3.0),
             Point2::new(-3.0, 3.0),
         ];
+        let mut room = Vec::new();
         for (i, a) in corners.iter().enumerate() {
             room.extend(wall(*a, corners[(i + 1) % corners.len()]));
         }
+        keyframe(room)
+    }
+
+    /// Rows of racks every 5 m along y with uprights every 2.7 m, seen from an aisle: the map fits itself one row
+    /// over. An irregular room does not fit itself anywhere else.
+    #[test]
+    fn periodic_rows_fit_themselves_one_row_over_and_a_room_does_not() {
+        let rows = rack_rows(-7.5, 12.5);
+        let search =
+            SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
+                .unwrap();
+        let (placement, proof) = search.best_other_placement(&keyframe(rows)).unwrap();
+        assert!(proof.score > 0.95, "{proof:?}");
+        assert!(placement.translation().norm() > 1.5, "{placement:?}");
+
         // Its best other placement (half turned, where the long walls cross) agrees over part
         // of a small overlap only: below the 0.9 from which the engine calls a view ambiguous.
-        let other = search.best_other_placement(&keyframe(room));
+        let other = search.best_other_placement(&l_room());
         assert!(
             other.as_ref().is_none_or(|(_, proof)| proof.score < 0.85),
             "{other:?}"
@@ -273,5 +302,36 @@ mod tests {
             );
         }
         assert!(!search.is_other_place(&Se2::identity()));
+    }
+
+    /// A query matched in rack rows fits one row over as well (a rival), and the identity
+    /// itself is never reported; matched in a room that fits only one way, it has none.
+    #[test]
+    fn a_match_in_periodic_rows_has_a_rival_one_row_over() {
+        let search =
+            SelfSimilarity::new(SelfSimilarityParams::default(), EvidenceParams::default())
+                .unwrap();
+        // The target: five rows; the query: two of them, seen from 1 m beside the match.
+        let target = keyframe(rack_rows(-7.5, 12.5));
+        let target_from_query = Se2::new(0.5, 1.0, 0.1);
+        let query_points: Vec<Point2> = rack_rows(-2.5, 2.5)
+            .iter()
+            .map(|p| target_from_query.inverse().transform_point(p))
+            .collect();
+        let query = keyframe(query_points);
+        let (rival, proof) = search
+            .best_rival_placement(&target, &query, &target_from_query)
+            .unwrap();
+        assert!(proof.score > 0.9, "{proof:?}");
+        let shift = rival.translation() - target_from_query.translation();
+        assert!(shift.norm() > 1.5, "{rival:?}");
+
+        // An L-shaped room: the query is the room itself, matched at the identity.
+        let room = l_room();
+        let other = search.best_rival_placement(&room, &room, &Se2::identity());
+        assert!(
+            other.as_ref().is_none_or(|(_, proof)| proof.score < 0.85),
+            "{other:?}"
+        );
     }
 }
