@@ -434,13 +434,20 @@ fn maintenance_keeps_the_atlas_bounded_and_its_map_close_to_the_unpruned_one() {
     );
 }
 
+/// An atlas whose epoch 0 (now inactive graph 0) drove along the world's south wall and into
+/// its east wing: the atlas, that epoch's vertices and their world poses.
+fn atlas_with_one_old_epoch(world: &[Segment]) -> (Atlas, Vec<NodeId>, Vec<Se2>) {
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let old_path = along(&[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)]);
+    let old = add_epoch(&mut atlas, world, &old_path, &Se2::identity());
+    atlas.end_epoch(EpochEndReason::Kidnap);
+    (atlas, old, old_path)
+}
+
 #[test]
 fn a_hypothesis_placed_right_is_confirmed_where_it_puts_the_robot_and_one_placed_wrong_is_not() {
     let world = world();
-    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
-    let old_path = along(&[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)]);
-    let old = add_epoch(&mut atlas, &world, &old_path, &Se2::identity());
-    atlas.end_epoch(EpochEndReason::Kidnap);
+    let (mut atlas, old, old_path) = atlas_with_one_old_epoch(&world);
     let start = Se2::new(1.0, 8.0, -1.2);
     let path = along(&[(1.0, 8.0), (1.5, 4.0), (2.0, 0.5), (9.0, 0.5)]);
     let new = add_epoch(&mut atlas, &world, &path, &start);
@@ -478,10 +485,7 @@ fn a_hypothesis_placed_right_is_confirmed_where_it_puts_the_robot_and_one_placed
 #[test]
 fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
     let world = world();
-    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
-    let old_path = along(&[(0.0, 0.0), (12.0, 0.0), (12.0, 4.0), (16.0, 5.0)]);
-    let old = add_epoch(&mut atlas, &world, &old_path, &Se2::identity());
-    atlas.end_epoch(EpochEndReason::Kidnap);
+    let (atlas, old, old_path) = atlas_with_one_old_epoch(&world);
     let view = old[10];
     let alone = atlas.view_keyframe(MapId(0), view).unwrap();
     let near = atlas
