@@ -1177,7 +1177,7 @@ impl<B: BackupStore> Atlas<B> {
         graph: &mapmerge_posegraph::PoseGraph2,
         keep: impl Fn(NodeId) -> bool,
         trace: Option<&mut crate::MergeQueryTrace>,
-    ) -> (Vec<(NodeId, f64, usize)>, BTreeMap<NodeId, Keyframe>) {
+    ) -> (Vec<RetrievedNode>, BTreeMap<NodeId, Keyframe>) {
         let p = &self.params.recognition;
         let c = &self.constraints;
         let k = p.place.candidates_per_query;
@@ -1217,7 +1217,7 @@ impl<B: BackupStore> Atlas<B> {
                 })
                 .collect();
         }
-        let nodes: Vec<(NodeId, f64, usize)> = retrieved
+        let nodes: Vec<RetrievedNode> = retrieved
             .iter()
             .filter(|r| p.place.admits(r))
             .filter_map(|r| {
@@ -1306,6 +1306,9 @@ struct PlaceQuery {
     /// Its local map, for verification.
     keyframe: Keyframe,
 }
+
+/// A keyframe retrieval admitted: node, descriptor yaw (rad) and ordinal in the place index.
+type RetrievedNode = (NodeId, f64, usize);
 
 /// A `&dyn GeometricVerifier` as a sized verifier (the place crate's functions are generic).
 struct Dyn<'a>(&'a dyn GeometricVerifier);
