@@ -68,18 +68,21 @@ pub struct DecisionParams {
     pub track_every_keyframes: Option<usize>,
     /// A match verified where a hypothesis puts the robot (a conditional merge's
     /// confirmation in G', a tracked hypothesis's match) counts only when the robot's local
-    /// map fits nowhere else in the matched view's surroundings: the joined local maps of
-    /// the view and its neighbours (within `self_similarity.radius_m`, 2 m apart, at most 8)
-    /// are searched by the self-similarity search around the match, and a rival placement
-    /// scoring from `self_similar_from_score` makes the observation ambiguous (it moves the
-    /// estimate but does not count). Such a verification looks only where the hypothesis
-    /// already says, so in a periodic world it confirms a wrong hypothesis as readily as a
-    /// true one; retrieval's observations are compared with rival places already
-    /// (`recognition.min_confidence`). Needs `self_similarity`. Default false: on the
-    /// simulator's tuning seeds 1–10 of the three look-alike worlds it cut the segments left
-    /// misplaced from 7 to 3 (warehouse 4 to 0) but merged 56 instead of 62 of 84 revisiting
-    /// ones; with `track_every_keyframes` 2 it merged 62 with 8 misplaced (warehouse 0,
-    /// symmetric hall 8, whose turned twin lies beyond the surroundings searched), against
+    /// map fits nowhere else: neither in the matched view's surroundings (the joined local
+    /// maps of the view and its neighbours within `self_similarity.radius_m`, 2 m apart, at
+    /// most 8, searched by the self-similarity search around the match) nor at a place
+    /// retrieval finds in the whole graph (`recognition.place.candidates_per_query`
+    /// candidates verified as for a merge, beyond `place.same_place_m` or `same_place_rad`
+    /// of the match: a hall's turned twin). A rival scoring from `self_similar_from_score`
+    /// makes the observation ambiguous (it moves the estimate but does not count). Such a
+    /// verification looks only where the hypothesis already says, so in a periodic world it
+    /// confirms a wrong hypothesis as readily as a true one; retrieval's observations are
+    /// compared with rival places already (`recognition.min_confidence`). Needs
+    /// `self_similarity`. Default false: on the simulator's tuning seeds 1–10 of the three
+    /// look-alike worlds it cut the segments left misplaced from 7 to 3 (warehouse 4 to 0)
+    /// but merged 56 instead of 62 of 84 revisiting ones; with `track_every_keyframes` 2 it
+    /// merged 62 with 7 misplaced (warehouse 0, symmetric hall 7: the robot on ground whose
+    /// twin is in the map and whose own place is not, where no rival exists yet), against
     /// 62 with 23 without it.
     pub track_unique: bool,
 

@@ -666,15 +666,10 @@ impl Engine {
         ambiguous: bool,
         travel_m: f64,
     ) -> Vec<Hypothesis<ObservedEdge>> {
-        let Some(map_from_view) = self
-            .atlas
-            .inactive(map)
-            .and_then(|g| g.vertex(edge.inactive))
-            .map(|v| v.pose)
-        else {
+        let Some(map_from_keyframe) = self.keyframe_in_map(map, &edge) else {
             return Vec::new();
         };
-        let mut robot_from_inactive = map_from_view.compose(&edge.inactive_from_active).inverse();
+        let mut robot_from_inactive = map_from_keyframe.inverse();
         if let Some(robot) = self.atlas.robot_node().filter(|r| *r != edge.active) {
             let active = self.atlas.active();
             let (Some(robot_pose), Some(keyframe_pose)) = (
@@ -723,6 +718,9 @@ impl Engine {
                 search.best_rival_placement(&surroundings, &query, &edge.inactive_from_active)
             })
             .map_or(0.0, |(_, proof)| proof.score);
+        // Beyond the surroundings: wherever retrieval finds the robot's local map in the
+        // graph (a hall's turned twin, an aisle at the far end), away from the match.
+        let score = score.max(self.retrieved_rival_score(map, edge));
         self.self_similarity_seconds += started.elapsed().as_secs_f64();
         self.log_decision(Decision::TrackedRival {
             map,
@@ -731,6 +729,33 @@ impl Engine {
             score,
         });
         score >= self.params.decisions.self_similar_from_score
+    }
+
+    /// Where match `edge` puts its active keyframe in inactive graph `map`
+    /// (`map_from_keyframe`); `None` for an unknown graph or view.
+    fn keyframe_in_map(&self, map: MapId, edge: &LoopEdge) -> Option<Se2> {
+        let map_from_view = self.atlas.inactive(map)?.vertex(edge.inactive)?.pose;
+        Some(map_from_view.compose(&edge.inactive_from_active))
+    }
+
+    /// The best score of a placement of `edge.active` in inactive graph `map` that place
+    /// retrieval and verification find away from where `edge` puts it (beyond
+    /// `place.same_place_m` or `place.same_place_rad`); 0 when there is none.
+    fn retrieved_rival_score(&self, map: MapId, edge: &LoopEdge) -> f64 {
+        let Some(matched) = self.keyframe_in_map(map, edge) else {
+            return 0.0;
+        };
+        let place = &self.params.atlas.recognition.place;
+        self.atlas
+            .placements_by_retrieval(map, edge.active, &self.verifier)
+            .into_iter()
+            .filter(|(_, map_from_query, _)| {
+                let apart = matched.between(map_from_query);
+                apart.translation().norm() > place.same_place_m
+                    || apart.theta_rad.abs() > place.same_place_rad
+            })
+            .map(|(_, _, score)| score)
+            .fold(0.0, f64::max)
     }
 
     /// Marks view `node` of inactive graph `map` ambiguous when its own local map fits itself

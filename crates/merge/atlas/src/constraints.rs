@@ -1114,7 +1114,13 @@ impl<B: BackupStore> Atlas<B> {
 
     /// The newest current-epoch keyframe as a place-recognition query.
     fn newest_query(&self) -> Option<PlaceQuery> {
-        let node = self.robot.filter(|n| self.is_current_epoch(*n))?;
+        self.robot
+            .filter(|n| self.is_current_epoch(*n))
+            .and_then(|node| self.query_of(node))
+    }
+
+    /// Active vertex `node` as a place-recognition query.
+    fn query_of(&self, node: NodeId) -> Option<PlaceQuery> {
         let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
         let offset_descriptors = self.describe_beside(&self.active, node);
         let keyframe = self.query_keyframe(node)?;
@@ -1128,17 +1134,50 @@ impl<B: BackupStore> Atlas<B> {
         })
     }
 
+    /// Every placement of active vertex `node` in inactive graph `map` that retrieval and
+    /// verification find: the `recognition.place.candidates_per_query` nearest keyframes
+    /// of the place index that the descriptor distance admits, each verified as a local map
+    /// by `verifier`, as `(view, map_from_query, score)` (no acceptance score, no
+    /// confidence). Where else the query fits, anywhere in the map: the rivals of a match
+    /// made where a hypothesis says (`decisions.track_unique`).
+    pub fn placements_by_retrieval(
+        &self,
+        map: MapId,
+        node: NodeId,
+        verifier: &dyn GeometricVerifier,
+    ) -> Vec<(NodeId, Se2, f64)> {
+        let (Some(graph), Some(query)) = (self.inactive.get(&map), self.query_of(node)) else {
+            return Vec::new();
+        };
+        let (nodes, local_maps) = self.retrieve(&query, graph, |_| true, None);
+        nodes
+            .iter()
+            .filter_map(|(view, yaw_rad, _)| {
+                let keyframe = local_maps.get(view)?;
+                let guess = Se2::new(0.0, 0.0, *yaw_rad);
+                let verified = verifier.verify(&query.keyframe, keyframe, &guess)?;
+                let map_from_view = graph.vertex(*view)?.pose;
+                verified.score.is_finite().then(|| {
+                    (
+                        *view,
+                        map_from_view.compose(&verified.candidate_from_query),
+                        verified.score,
+                    )
+                })
+            })
+            .collect()
+    }
+
     /// Retrieves `query`'s candidates among the keyframes of `graph` that `keep` allows from
-    /// the place index, verifies them as local maps and accepts the best above
-    /// `recognition.place.min_score` and `recognition.min_confidence`.
-    fn recognise(
+    /// the place index: the admitted ones as `(node, descriptor yaw, ordinal)`, nearest
+    /// first, with their local maps.
+    fn retrieve(
         &self,
         query: &PlaceQuery,
         graph: &mapmerge_posegraph::PoseGraph2,
         keep: impl Fn(NodeId) -> bool,
-        verifier: &dyn GeometricVerifier,
-        mut trace: Option<&mut crate::MergeQueryTrace>,
-    ) -> Option<mapmerge_place::VerifiedLoop> {
+        trace: Option<&mut crate::MergeQueryTrace>,
+    ) -> (Vec<RetrievedNode>, BTreeMap<NodeId, Keyframe>) {
         let p = &self.params.recognition;
         let c = &self.constraints;
         let k = p.place.candidates_per_query;
@@ -1166,7 +1205,7 @@ impl<B: BackupStore> Atlas<B> {
             });
             retrieved.truncate(k);
         }
-        if let Some(trace) = trace.as_deref_mut() {
+        if let Some(trace) = trace {
             trace.retrieved = retrieved
                 .iter()
                 .map(|r| {
@@ -1178,7 +1217,7 @@ impl<B: BackupStore> Atlas<B> {
                 })
                 .collect();
         }
-        let nodes: Vec<(NodeId, f64, usize)> = retrieved
+        let nodes: Vec<RetrievedNode> = retrieved
             .iter()
             .filter(|r| p.place.admits(r))
             .filter_map(|r| {
@@ -1190,7 +1229,7 @@ impl<B: BackupStore> Atlas<B> {
             })
             .collect();
         if nodes.is_empty() {
-            return None;
+            return (nodes, BTreeMap::new());
         }
         let wanted: Vec<NodeId> = nodes.iter().map(|(n, _, _)| *n).collect();
         let local_maps = local_map_keyframes(
@@ -1200,6 +1239,25 @@ impl<B: BackupStore> Atlas<B> {
             &wanted,
             Some(&self.local_maps),
         );
+        (nodes, local_maps)
+    }
+
+    /// Retrieves `query`'s candidates among the keyframes of `graph` that `keep` allows from
+    /// the place index, verifies them as local maps and accepts the best above
+    /// `recognition.place.min_score` and `recognition.min_confidence`.
+    fn recognise(
+        &self,
+        query: &PlaceQuery,
+        graph: &mapmerge_posegraph::PoseGraph2,
+        keep: impl Fn(NodeId) -> bool,
+        verifier: &dyn GeometricVerifier,
+        mut trace: Option<&mut crate::MergeQueryTrace>,
+    ) -> Option<mapmerge_place::VerifiedLoop> {
+        let p = &self.params.recognition;
+        let (nodes, local_maps) = self.retrieve(query, graph, keep, trace.as_deref_mut());
+        if nodes.is_empty() {
+            return None;
+        }
         let candidates: Vec<PlaceCandidate> = nodes
             .iter()
             .filter_map(|(node, yaw_rad, ordinal)| {
@@ -1248,6 +1306,9 @@ struct PlaceQuery {
     /// Its local map, for verification.
     keyframe: Keyframe,
 }
+
+/// A keyframe retrieval admitted: node, descriptor yaw (rad) and ordinal in the place index.
+type RetrievedNode = (NodeId, f64, usize);
 
 /// A `&dyn GeometricVerifier` as a sized verifier (the place crate's functions are generic).
 struct Dyn<'a>(&'a dyn GeometricVerifier);

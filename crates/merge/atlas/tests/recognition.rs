@@ -477,6 +477,20 @@ fn a_hypothesis_placed_right_is_confirmed_where_it_puts_the_robot_and_one_placed
     assert!(atlas
         .confirm_at(MapId(7), &truth, &[robot], &verifier)
         .is_empty());
+    // Retrieval finds the robot at its true pose in the old epoch's map (the map's frame is
+    // the world's), whatever a hypothesis says; an unknown map gives nothing.
+    let robot_in_world = *path.last().unwrap();
+    let placements = atlas.placements_by_retrieval(MapId(0), robot, &verifier);
+    assert!(
+        placements.iter().any(|(_, map_from_robot, score)| {
+            let error = map_from_robot.between(&robot_in_world);
+            error.translation().norm() < 0.2 && error.theta_rad.abs() < 0.05 && *score > 0.9
+        }),
+        "{placements:?}"
+    );
+    assert!(atlas
+        .placements_by_retrieval(MapId(7), robot, &verifier)
+        .is_empty());
 }
 
 /// A view's surroundings join the local maps of the view and of neighbours within the
