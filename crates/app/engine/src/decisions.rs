@@ -112,6 +112,15 @@ pub struct DecisionParams {
     /// 114 of 119 correct merges were made full within 5 m of becoming conditional. `null`
     /// keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
+    /// When an epoch ends (or the run does) with its merges still undoable, and at least
+    /// this many edges between it and the epochs merged into it are not satisfied by the
+    /// optimised graph (beyond the robust kernel's χ² bound; `Atlas::epoch_agreement`), the
+    /// merged epochs disagree and every merge is undone before it becomes final (issue 64,
+    /// part 4). Such edges come from loops into the merged data and accepted recovery
+    /// hypotheses that the merge's edges outvote. Default 3: one stray edge is noise; on the
+    /// tuning logs (seeds 1–3) and the simulator's look-alike worlds (seeds 1–10) no epoch
+    /// had one. `null` turns it off.
+    pub undo_disagreeing_edges: Option<usize>,
 }
 
 impl Default for DecisionParams {
@@ -134,6 +143,7 @@ impl Default for DecisionParams {
             self_similar_from_score: 0.9,
             joint_views: true,
             conditional_max_m: Some(10.0),
+            undo_disagreeing_edges: Some(3),
         }
     }
 }
@@ -380,6 +390,22 @@ pub enum Decision {
         /// The best rival placement, on the whole-map scale (0 when none).
         score: f64,
     },
+    /// At the end of an epoch with merges still undoable: how well the epoch agrees with
+    /// the epochs merged into it (issue 64, part 4), and whether the merges were undone.
+    EpochAgreement {
+        /// Edges between the epoch and merged ones the optimised graph satisfies, and
+        /// those it does not ([`mapmerge_atlas::Atlas::epoch_agreement`]).
+        agreeing_edges: usize,
+        disagreeing_edges: usize,
+        /// The largest translation residual of a disagreeing edge (m).
+        worst_off_m: f64,
+        /// Place-recognition matches in the merged data since the first full merge: at
+        /// the merged map's estimate (within the overlap gate), and beyond it.
+        confirmations: usize,
+        contradictions: usize,
+        /// The merges were undone for it.
+        undone: bool,
+    },
 }
 
 /// The event kinds of [`crate::EngineEvent`].
@@ -555,6 +581,14 @@ mod tests {
                 view: 11,
                 robot: 40,
                 score: 0.5,
+            },
+            Decision::EpochAgreement {
+                agreeing_edges: 12,
+                disagreeing_edges: 1,
+                worst_off_m: 0.8,
+                confirmations: 4,
+                contradictions: 0,
+                undone: false,
             },
         ];
         for decision in decisions {
