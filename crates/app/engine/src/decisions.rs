@@ -116,10 +116,14 @@ pub struct DecisionParams {
     /// this many edges between it and the epochs merged into it are not satisfied by the
     /// optimised graph (beyond the robust kernel's χ² bound; `Atlas::epoch_agreement`), the
     /// merged epochs disagree and every merge is undone before it becomes final (issue 64,
-    /// part 4). Such edges come from loops into the merged data and accepted recovery
-    /// hypotheses that the merge's edges outvote. Default 3: one stray edge is noise; on the
-    /// tuning logs (seeds 1–3) and the simulator's look-alike worlds (seeds 1–10) no epoch
-    /// had one. `null` turns it off.
+    /// part 4). Such edges come from merges that contradict each other (epochs bent
+    /// differently) or from an accepted recovery hypothesis that contradicts the merge.
+    /// Which side the robust kernel gives way to says nothing of which is right: it sides
+    /// with the more numerous edges, and a merge brings dozens. On the simulator's tuning
+    /// seeds 11–30 of four worlds, two epochs (symmetric hall 12, warehouse 29) had 10
+    /// unsatisfied recovery edges each, and both merges were wrong: undoing them left 5
+    /// more segments merged and 8 fewer misplaced. Default 3: one stray edge is noise; no
+    /// other tuning epoch had one. `null` turns it off.
     pub undo_disagreeing_edges: Option<usize>,
 }
 
@@ -393,10 +397,12 @@ pub enum Decision {
     /// At the end of an epoch with merges still undoable: how well the epoch agrees with
     /// the epochs merged into it (issue 64, part 4), and whether the merges were undone.
     EpochAgreement {
-        /// Edges between the epoch and merged ones the optimised graph satisfies, and
-        /// those it does not ([`mapmerge_atlas::Atlas::epoch_agreement`]).
+        /// Edges between the epoch and merged ones the optimised graph satisfies, those it
+        /// does not, and of those the merges' own
+        /// ([`mapmerge_atlas::Atlas::epoch_agreement`]).
         agreeing_edges: usize,
         disagreeing_edges: usize,
+        disagreeing_merge_edges: usize,
         /// The largest translation residual of a disagreeing edge (m).
         worst_off_m: f64,
         /// Place-recognition matches in the merged data since the first full merge: at
@@ -585,6 +591,7 @@ mod tests {
             Decision::EpochAgreement {
                 agreeing_edges: 12,
                 disagreeing_edges: 1,
+                disagreeing_merge_edges: 0,
                 worst_off_m: 0.8,
                 confirmations: 4,
                 contradictions: 0,

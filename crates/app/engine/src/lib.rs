@@ -483,6 +483,7 @@ impl Engine {
         self.log_decision(Decision::EpochAgreement {
             agreeing_edges: agreement.agreeing_edges,
             disagreeing_edges: agreement.disagreeing_edges,
+            disagreeing_merge_edges: agreement.disagreeing_merge_edges,
             worst_off_m: agreement.worst_off_m,
             confirmations,
             contradictions,
@@ -492,6 +493,7 @@ impl Engine {
             self.undo_all(UnmergeReason::InconsistentEpochs {
                 agreeing_edges: agreement.agreeing_edges,
                 disagreeing_edges: agreement.disagreeing_edges,
+                disagreeing_merge_edges: agreement.disagreeing_merge_edges,
                 worst_off_m: agreement.worst_off_m,
             })?;
         }

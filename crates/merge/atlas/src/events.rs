@@ -63,9 +63,10 @@ pub enum UnmergeReason {
     /// The epoch's edges to the epochs merged into it disagree with the optimised graph
     /// ([`crate::Atlas::epoch_agreement`]; issue 64, part 4).
     InconsistentEpochs {
-        /// Edges the graph satisfies, and those it does not.
+        /// Edges the graph satisfies, those it does not, and of those the merges' own.
         agreeing_edges: usize,
         disagreeing_edges: usize,
+        disagreeing_merge_edges: usize,
         /// The largest translation residual of a disagreeing edge (m).
         worst_off_m: f64,
     },
@@ -83,9 +84,11 @@ impl UnmergeReason {
             Self::InconsistentEpochs {
                 agreeing_edges,
                 disagreeing_edges,
+                disagreeing_merge_edges,
                 worst_off_m,
             } => format!(
-                "epochs disagree: {disagreeing_edges} of {} edges unsatisfied, up to {worst_off_m:.2} m",
+                "epochs disagree: {disagreeing_merge_edges} merge edges ({disagreeing_edges} of {} \
+                 edges) unsatisfied, up to {worst_off_m:.2} m",
                 agreeing_edges + disagreeing_edges
             ),
         }

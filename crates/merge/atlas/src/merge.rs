@@ -22,8 +22,12 @@ pub struct EpochAgreement {
     /// Edges between the current epoch and a merged one that the optimised graph satisfies
     /// within the robust kernel's χ² bound ...
     pub agreeing_edges: usize,
-    /// ... and those it does not.
+    /// ... and those it does not ...
     pub disagreeing_edges: usize,
+    /// ... of which the merges' own (kind `Merge`: the observations, the overlap loops and
+    /// the loops into the merged data), as opposed to loops of accepted recovery
+    /// hypotheses (kind `Loop`): which side the robust kernel gave way to.
+    pub disagreeing_merge_edges: usize,
     /// The largest translation residual (m) of a disagreeing edge (0 when none).
     pub worst_off_m: f64,
 }
@@ -577,6 +581,9 @@ impl<B: BackupStore> Atlas<B> {
                 agreement.agreeing_edges += 1;
             } else {
                 agreement.disagreeing_edges += 1;
+                if edge.kind == EdgeKind::Merge {
+                    agreement.disagreeing_merge_edges += 1;
+                }
                 agreement.worst_off_m = agreement.worst_off_m.max(off_m);
             }
         }
@@ -828,6 +835,7 @@ mod tests {
             (2, 1),
             "{split:?}"
         );
+        assert_eq!(split.disagreeing_merge_edges, 1, "{split:?}");
         assert!(split.worst_off_m > 2.0, "{split:?}");
         // Odometry inside an epoch is not judged; a final merge is not judged at all.
         atlas.end_epoch(EpochEndReason::Kidnap);
