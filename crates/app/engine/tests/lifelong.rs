@@ -116,15 +116,21 @@ fn current_vertices(engine: &Engine) -> BTreeSet<NodeId> {
         .collect()
 }
 
-/// True when most of `edges` lie within 0.5 m and 10° of the truth.
-fn correct(truth_of: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Option<bool> {
-    let verdicts: Vec<bool> = edges
+/// For each of `edges` whose vertices have a truth: whether it lies within 0.5 m and 10°
+/// of it.
+fn edge_verdicts(truth_of: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Vec<bool> {
+    edges
         .iter()
         .filter_map(|(from, to, z)| {
             let error = truth_of.get(from)?.between(truth_of.get(to)?).between(z);
             Some(error.translation().norm() <= 0.5 && error.theta_rad.abs() <= 10f64.to_radians())
         })
-        .collect();
+        .collect()
+}
+
+/// True when most of `edges` lie within 0.5 m and 10° of the truth.
+fn correct(truth_of: &BTreeMap<NodeId, Se2>, edges: &[(NodeId, NodeId, Se2)]) -> Option<bool> {
+    let verdicts = edge_verdicts(truth_of, edges);
     (!verdicts.is_empty()).then(|| 2 * verdicts.iter().filter(|v| **v).count() > verdicts.len())
 }
 
@@ -688,18 +694,9 @@ fn loops_into_merged_data_bring_a_slightly_wrong_merge_into_agreement() {
 #[test]
 fn epochs_that_disagree_are_undone_before_their_merges_become_final() {
     let (engine, truth_of) = run("symmetric-hall", 12, 3, 120.0);
-    // Each merge's edges that the truth confirms (within 0.5 m and 10°), of those judged.
+    // Each merge's edges that the truth confirms, of those judged.
     let right_of = |edges: &[(NodeId, NodeId, Se2)]| {
-        let verdicts: Vec<bool> = edges
-            .iter()
-            .filter_map(|(from, to, z)| {
-                let error = truth_of.get(from)?.between(truth_of.get(to)?).between(z);
-                Some(
-                    error.translation().norm() <= 0.5
-                        && error.theta_rad.abs() <= 10f64.to_radians(),
-                )
-            })
-            .collect();
+        let verdicts = edge_verdicts(&truth_of, edges);
         (verdicts.iter().filter(|v| **v).count(), verdicts.len())
     };
     let disagreeing = |r: &&MergeRecord| {
