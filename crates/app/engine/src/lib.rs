@@ -515,7 +515,9 @@ impl Engine {
         Ok(report)
     }
 
-    /// Optimises once more if loops wait (call after a log's last scan).
+    /// Optimises once more if loops wait, and judges the epoch's agreement with the epochs
+    /// merged into it (see `end_epoch`), undoing its merges if they disagree (call after a
+    /// log's last scan).
     pub fn finish(&mut self) -> Result<(), EngineError> {
         self.atlas.optimize_if_due(true)?;
         self.judge_epoch_agreement()
