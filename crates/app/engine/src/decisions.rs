@@ -112,6 +112,20 @@ pub struct DecisionParams {
     /// 114 of 119 correct merges were made full within 5 m of becoming conditional. `null`
     /// keeps it until a detector, a competitor or the epoch's end drops it.
     pub conditional_max_m: Option<f64>,
+    /// When an epoch ends (or the run does) with its merges still undoable, and at least
+    /// this many edges between it and the epochs merged into it are not satisfied by the
+    /// optimised graph (beyond the robust kernel's χ² bound; `Atlas::epoch_agreement`), the
+    /// merged epochs disagree and every merge is undone before it becomes final (issue 64,
+    /// part 4). Such edges come from merges that contradict each other (epochs bent
+    /// differently) or from an accepted recovery hypothesis that contradicts the merge.
+    /// Which side the robust kernel gives way to says nothing of which is right: it sides
+    /// with the more numerous edges, and a merge brings dozens. On the simulator's tuning
+    /// seeds 11–30 of four worlds, two epochs (symmetric hall 12, warehouse 29) had 10
+    /// unsatisfied recovery edges each; their merges were right where they were made but
+    /// held 13 of 80 and 29 of 72 edges the truth refutes (look-alike places further on).
+    /// Undoing them left 5 more segments merged and 8 fewer misplaced. Default 3: one
+    /// stray edge is noise; no other tuning epoch had one. `null` turns it off.
+    pub undo_disagreeing_edges: Option<usize>,
 }
 
 impl Default for DecisionParams {
@@ -134,6 +148,7 @@ impl Default for DecisionParams {
             self_similar_from_score: 0.9,
             joint_views: true,
             conditional_max_m: Some(10.0),
+            undo_disagreeing_edges: Some(3),
         }
     }
 }
@@ -380,6 +395,24 @@ pub enum Decision {
         /// The best rival placement, on the whole-map scale (0 when none).
         score: f64,
     },
+    /// At the end of an epoch with merges still undoable: how well the epoch agrees with
+    /// the epochs merged into it (issue 64, part 4), and whether the merges were undone.
+    EpochAgreement {
+        /// Edges between the epoch and merged ones the optimised graph satisfies, those it
+        /// does not, and of those the merges' own
+        /// ([`mapmerge_atlas::Atlas::epoch_agreement`]).
+        agreeing_edges: usize,
+        disagreeing_edges: usize,
+        disagreeing_merge_edges: usize,
+        /// The largest translation residual of a disagreeing edge (m).
+        worst_off_m: f64,
+        /// Place-recognition matches in the merged data since the first full merge: at
+        /// the merged map's estimate (within the overlap gate), and beyond it.
+        confirmations: usize,
+        contradictions: usize,
+        /// The merges were undone for it.
+        undone: bool,
+    },
 }
 
 /// The event kinds of [`crate::EngineEvent`].
@@ -555,6 +588,15 @@ mod tests {
                 view: 11,
                 robot: 40,
                 score: 0.5,
+            },
+            Decision::EpochAgreement {
+                agreeing_edges: 12,
+                disagreeing_edges: 1,
+                disagreeing_merge_edges: 0,
+                worst_off_m: 0.8,
+                confirmations: 4,
+                contradictions: 0,
+                undone: false,
             },
         ];
         for decision in decisions {

@@ -234,6 +234,11 @@ pub struct Engine {
     self_similarity_seconds: f64,
     /// The conditional merge and its graph copy G' (Sec. 5.2).
     conditional: Option<Conditional>,
+    /// Place-recognition matches in the merged data while merged in this epoch: agreeing
+    /// with the merged map's estimate, and contradicting it (issue 64, part 4).
+    merged_matches: (usize, usize),
+    /// The epoch whose agreement was judged (once, by `finish` or at its end).
+    agreement_judged: Option<mapmerge_atlas::EpochId>,
     /// The tracker's pose of the previous keyframe (the EKF's motion update).
     previous_keyframe_local: Option<Se2>,
     /// Every scan of the run on its keyframe, and its stamp as fed.
@@ -260,6 +265,12 @@ impl Engine {
                     reason: format!("{max_m} is not a positive distance (m); null turns it off"),
                 });
             }
+        }
+        if params.decisions.undo_disagreeing_edges == Some(0) {
+            return Err(EngineError::Parameter {
+                name: "decisions.undo_disagreeing_edges",
+                reason: "0 would undo every merge; null turns the check off".into(),
+            });
         }
         let detector: Option<Box<dyn InvalidMergeDetector>> =
             match (params.detector.as_str(), &params.learned_model) {
@@ -298,6 +309,8 @@ impl Engine {
             joint_self_similarity: std::collections::BTreeMap::new(),
             self_similarity_seconds: 0.0,
             conditional: None,
+            merged_matches: (0, 0),
+            agreement_judged: None,
             previous_keyframe_local: None,
             anchors: ScanAnchors::new(),
             stamps: Vec::new(),
@@ -438,7 +451,9 @@ impl Engine {
             });
         }
         self.atlas.optimize_if_due(true)?;
+        self.judge_epoch_agreement()?;
         self.atlas.end_epoch(reason);
+        self.merged_matches = (0, 0);
         self.tracker_info_before_epoch = self.tracker_info();
         self.travel_before_epoch_m += self.tracker.travel_m();
         self.tracker = LocalTracker::new(self.params.tracker.clone())?;
@@ -446,6 +461,43 @@ impl Engine {
         self.refused.clear();
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
+    }
+
+    /// Before an epoch's merges become final (issue 64, part 4): how well the epoch agrees
+    /// with the epochs merged into it ([`Atlas::epoch_agreement`] and the matches in the
+    /// merged data), logged as an `epoch_agreement` decision; with
+    /// `decisions.undo_disagreeing_edges` of them unsatisfied, every merge is undone.
+    fn judge_epoch_agreement(&mut self) -> Result<(), EngineError> {
+        let epoch = self.atlas.current_epoch();
+        if !self.atlas.is_undoable() || self.agreement_judged == Some(epoch) {
+            return Ok(());
+        }
+        self.agreement_judged = Some(epoch);
+        let agreement = self.atlas.epoch_agreement();
+        let (confirmations, contradictions) = self.merged_matches;
+        let undo = self
+            .params
+            .decisions
+            .undo_disagreeing_edges
+            .is_some_and(|n| agreement.disagreeing_edges >= n);
+        self.log_decision(Decision::EpochAgreement {
+            agreeing_edges: agreement.agreeing_edges,
+            disagreeing_edges: agreement.disagreeing_edges,
+            disagreeing_merge_edges: agreement.disagreeing_merge_edges,
+            worst_off_m: agreement.worst_off_m,
+            confirmations,
+            contradictions,
+            undone: undo,
+        });
+        if undo {
+            self.undo_all(UnmergeReason::InconsistentEpochs {
+                agreeing_edges: agreement.agreeing_edges,
+                disagreeing_edges: agreement.disagreeing_edges,
+                disagreeing_merge_edges: agreement.disagreeing_merge_edges,
+                worst_off_m: agreement.worst_off_m,
+            })?;
+        }
+        Ok(())
     }
 
     /// Ends a session of a lifelong robot (iRobot Sec. 4): its epoch ends (a restart), every
@@ -463,10 +515,12 @@ impl Engine {
         Ok(report)
     }
 
-    /// Optimises once more if loops wait (call after a log's last scan).
+    /// Optimises once more if loops wait, and judges the epoch's agreement with the epochs
+    /// merged into it (see `end_epoch`), undoing its merges if they disagree (call after a
+    /// log's last scan).
     pub fn finish(&mut self) -> Result<(), EngineError> {
         self.atlas.optimize_if_due(true)?;
-        Ok(())
+        self.judge_epoch_agreement()
     }
 
     /// Feeds one scan with its wheel-odometry pose; see the crate docs for the steps.
@@ -554,6 +608,12 @@ impl Engine {
         for view in accepted {
             self.ambiguity.on_accepted(view.0, view.0, travel_m);
         }
+        self.merged_matches.0 += found.confirmations.len();
+        self.merged_matches.1 += found
+            .contradictions
+            .iter()
+            .filter(|r| !self.atlas.is_current_epoch(r.from))
+            .count();
         let mut accepted_hypotheses = Vec::new();
         // Contradictions of the own graph: rejected observations, recovery evidence.
         for record in &found.contradictions {
@@ -1309,31 +1369,40 @@ impl Engine {
             return Ok(());
         }
         if invalidity > self.params.unmerge_threshold {
-            self.before_last_change = Some(self.atlas.active().clone());
-            let undone = self.atlas.unmerge_all(UnmergeReason::InvalidMerge {
-                detector: name.clone(),
+            self.undo_all(UnmergeReason::InvalidMerge {
+                detector: name,
                 invalidity,
             })?;
-            if let Some(undone) = undone {
-                self.refused.extend(
-                    undone
-                        .restored_maps
-                        .iter()
-                        .zip(&undone.undone_transforms)
-                        .map(|(map, t)| (*map, Se2::new(t[0], t[1], t[2]))),
-                );
-                let (scan, travel_m) = (self.scans, self.travel_m());
-                for record in self.merge_log.iter_mut().filter(|r| {
-                    r.state == MergeState::Full
-                        && r.merge
-                            .is_some_and(|m| undone.merges.iter().any(|u| u.0 == m))
-                }) {
-                    record.state = MergeState::Undone;
-                    record.ended_at_scan = Some(scan);
-                    record.ended_travel_m = Some(travel_m);
-                    record.reason = Some(format!("{name} invalidity {invalidity:.2}"));
-                }
-            }
+        }
+        Ok(())
+    }
+
+    /// Undoes every merge into the active graph for `reason`: the restored maps are refused
+    /// at their transforms for the rest of the epoch, and the merges' records say why.
+    fn undo_all(&mut self, reason: UnmergeReason) -> Result<(), EngineError> {
+        self.before_last_change = Some(self.atlas.active().clone());
+        let note = reason.summary();
+        let Some(undone) = self.atlas.unmerge_all(reason)? else {
+            return Ok(());
+        };
+        self.merged_matches = (0, 0);
+        self.refused.extend(
+            undone
+                .restored_maps
+                .iter()
+                .zip(&undone.undone_transforms)
+                .map(|(map, t)| (*map, Se2::new(t[0], t[1], t[2]))),
+        );
+        let (scan, travel_m) = (self.scans, self.travel_m());
+        for record in self.merge_log.iter_mut().filter(|r| {
+            r.state == MergeState::Full
+                && r.merge
+                    .is_some_and(|m| undone.merges.iter().any(|u| u.0 == m))
+        }) {
+            record.state = MergeState::Undone;
+            record.ended_at_scan = Some(scan);
+            record.ended_travel_m = Some(travel_m);
+            record.reason = Some(note.clone());
         }
         Ok(())
     }

@@ -726,13 +726,7 @@ fn summarise(engine: &Engine) -> (Vec<MergeReport>, Vec<UnmergeReport>) {
                 scan: e.scan,
                 travel_m: e.travel_m,
                 merges: u.merges.iter().map(|m| m.0).collect(),
-                reason: match &u.reason {
-                    mapmerge_atlas::UnmergeReason::InvalidMerge {
-                        detector,
-                        invalidity,
-                    } => format!("{detector} invalidity {invalidity:.2}"),
-                    mapmerge_atlas::UnmergeReason::Requested { note } => note.clone(),
-                },
+                reason: u.reason.summary(),
             }),
             _ => None,
         })

@@ -161,7 +161,8 @@ impl PyAtlas {
         events_list(py, &events)
     }
 
-    /// Optimises once more if loops wait (call after a session's last scan).
+    /// Optimises once more if loops wait and judges the epoch's agreement with the epochs
+    /// merged into it (call after a session's last scan).
     fn finish(&mut self, py: Python<'_>) -> PyResult<()> {
         let engine = self.engine_mut()?;
         py.detach(|| engine.finish())

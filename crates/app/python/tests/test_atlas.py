@@ -75,11 +75,13 @@ def test_two_sessions_merge_as_the_cli_merges_them(tmp_path):
         for m in merges
     ]
     assert expected["hypotheses"] == atlas.hypotheses
-    # Every event is the CLI's line of events.jsonl.
+    # After the last scan (the CLI's `finish`: the epoch's agreement with the merged one is
+    # judged), every event is the CLI's line of events.jsonl.
+    atlas.finish()
     lines = [json.loads(l) for l in open(tmp_path / "cli" / "events.jsonl")]
     assert atlas.events == lines
+    assert [e["event"] for e in lines][-1] == "epoch_agreement"
     assert [e["scan"] for e in lines if e["event"] == "merged"] == [merge["full_at_scan"]]
-    atlas.finish()
     # Every map's scans as the CLI writes them to maps/<map>/trajectory.tum.
     listed = {m["map"]: m for m in expected["maps"]}
     for trajectory in atlas.trajectories():

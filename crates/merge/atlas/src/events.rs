@@ -60,6 +60,39 @@ pub enum UnmergeReason {
         /// Free text.
         note: String,
     },
+    /// The epoch's edges to the epochs merged into it disagree with the optimised graph
+    /// ([`crate::Atlas::epoch_agreement`]; issue 64, part 4).
+    InconsistentEpochs {
+        /// Edges the graph satisfies, those it does not, and of those the merges' own.
+        agreeing_edges: usize,
+        disagreeing_edges: usize,
+        disagreeing_merge_edges: usize,
+        /// The largest translation residual of a disagreeing edge (m).
+        worst_off_m: f64,
+    },
+}
+
+impl UnmergeReason {
+    /// One line for reports.
+    pub fn summary(&self) -> String {
+        match self {
+            Self::InvalidMerge {
+                detector,
+                invalidity,
+            } => format!("{detector} invalidity {invalidity:.2}"),
+            Self::Requested { note } => note.clone(),
+            Self::InconsistentEpochs {
+                agreeing_edges,
+                disagreeing_edges,
+                disagreeing_merge_edges,
+                worst_off_m,
+            } => format!(
+                "epochs disagree: {disagreeing_merge_edges} merge edges ({disagreeing_edges} of {} \
+                 edges) unsatisfied, up to {worst_off_m:.2} m",
+                agreeing_edges + disagreeing_edges
+            ),
+        }
+    }
 }
 
 /// What one merge did (Sec. III-A).

@@ -71,7 +71,7 @@ pub use ids::{map_name, EpochId, MapId, MergeId};
 pub use keyframes::{KeyframeRecord, KeyframeStore};
 pub use local_maps::{LocalMapGrid, RenderedMap, LOG_ODDS_STEP};
 pub use maintenance::{MaintenanceParams, MaintenanceReport, ViewUse};
-pub use merge::{LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
+pub use merge::{EpochAgreement, LoopEdge, MergeParams, MergePreview, MergeRequest, OverlapParams};
 pub use protrusion::{
     align_graphs, new_regions, remove_regions, FeatureSet, LabelledRegion, ProtrusionClassifier,
     ProtrusionParams, Region, RegionFeatures, DEFAULT_DEPTH, DEFAULT_MIN_LEAF,

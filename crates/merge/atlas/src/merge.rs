@@ -16,6 +16,22 @@ use crate::events::{pose_array, AtlasEvent, MergeEvent, MergeReason, UnmergeEven
 use crate::ids::{EpochId, MapId, MergeId};
 use crate::recognition::local_map_keyframes;
 
+/// The current epoch's agreement with the epochs merged into it ([`Atlas::epoch_agreement`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct EpochAgreement {
+    /// Edges between the current epoch and a merged one that the optimised graph satisfies
+    /// within the robust kernel's χ² bound ...
+    pub agreeing_edges: usize,
+    /// ... and those it does not ...
+    pub disagreeing_edges: usize,
+    /// ... of which the merges' own (kind `Merge`: the observations, the overlap loops and
+    /// the loops into the merged data), as opposed to loops of accepted recovery
+    /// hypotheses (kind `Loop`): which side the robust kernel gave way to.
+    pub disagreeing_merge_edges: usize,
+    /// The largest translation residual (m) of a disagreeing edge (0 when none).
+    pub worst_off_m: f64,
+}
+
 /// How merges join two graphs.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -535,6 +551,45 @@ impl<B: BackupStore> Atlas<B> {
         Ok(loops)
     }
 
+    /// How well the current epoch agrees with the epochs merged into it (issue 64, part 4):
+    /// every edge between a current-epoch vertex and another epoch's (merge edges, overlap
+    /// loops, loops into merged data, recovered loops) is tested at the optimised poses by
+    /// the χ² test of the optimiser's robust kernel (DCS's Φ, else χ²₃(0.99)): within it the
+    /// edge agrees; beyond it the kernel has down-weighted it, so the graph could not satisfy
+    /// it. Zero counts when nothing is merged.
+    pub fn epoch_agreement(&self) -> EpochAgreement {
+        let mut agreement = EpochAgreement::default();
+        if self.merges.is_empty() {
+            return agreement;
+        }
+        let phi = match self.params.optimizer.robust {
+            mapmerge_solve::RobustKernel::Dcs { phi } if phi.is_finite() && phi > 0.0 => phi,
+            _ => mapmerge_solve::chi2_quantile_99(3),
+        };
+        for (_, edge) in self.active.edges() {
+            if edge.is_prior() || self.is_current_epoch(edge.from) == self.is_current_epoch(edge.to)
+            {
+                continue;
+            }
+            let (Some(chi2), Some(residual)) =
+                (self.active.edge_chi2(edge), self.active.edge_residual(edge))
+            else {
+                continue;
+            };
+            let off_m = residual.fixed_rows::<2>(0).norm();
+            if chi2 <= phi {
+                agreement.agreeing_edges += 1;
+            } else {
+                agreement.disagreeing_edges += 1;
+                if edge.kind == EdgeKind::Merge {
+                    agreement.disagreeing_merge_edges += 1;
+                }
+                agreement.worst_off_m = agreement.worst_off_m.max(off_m);
+            }
+        }
+        agreement
+    }
+
     /// While a merge of inactive graph `map` is conditional: the keyframes `nodes` (oldest
     /// first) verified against the nearest vertices of `map` in the conditionally merged
     /// graph `preview` (G', from [`Atlas::preview_merge`]), as the overlap search does after
@@ -739,6 +794,52 @@ mod tests {
             assert!(close(&merged, &active_from_inactive.compose(pose), 1e-6));
         }
         assert_eq!(event.merged_epochs, vec![EpochId(0)]);
+    }
+
+    #[test]
+    fn epochs_agree_until_a_cross_epoch_edge_says_otherwise() {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        assert_eq!(atlas.epoch_agreement(), EpochAgreement::default());
+        let old = path(&mut atlas, Se2::identity(), 10);
+        atlas.end_epoch(EpochEndReason::Kidnap);
+        let new = path(&mut atlas, Se2::identity(), 10);
+        let information = Matrix3::identity() * 100.0;
+        let edge = |active: NodeId, inactive: NodeId, inactive_from_active: Se2| LoopEdge {
+            active,
+            inactive,
+            inactive_from_active,
+            information,
+        };
+        // Both epochs on one path: vertex k of the new epoch is vertex k of the old.
+        let request = MergeRequest {
+            map: MapId(0),
+            active_from_inactive: None,
+            loops: vec![
+                edge(new[2], old[2], Se2::identity()),
+                edge(new[7], old[7], Se2::identity()),
+            ],
+            reason: MergeReason::Forced { note: "t".into() },
+        };
+        atlas.merge(request, None).unwrap();
+        let agreed = atlas.epoch_agreement();
+        assert_eq!((agreed.agreeing_edges, agreed.disagreeing_edges), (2, 0));
+        // A third match puts the old epoch 3 m to the side where the new one is: the robust
+        // kernel gives way to the two that agree, so the graph cannot satisfy it.
+        atlas
+            .add_edge(edge(new[5], old[5], Se2::new(0.0, 3.0, 0.0)).edge())
+            .unwrap();
+        atlas.optimize_active().unwrap();
+        let split = atlas.epoch_agreement();
+        assert_eq!(
+            (split.agreeing_edges, split.disagreeing_edges),
+            (2, 1),
+            "{split:?}"
+        );
+        assert_eq!(split.disagreeing_merge_edges, 1, "{split:?}");
+        assert!(split.worst_off_m > 2.0, "{split:?}");
+        // Odometry inside an epoch is not judged; a final merge is not judged at all.
+        atlas.end_epoch(EpochEndReason::Kidnap);
+        assert_eq!(atlas.epoch_agreement(), EpochAgreement::default());
     }
 
     /// Confirms every guess, moved by `offset`.
