@@ -559,6 +559,24 @@ fn a_conditional_bound_that_is_no_distance_is_refused() {
 }
 
 #[test]
+fn a_disagreement_bound_of_no_edge_is_refused() {
+    let mut engine_params = EngineParams::default();
+    engine_params.decisions.undo_disagreeing_edges = Some(0);
+    assert!(matches!(
+        Engine::new(engine_params),
+        Err(mapmerge_engine::EngineError::Parameter {
+            name: "decisions.undo_disagreeing_edges",
+            ..
+        })
+    ));
+    for fine in [None, Some(1), Some(3)] {
+        let mut engine_params = EngineParams::default();
+        engine_params.decisions.undo_disagreeing_edges = fine;
+        assert!(Engine::new(engine_params).is_ok(), "{fine:?}");
+    }
+}
+
+#[test]
 fn a_match_verified_where_a_hypothesis_says_is_searched_for_a_rival_nearby() {
     // The warehouse's aisles repeat: a match verified where a tracked hypothesis puts the
     // robot can fit one aisle over as well (`decisions.track_unique`), seed 7 of the fitting
