@@ -255,6 +255,15 @@ fn a_conditional_merge_lives_in_g_prime_only() {
     assert!(seen_conditional, "no conditional merge on this seed");
 }
 
+/// Feeds `scans` to the engine, each with its odometry (the previous one where it has none).
+fn feed(engine: &mut Engine, scans: &[mapmerge_scan::ScanRecord]) {
+    let mut odometry = Se2::identity();
+    for record in scans {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        engine.add_scan(&odometry, &record.scan, None).unwrap();
+    }
+}
+
 /// Two kidnap-free sessions of `duration_secs` each in the office world, seed 5.
 fn two_office_sessions(duration_secs: f64) -> mapmerge_sim::Dataset {
     let mut params = SimParams::default().with_preset_name("office").unwrap();
@@ -268,13 +277,6 @@ fn two_office_sessions(duration_secs: f64) -> mapmerge_sim::Dataset {
 fn a_wrong_merge_is_undone_with_its_reason_and_nothing_mapped_since_is_lost() {
     let dataset = two_office_sessions(60.0);
     let mut engine = Engine::new(EngineParams::default()).unwrap();
-    let feed = |engine: &mut Engine, scans: &[mapmerge_scan::ScanRecord]| {
-        let mut odometry = Se2::identity();
-        for record in scans {
-            odometry = record.odom_from_robot.unwrap_or(odometry);
-            engine.add_scan(&odometry, &record.scan, None).unwrap();
-        }
-    };
     feed(&mut engine, &dataset.sessions[0].log.scans);
     engine.end_epoch(EpochEndReason::Restart).unwrap();
     let second = &dataset.sessions[1].log.scans;
@@ -630,27 +632,17 @@ fn loops_into_merged_data_bring_a_slightly_wrong_merge_into_agreement() {
             ..EngineParams::default()
         };
         let mut engine = Engine::new(params).unwrap();
-        let mut odometry = Se2::identity();
-        for record in &dataset.sessions[0].log.scans {
-            odometry = record.odom_from_robot.unwrap_or(odometry);
-            engine.add_scan(&odometry, &record.scan, None).unwrap();
-        }
+        feed(&mut engine, &dataset.sessions[0].log.scans);
         engine.end_epoch(EpochEndReason::Restart).unwrap();
         let old = engine.atlas().inactive(MapId(0)).unwrap().clone();
-        let second = &dataset.sessions[1].log.scans;
-        let mut odometry = Se2::identity();
-        let mut robot_at_merge = None;
-        for (k, record) in second.iter().enumerate() {
-            // The second session runs along the first from scan 375 to 460.
-            if k == 390 {
-                engine
-                    .force_merge(MapId(0), active_from_inactive, "test")
-                    .unwrap();
-                robot_at_merge = engine.robot_node();
-            }
-            odometry = record.odom_from_robot.unwrap_or(odometry);
-            engine.add_scan(&odometry, &record.scan, None).unwrap();
-        }
+        // The second session runs along the first from scan 375 to 460.
+        let (before, after) = dataset.sessions[1].log.scans.split_at(390);
+        feed(&mut engine, before);
+        engine
+            .force_merge(MapId(0), active_from_inactive, "test")
+            .unwrap();
+        let robot_at_merge = engine.robot_node();
+        feed(&mut engine, after);
         engine.finish().unwrap();
         let agreement = engine
             .events()
