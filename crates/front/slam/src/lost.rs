@@ -32,7 +32,8 @@ pub struct LostParams {
     /// Where the odometry window finds no match, the tracker searches this window around
     /// the prediction (m, rad; default: 2 m, 30°; null: never) …
     pub relocalize_window: Option<(f64, f64)>,
-    /// … and keeps a match scoring at least this (default: 0.6, what tracking scores).
+    /// … and keeps a match scoring at least this (default: 0.6, what tracking scores). Such a
+    /// match is a slip within `lost_jump_sigma` of the prediction; beyond, the tracker is lost.
     pub relocalize_min_score: f64,
     /// A failed or jumped match is off only when at least this share of the submap's points
     /// near the robot lie where the scan saw through (default: 0.03): a scan of new ground
@@ -277,17 +278,16 @@ impl LostDetector {
         if !warm {
             return None;
         }
-        // A relocalized match moved the prediction on purpose: no jump to read.
-        let jump = if reading.relocalized {
-            0.0
-        } else {
-            reading.correction_sigma.unwrap_or(0.0)
-        };
+        let jump = reading.correction_sigma.unwrap_or(0.0);
         let gap = stamp_gap_s
             .zip(self.params.doubt_gap_s)
             .is_some_and(|(gap, bound)| gap > bound);
         // A good match: within `recover_sigma` of the prediction, as clean as tracking.
-        let good = reading.score.is_some() && jump <= self.params.recover_sigma;
+        // A good match: within `recover_sigma` of the prediction, as clean as tracking; or
+        // found by the wider search (a slip) within `lost_jump_sigma`.
+        let good = reading.score.is_some()
+            && (jump <= self.params.recover_sigma
+                || (reading.relocalized && jump <= self.params.lost_jump_sigma));
         // The first scan after a gap in the stamps must find the robot where the odometry
         // says; if it does not, the robot may have been carried, and from then on new ground
         // excuses nothing.
@@ -300,7 +300,7 @@ impl LostDetector {
                 .is_some_and(|share| share >= self.params.seen_through_min);
         let off = if reading.score.is_none() && counts {
             Some(OffReading::NoMatch)
-        } else if jump > self.params.jump_sigma && counts {
+        } else if jump > self.params.jump_sigma && !reading.relocalized && counts {
             Some(OffReading::Jump)
         } else if gap && !good {
             Some(OffReading::StampGap)
@@ -487,9 +487,9 @@ mod tests {
     }
 
     #[test]
-    fn a_match_found_by_the_wider_search_is_good_whatever_its_correction() {
+    fn a_slip_found_by_the_wider_search_is_good_and_a_far_one_is_lost() {
         let relocalized = TrackingReading {
-            correction_sigma: Some(40.0),
+            correction_sigma: Some(12.0),
             relocalized: true,
             ..good()
         };
@@ -501,6 +501,13 @@ mod tests {
         assert!(detector.observe(&relocalized, Some(7.0)).lost.is_none());
         assert!(detector.observe(&relocalized, Some(8.0)).lost.is_none());
         assert_eq!(detector.state(), TrackingState::Tracking);
+        // Beyond `lost_jump_sigma` no slip explains it.
+        let far = TrackingReading {
+            correction_sigma: Some(40.0),
+            ..relocalized
+        };
+        let report = detector.observe(&far, Some(9.0)).lost.expect("lost");
+        assert_eq!(report.cause, LostCause::Jump);
     }
 
     #[test]
@@ -573,7 +580,10 @@ mod tests {
             bad(|p| p.relocalize_window = Some((0.0, 0.5))),
             Some("relocalize_window")
         );
-        assert_eq!(bad(|p| p.relocalize_min_score = 2.0), Some("relocalize_min_score"));
+        assert_eq!(
+            bad(|p| p.relocalize_min_score = 2.0),
+            Some("relocalize_min_score")
+        );
         assert_eq!(bad(|p| p.doubt_gap_s = Some(-1.0)), Some("doubt_gap_s"));
         assert_eq!(bad(|p| p.off_to_lose = 0), Some("off_to_lose"));
         assert_eq!(bad(|p| p.good_to_recover = 0), Some("good_to_recover"));
