@@ -480,6 +480,7 @@ impl LocalTracker {
         points: &[Point2],
         predicted: &Se2,
     ) -> Option<(mapmerge_scanmatch::Match, Se2, TrackingReading)> {
+        let prior_covariance = self.prior_covariance(predicted);
         let submap = self.active.front_mut()?;
         if submap.is_empty() {
             return None;
@@ -504,19 +505,7 @@ impl LocalTracker {
                 )?
             }
         };
-        let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
-        let prior_covariance = odometry_covariance(
-            &previous_local.between(predicted),
-            &self.params.odometry_prior,
-        );
-        let offset = guess.local(&found.target_from_query);
-        let reading = TrackingReading {
-            score: Some(found.score),
-            inlier_fraction: found.icp.map(|icp| icp.inlier_fraction),
-            correction_sigma: mahalanobis(&offset, &prior_covariance),
-            seen_through: None,
-            relocalized: false,
-        };
+        let reading = TrackingReading::of(&found, &guess, &prior_covariance, false);
         found.target_from_query = fuse_with_prior(
             &found.target_from_query,
             &found.covariance,
@@ -525,6 +514,15 @@ impl LocalTracker {
         );
         let local_from_robot = submap.local_from_submap.compose(&found.target_from_query);
         Some((found, local_from_robot, reading))
+    }
+
+    /// Covariance of the odometry increment from the previous scan to `predicted`.
+    fn prior_covariance(&self, predicted: &Se2) -> Matrix3<f64> {
+        let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
+        odometry_covariance(
+            &previous_local.between(predicted),
+            &self.params.odometry_prior,
+        )
     }
 
     /// A match of `points` within the detector's `relocalize_window` around `predicted`
@@ -537,6 +535,8 @@ impl LocalTracker {
     ) -> Option<(mapmerge_scanmatch::Match, Se2, TrackingReading)> {
         let lost = self.params.lost.as_ref()?;
         let (linear_m, angular_rad) = lost.relocalize_window?;
+        let min_score = lost.relocalize_min_score;
+        let prior_covariance = self.prior_covariance(predicted);
         let submap = self.active.front_mut()?;
         if submap.is_empty() {
             return None;
@@ -548,24 +548,10 @@ impl LocalTracker {
             points,
             &guess,
             &SearchWindow::new(linear_m, angular_rad),
-            lost.relocalize_min_score,
+            min_score,
         )?;
         self.info.relocalized += 1;
-        let offset = guess.local(&found.target_from_query);
-        let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
-        let reading = TrackingReading {
-            score: Some(found.score),
-            inlier_fraction: found.icp.map(|icp| icp.inlier_fraction),
-            correction_sigma: mahalanobis(
-                &offset,
-                &odometry_covariance(
-                    &previous_local.between(predicted),
-                    &self.params.odometry_prior,
-                ),
-            ),
-            seen_through: None,
-            relocalized: true,
-        };
+        let reading = TrackingReading::of(&found, &guess, &prior_covariance, true);
         let local_from_robot = submap.local_from_submap.compose(&found.target_from_query);
         Some((found, local_from_robot, reading))
     }
@@ -695,13 +681,29 @@ impl LocalTracker {
     }
 }
 
-/// `√(δᵀ Σ⁻¹ δ)` of a tangent offset under `covariance`; `None` when it cannot be inverted.
-fn mahalanobis(offset: &Vector3<f64>, covariance: &Matrix3<f64>) -> Option<f64> {
-    covariance.try_inverse().map(|information| {
-        (offset.transpose() * information * offset)[0]
-            .max(0.0)
-            .sqrt()
-    })
+impl TrackingReading {
+    /// The reading of match `found` of a scan predicted at `guess` (both in the submap
+    /// frame), the prediction's covariance `prior_covariance`: the correction is the
+    /// Mahalanobis distance `√(δᵀ Σ⁻¹ δ)` of the match from the prediction.
+    fn of(
+        found: &mapmerge_scanmatch::Match,
+        guess: &Se2,
+        prior_covariance: &Matrix3<f64>,
+        relocalized: bool,
+    ) -> Self {
+        let offset = guess.local(&found.target_from_query);
+        Self {
+            score: Some(found.score),
+            inlier_fraction: found.icp.map(|icp| icp.inlier_fraction),
+            correction_sigma: prior_covariance.try_inverse().map(|information| {
+                (offset.transpose() * information * offset)[0]
+                    .max(0.0)
+                    .sqrt()
+            }),
+            seen_through: None,
+            relocalized,
+        }
+    }
 }
 
 /// Information of an edge: the inverse of `covariance` with its standard deviations floored
