@@ -3,8 +3,9 @@
 //!
 //! Inputs are CARMEN logs (each a session: the epoch ends with `restart` between logs; scans
 //! listed in `--kidnap-at`, counted over all logs from 0, start a new epoch with `kidnap`), or
-//! a simulated data set (`--sim PRESET`): its sessions, with the simulator's kidnaps standing
-//! in for a tracking-failure detector, and its ground truth to judge every merge.
+//! a simulated data set (`--sim PRESET`): its sessions, its kidnaps announced as kidnaps, and
+//! its ground truth to judge every merge. With `--hide-kidnaps` the engine is not told: its
+//! tracking-failure detector must end the epoch (`tracking_lost`).
 //!
 //! Writes `DIR/events.jsonl` (every epoch, merge and unmerge with its reason, the scan count
 //! and travel when it happened), `DIR/atlas/` (each graph as g2o and a picture of its map) and
@@ -19,12 +20,13 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Args;
-use mapmerge_engine::{EngineParams, MergeState};
+use mapmerge_engine::{EngineParams, EpochEndReason, MergeState};
 use mapmerge_jobs::{log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport};
 use mapmerge_lab::atlas_judge::{
     judge_atlas, simulated_sessions, write_merge_results, AtlasJudgement, REVISIT_MIN_M,
     REVISIT_RADIUS_M, UNDO_WITHIN_M,
 };
+use mapmerge_lab::break_judge::{judge_breaks, BreakJudgement, DETECT_WITHIN_SCANS};
 use mapmerge_lab::carried::{carried_sessions, Carry};
 use mapmerge_lab::map_judge::{judge_maps, Frames, MapsJudgement, PLACED_WITHIN_M};
 use serde::Serialize;
@@ -44,6 +46,15 @@ pub struct AtlasArgs {
     /// epoch.
     #[arg(long, value_delimiter = ',')]
     pub kidnap_at: Vec<usize>,
+    /// Withhold the kidnaps (the simulator's, or `--odometry-noise`'s carries) from the
+    /// engine: its tracking-failure detector must notice them. They are still judged, and
+    /// `sim` still writes them in dataset.json.
+    #[arg(long)]
+    pub hide_kidnaps: bool,
+    /// With `--odometry-noise` and no `--kidnap-at`: draw no kidnaps (the robot is never
+    /// carried).
+    #[arg(long, requires = "odometry_noise", conflicts_with = "kidnap_at")]
+    pub no_kidnaps: bool,
     /// Simulate the sessions instead: a world preset (office, office-aliased, corridor-loop,
     /// warehouse, symmetric-hall). Merges are then judged against the simulator's ground
     /// truth.
@@ -124,6 +135,8 @@ struct Report<'a> {
     /// With `--odometry-noise`: each log's carries (original scan numbers).
     #[serde(skip_serializing_if = "Option::is_none")]
     carries: Option<Vec<Vec<Carry>>>,
+    /// The engine's `tracking_lost` breaks against the sessions' kidnaps.
+    breaks: BreakJudgement,
 }
 
 /// Runs `mapmerge atlas`.
@@ -139,6 +152,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         pictures: !args.no_pictures,
         store: args.store.clone(),
         keep_versions: args.keep_versions,
+        announce_kidnaps: !args.hide_kidnaps,
     })
     .map_err(job_error)?;
     let mut carries = None;
@@ -163,8 +177,13 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
                 .collect::<anyhow::Result<Vec<_>>>()?;
             match &args.odometry_noise {
                 Some(noise) => {
-                    let (sessions, carried) =
-                        carried_sessions(logs, &args.kidnap_at, noise, args.seed)?;
+                    let (sessions, carried) = carried_sessions(
+                        logs,
+                        &args.kidnap_at,
+                        !args.no_kidnaps,
+                        noise,
+                        args.seed,
+                    )?;
                     carries = Some(carried);
                     sessions
                 }
@@ -216,6 +235,7 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
         judgement,
         from_trajectories,
         carries,
+        breaks: judge_breaks(run.engine.events(), &sessions),
     };
     if args.json {
         print_json(&report)?;
@@ -225,6 +245,19 @@ pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
             &report.judgement,
             report.from_trajectories.as_ref(),
         );
+        let b = &report.breaks;
+        if args.hide_kidnaps && b.kidnaps > 0 {
+            println!(
+                "  withheld kidnaps: {} of {} found by the tracker within {DETECT_WITHIN_SCANS} scans, {} later",
+                b.detected, b.kidnaps, b.late
+            );
+        }
+        if b.false_breaks > 0 {
+            println!(
+                "  the tracker lost track {} times away from any kidnap ({:.0} m travelled)",
+                b.false_breaks, b.travel_m
+            );
+        }
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -287,8 +320,15 @@ fn print_text(run: &AtlasReport, judgement: &AtlasJudgement, maps: Option<&MapsJ
     // The first epoch has nothing to merge into unless the run continued a stored atlas.
     let skip = usize::from(run.epochs_with_a_map < run.epochs);
     for o in run.epoch_outcomes.iter().skip(skip) {
+        let began = match &o.started_by {
+            None => "began the run".to_owned(),
+            Some(EpochEndReason::Kidnap) => "began at an announced kidnap".to_owned(),
+            Some(EpochEndReason::TrackingLost) => "began when the tracker lost track".to_owned(),
+            Some(EpochEndReason::Restart) => "began at a restart".to_owned(),
+            Some(EpochEndReason::Other(why)) => format!("began: {why}"),
+        };
         println!(
-            "  epoch {}: {:.0} m; merge hypotheses {} (most observations {}, weighted {:.1}), conditional {}, merged {}, undone {}: {}",
+            "  epoch {} ({began}): {:.0} m; merge hypotheses {} (most observations {}, weighted {:.1}), conditional {}, merged {}, undone {}: {}",
             o.epoch.0,
             o.travel_m,
             o.hypotheses,

@@ -413,6 +413,15 @@ pub enum Decision {
         /// The merges were undone for it.
         undone: bool,
     },
+    /// The tracker lost track (issue 65; Colosi et al. 2019): the epoch ends with
+    /// `tracking_lost` and the scans in doubt start the next one.
+    TrackingLost {
+        /// One match jumped beyond any odometry (`jump`), or the scans in doubt kept
+        /// failing against the map as it was (`off_readings`).
+        cause: mapmerge_slam::LostCause,
+        /// The detector's readings of the scans in doubt, oldest first.
+        in_doubt: Vec<mapmerge_slam::ReadScan>,
+    },
 }
 
 /// The event kinds of [`crate::EngineEvent`].
@@ -597,6 +606,27 @@ mod tests {
                 confirmations: 4,
                 contradictions: 0,
                 undone: false,
+            },
+            Decision::TrackingLost {
+                cause: mapmerge_slam::LostCause::OffReadings,
+                in_doubt: vec![
+                    mapmerge_slam::ReadScan {
+                        reading: mapmerge_slam::TrackingReading::default(),
+                        stamp_gap_s: Some(95.5),
+                        off: Some(mapmerge_slam::OffReading::NoMatch),
+                    },
+                    mapmerge_slam::ReadScan {
+                        reading: mapmerge_slam::TrackingReading {
+                            score: Some(0.7),
+                            inlier_fraction: None,
+                            correction_sigma: Some(12.5),
+                            seen_through: Some(0.2),
+                            relocalized: false,
+                        },
+                        stamp_gap_s: None,
+                        off: Some(mapmerge_slam::OffReading::Jump),
+                    },
+                ],
             },
         ];
         for decision in decisions {

@@ -2,7 +2,7 @@
 //! hypotheses it formed, the most evidence one of them collected, and how it ended (the
 //! stages of iRobot's Sec. 3.2.1 / 5.2: hypothesis, conditional merge, full merge).
 
-use mapmerge_atlas::{AtlasEvent, EpochId};
+use mapmerge_atlas::{AtlasEvent, EpochEndReason, EpochId};
 use mapmerge_hypothesis::{FilterEvent, Target};
 use serde::Serialize;
 
@@ -29,6 +29,9 @@ pub enum EpochEnd {
 pub struct EpochOutcome {
     /// The epoch.
     pub epoch: EpochId,
+    /// How it began: why the epoch before it ended (`kidnap` announced, `tracking_lost`
+    /// detected, `restart`); null for the run's first epoch.
+    pub started_by: Option<EpochEndReason>,
     /// Robot travel during the epoch (m, tracker estimate).
     pub travel_m: f64,
     /// Merge hypotheses created.
@@ -53,7 +56,11 @@ pub fn epoch_outcomes(events: &[EngineEvent], travel_now_m: f64) -> Vec<EpochOut
     let mut outcomes: Vec<EpochOutcome> = Vec::new();
     let mut started_at_m = 0.0;
     let mut merge_kept = false;
+    let mut ended_by = None;
     for event in events {
+        if let Some(AtlasEvent::EpochEnded { reason, .. }) = event.atlas() {
+            ended_by = Some(reason.clone());
+        }
         if let Some(AtlasEvent::EpochStarted { epoch }) = event.atlas() {
             close(
                 outcomes.last_mut(),
@@ -64,6 +71,7 @@ pub fn epoch_outcomes(events: &[EngineEvent], travel_now_m: f64) -> Vec<EpochOut
             merge_kept = false;
             outcomes.push(EpochOutcome {
                 epoch: *epoch,
+                started_by: ended_by.take(),
                 travel_m: 0.0,
                 hypotheses: 0,
                 most_observations: 0,

@@ -31,8 +31,8 @@ use std::sync::Arc;
 
 use mapmerge_atlas::{
     Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo, ConstraintSearch,
-    EpochEndReason, LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason,
-    MergeRequest, UnmergeReason,
+    LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason, MergeRequest,
+    UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
@@ -42,7 +42,9 @@ use mapmerge_hypothesis::{
 use mapmerge_place::{ScanMatchVerifier, SelfSimilarity};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
-use mapmerge_slam::{LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams};
+use mapmerge_slam::{
+    LocalTracker, ScanAnchors, TrackerError, TrackerInfo, TrackerParams, TrackingState,
+};
 use mapmerge_verify::{
     DetectorParams, DetectorScan, InvalidMergeDetector, LearnedDetector, LearnedModel, MergedMap,
     RatioSupport,
@@ -55,6 +57,7 @@ pub use decisions::{
     Decision, DecisionParams, DetectorReading, EventKind, MergeRecord, MergeState, ObservedEdge,
 };
 pub use epochs::{epoch_outcomes, EpochEnd, EpochOutcome};
+pub use mapmerge_atlas::EpochEndReason;
 /// Counters of the merge and recovery hypotheses (`created`, `merge`, `recovery`,
 /// `conditional`, `full`, `rejected_conditional`, `expired`).
 pub use mapmerge_hypothesis::FilterStats as HypothesisSummary;
@@ -244,6 +247,9 @@ pub struct Engine {
     /// Every scan of the run on its keyframe, and its stamp as fed.
     anchors: ScanAnchors,
     stamps: Vec<Option<f64>>,
+    /// The scans the tracker holds in doubt (relocalizing), as fed: should it lose track,
+    /// they are fed again to the new epoch.
+    in_doubt: Vec<(Se2, LaserScan, Option<f64>)>,
 }
 
 /// At most this many views of a hypothesis are joined for `decisions.joint_views`.
@@ -314,6 +320,7 @@ impl Engine {
             previous_keyframe_local: None,
             anchors: ScanAnchors::new(),
             stamps: Vec::new(),
+            in_doubt: Vec::new(),
             tracker: LocalTracker::new(params.tracker.clone())?,
             atlas: Atlas::new(params.atlas.clone())?,
             params,
@@ -372,17 +379,7 @@ impl Engine {
 
     /// The tracker's counters over every epoch so far.
     pub fn tracker_info(&self) -> TrackerInfo {
-        let (a, b) = (self.tracker_info_before_epoch, self.tracker.info());
-        TrackerInfo {
-            scans: a.scans + b.scans,
-            matched: a.matched + b.matched,
-            odometry_only: a.odometry_only + b.odometry_only,
-            refined: a.refined + b.refined,
-            keyframes: a.keyframes + b.keyframes,
-            submaps: a.submaps + b.submaps,
-            matching_seconds: a.matching_seconds + b.matching_seconds,
-            submaps_seconds: a.submaps_seconds + b.submaps_seconds,
-        }
+        self.tracker_info_before_epoch + self.tracker.info()
     }
 
     /// The active graph as it was just before the last merge or unmerge.
@@ -459,6 +456,7 @@ impl Engine {
         self.tracker = LocalTracker::new(self.params.tracker.clone())?;
         self.previous_keyframe_local = None;
         self.refused.clear();
+        self.in_doubt.clear();
         self.collect_events();
         Ok(self.events.get(before..).unwrap_or_default())
     }
@@ -531,20 +529,40 @@ impl Engine {
         stamp_secs: Option<f64>,
     ) -> Result<ScanReport<'_>, EngineError> {
         let before = self.events.len();
+        let (anchor, keyframe) = self.feed_scan(odom_from_robot, scan, stamp_secs)?;
+        Ok(ScanReport {
+            anchor,
+            keyframe,
+            events: self.events.get(before..).unwrap_or_default(),
+        })
+    }
+
+    /// [`Engine::add_scan`]'s steps; the anchor and keyframe of the scan.
+    fn feed_scan(
+        &mut self,
+        odom_from_robot: &Se2,
+        scan: &LaserScan,
+        stamp_secs: Option<f64>,
+    ) -> Result<((NodeId, Se2), Option<NodeId>), EngineError> {
         // 1. Track (a scan the tracker refuses is not counted).
-        let tracked = self
-            .tracker
-            .add_scan(odom_from_robot, scan, self.atlas.next_node_id())?;
+        let tracked =
+            self.tracker
+                .add_scan(odom_from_robot, scan, stamp_secs, self.atlas.next_node_id())?;
         self.scans += 1;
         let anchor = tracked.anchor;
         self.anchors.push(anchor.0, anchor.1);
         self.stamps.push(stamp_secs);
+        if tracked.state == TrackingState::Tracking {
+            self.in_doubt.clear();
+        } else {
+            self.in_doubt
+                .push((*odom_from_robot, scan.clone(), stamp_secs));
+        }
+        if let Some(lost) = tracked.lost {
+            return self.lose_track(lost, anchor);
+        }
         let Some(insertion) = tracked.keyframe else {
-            return Ok(ScanReport {
-                anchor,
-                keyframe: None,
-                events: self.events.get(before..).unwrap_or_default(),
-            });
+            return Ok((anchor, None));
         };
         let local_from_robot = insertion.local_from_robot;
         // 2. Insert the keyframe.
@@ -562,11 +580,33 @@ impl Engine {
             self.verify_and_undo()?;
         }
         self.collect_events();
-        Ok(ScanReport {
-            anchor,
-            keyframe: Some(node),
-            events: self.events.get(before..).unwrap_or_default(),
-        })
+        Ok((anchor, Some(node)))
+    }
+
+    /// The tracker lost track (issue 65): the scans in doubt, which made no keyframe, are
+    /// taken back; the epoch ends with `tracking_lost`; they are fed to the new epoch. The
+    /// anchor and keyframe of the last of them (`anchor`, the scan's in the old epoch, when
+    /// none was held).
+    fn lose_track(
+        &mut self,
+        lost: mapmerge_slam::LostReport,
+        anchor: (NodeId, Se2),
+    ) -> Result<((NodeId, Se2), Option<NodeId>), EngineError> {
+        let in_doubt = std::mem::take(&mut self.in_doubt);
+        let kept = self.scans - in_doubt.len();
+        self.scans = kept;
+        self.anchors.truncate(kept);
+        self.stamps.truncate(kept);
+        self.log_decision(Decision::TrackingLost {
+            cause: lost.cause,
+            in_doubt: lost.in_doubt,
+        });
+        self.end_epoch(EpochEndReason::TrackingLost)?;
+        let mut last = None;
+        for (odom_from_robot, scan, stamp_secs) in &in_doubt {
+            last = Some(self.feed_scan(odom_from_robot, scan, *stamp_secs)?);
+        }
+        Ok(last.unwrap_or((anchor, None)))
     }
 
     /// Step 4: the motion update, every observation into the hypothesis filter (merge
@@ -1592,13 +1632,16 @@ pub struct SlamRun {
 }
 
 /// 2D graph SLAM on one log: the engine with one epoch (no inactive graphs, so nothing to
-/// merge or verify), each scan's `odom_from_robot` as the wheel odometry (scans without one
+/// merge or verify; no tracking-failure detector), each scan's `odom_from_robot` as the wheel odometry (scans without one
 /// reuse the previous one), calling `progress(scans_done)` after every scan.
 pub fn run_slam(
     log: &LaserLog,
     params: EngineParams,
     mut progress: impl FnMut(usize),
 ) -> Result<SlamRun, EngineError> {
+    // One log, one graph: the tracker is never lost (a jump stays in the graph).
+    let mut params = params;
+    params.tracker.lost = None;
     let mut engine = Engine::new(EngineParams {
         detector: NO_DETECTOR.into(),
         ..params

@@ -742,3 +742,98 @@ fn epochs_that_disagree_are_undone_before_their_merges_become_final() {
         }) if *disagreeing_edges >= 3
     )));
 }
+
+/// Issue 65: a robot carried elsewhere while its odometry goes on, and nobody tells the
+/// engine. Its tracker must lose track within 10 scans of each kidnap; the scans it held in
+/// doubt start the new epoch (none of them made a keyframe in the old one), and every scan
+/// fed keeps exactly one anchor.
+#[test]
+fn withheld_kidnaps_are_found_by_the_tracker_and_the_scans_in_doubt_start_the_new_epoch() {
+    let mut params = SimParams::default().with_preset_name("office").unwrap();
+    params.sessions = 1;
+    params.duration_secs = 150.0;
+    params.kidnap.max_per_session = 3;
+    params.kidnap.probability = 1.0;
+    params.kidnap.target = mapmerge_sim::KidnapTarget::Random;
+    let dataset = simulate(&params, 7).unwrap();
+    let session = &dataset.sessions[0];
+    let kidnaps: Vec<usize> = session.kidnaps.iter().map(|k| k.scan_index).collect();
+    assert!(kidnaps.len() >= 2, "{kidnaps:?}");
+    let mut engine = Engine::new(EngineParams::default()).unwrap();
+    let mut odometry = Se2::identity();
+    for record in &session.log.scans {
+        odometry = record.odom_from_robot.unwrap_or(odometry);
+        engine
+            .add_scan(&odometry, &record.scan, Some(record.stamp_secs))
+            .unwrap();
+    }
+    engine.finish().unwrap();
+    assert_eq!(engine.scans(), session.log.scans.len());
+    // Each break: the first scan in doubt and the scan that decided.
+    let breaks: Vec<(usize, usize)> = engine
+        .events()
+        .iter()
+        .filter_map(|e| match &e.event {
+            EventKind::Decision(Decision::TrackingLost { in_doubt, .. }) => {
+                Some((e.scan, e.scan + in_doubt.len() - 1))
+            }
+            _ => None,
+        })
+        .collect();
+    for &k in &kidnaps {
+        assert!(
+            breaks
+                .iter()
+                .any(|&(first, decided)| first + 2 >= k && decided <= k + 10),
+            "kidnap at scan {k} not found: breaks {breaks:?}"
+        );
+    }
+    assert_eq!(breaks.len(), kidnaps.len(), "no other break: {breaks:?}");
+    // Every break ended its epoch as `tracking_lost`, and the next epoch says so.
+    let outcomes = mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m());
+    assert_eq!(outcomes.len(), kidnaps.len() + 1);
+    assert_eq!(outcomes[0].started_by, None);
+    for o in &outcomes[1..] {
+        assert_eq!(o.started_by, Some(EpochEndReason::TrackingLost));
+    }
+    // Every scan fed hangs on exactly one keyframe, and the scans in doubt hang on the new
+    // epoch's (they were fed to it again), the scan before them on the old one's.
+    let mut epoch_of_scan = BTreeMap::new();
+    for trajectory in engine.map_trajectories() {
+        for scan in trajectory.scans {
+            assert!(epoch_of_scan.insert(scan.scan, scan.epoch).is_none());
+        }
+    }
+    assert_eq!(epoch_of_scan.len(), session.log.scans.len());
+    for &(first, decided) in &breaks {
+        let new = epoch_of_scan[&first];
+        assert!((first..=decided).all(|k| epoch_of_scan[&k] == new));
+        assert_eq!(epoch_of_scan[&(first - 1)] + 1, new);
+    }
+}
+
+/// The same office without kidnaps: the tracker never loses track.
+#[test]
+fn a_robot_never_carried_never_loses_track() {
+    let (engine, _) = run("office", 3, 2, 120.0);
+    let lost = engine
+        .events()
+        .iter()
+        .filter(|e| matches!(e.event, EventKind::Decision(Decision::TrackingLost { .. })))
+        .count();
+    let kidnaps = engine
+        .events()
+        .iter()
+        .filter(|e| {
+            matches!(
+                e.atlas(),
+                Some(AtlasEvent::EpochEnded {
+                    reason: EpochEndReason::Kidnap,
+                    ..
+                })
+            )
+        })
+        .count();
+    // The run announces its own kidnaps; between them nothing is lost.
+    assert_eq!(lost, 0, "{kidnaps} announced kidnaps");
+}

@@ -23,7 +23,9 @@ use crate::{draw_graph, open_or_create_store, write_atlas, JobError};
 pub struct AtlasSession {
     pub name: String,
     pub log: LaserLog,
-    /// Scans of this session where the robot was kidnapped: each starts a new epoch.
+    /// Scans of this session where the robot was kidnapped (the truth): each starts a new
+    /// epoch when the job announces kidnaps ([`AtlasOptions::announce_kidnaps`]); otherwise
+    /// the engine must notice them itself.
     pub kidnaps: Vec<usize>,
     /// A reference pose per scan (a corrected log's poses, a simulator's truth), kept for
     /// every keyframe and committed with the atlas; none without.
@@ -106,6 +108,10 @@ pub struct AtlasOptions {
     /// atlas.
     pub store: Option<PathBuf>,
     pub keep_versions: usize,
+    /// Tell the engine where the robot was kidnapped (`end_epoch(Kidnap)` at each of a
+    /// session's kidnaps), as `--kidnap-at` does; `false` withholds them (the honest stream:
+    /// the engine's tracking-failure detector must find them).
+    pub announce_kidnaps: bool,
 }
 
 /// Where the job is: a session starts, or one scan was fed.
@@ -588,7 +594,7 @@ impl AtlasJob {
         let mut previous_odometry = None;
         for (k, record) in session.log.scans.iter().enumerate() {
             progress(AtlasProgress::Scan);
-            if session.kidnaps.contains(&k) {
+            if self.options.announce_kidnaps && session.kidnaps.contains(&k) {
                 engine
                     .end_epoch(EpochEndReason::Kidnap)
                     .map_err(|e| JobError::failed(&e))?;

@@ -135,20 +135,20 @@ impl PyAtlas {
         Ok(dict)
     }
 
-    /// Ends the epoch (`"kidnap"`, `"restart"` or `"tracking_failure"`): the next scan starts
+    /// Ends the epoch (`"kidnap"`, `"restart"` or `"tracking_lost"`): the next scan starts
     /// a new one, which place recognition may merge into the maps so far. Returns the events.
     #[pyo3(signature = (reason = "kidnap"))]
     fn end_epoch<'py>(&mut self, py: Python<'py>, reason: &str) -> PyResult<Bound<'py, PyAny>> {
         let reason = match reason {
             "kidnap" => EpochEndReason::Kidnap,
             "restart" => EpochEndReason::Restart,
-            "tracking_failure" => EpochEndReason::TrackingFailure,
+            "tracking_lost" => EpochEndReason::TrackingLost,
             other => {
                 return Err(bad_input(
                     py,
                     format!(
                         "invalid value '{other}' for reason: possible values are kidnap, \
-                         restart, tracking_failure"
+                         restart, tracking_lost"
                     ),
                 ))
             }
@@ -330,6 +330,7 @@ pub fn run_atlas<'py>(
                 pictures,
                 store,
                 keep_versions,
+                announce_kidnaps: true,
             })?;
             let logs = logs
                 .iter()

@@ -28,6 +28,11 @@ impl ScanAnchors {
         self.anchors.push((node, node_from_robot));
     }
 
+    /// Keeps the first `len` scans' anchors (scans taken back to be fed again).
+    pub fn truncate(&mut self, len: usize) {
+        self.anchors.truncate(len);
+    }
+
     /// Number of scans anchored.
     pub fn len(&self) -> usize {
         self.anchors.len()

@@ -14,13 +14,18 @@
 
 mod anchors;
 mod keyframe;
+mod lost;
 mod submap;
 mod tracker;
 
 pub use anchors::{NodesBefore, ScanAnchors};
 pub use keyframe::KeyframePolicy;
+pub use lost::{
+    LostCause, LostDetector, LostParams, LostReport, OffReading, ReadScan, TrackingState, Verdict,
+};
 pub use submap::Submap;
 pub use tracker::{
     edge_information, odometry_covariance, KeyframeInsertion, LocalTracker, RefineFirst,
-    TrackedScan, TrackerError, TrackerInfo, TrackerParams, LOOP_BRANCH_AND_BOUND_DEPTH,
+    TrackedScan, TrackerError, TrackerInfo, TrackerParams, TrackingReading,
+    LOOP_BRANCH_AND_BOUND_DEPTH,
 };

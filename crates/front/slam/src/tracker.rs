@@ -24,6 +24,7 @@ use mapmerge_scanmatch::{ScanMatchError, ScanMatchParams, ScanMatcher, SearchWin
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::lost::{LostDetector, LostParams, LostReport, OffReading, TrackingState, Verdict};
 use crate::submap::Submap;
 use crate::KeyframePolicy;
 
@@ -40,6 +41,14 @@ pub enum TrackerError {
     /// The matcher's parameters are invalid, or a submap outgrew the matcher's grid limit.
     #[error(transparent)]
     Matcher(#[from] ScanMatchError),
+    /// A bound of the tracking-failure detector is out of range.
+    #[error("parameter tracker.lost.{field}: {reason}")]
+    Parameter {
+        /// The field.
+        field: &'static str,
+        /// Why.
+        reason: String,
+    },
 }
 
 /// Parameters of the tracker, one default for every log (no per-log tuning).
@@ -71,6 +80,9 @@ pub struct TrackerParams {
     /// heading (rad) `c + e·|Δθ| + f·d` as `(a, b, c, e, f)` (default: 2 cm + 10 %,
     /// 1° + 10 % + 2°/m). Loose on purpose: it decides only where scans say little.
     pub odometry_prior: (f64, f64, f64, f64, f64),
+    /// The tracking-failure detector (Colosi et al. 2019's states; null: never lost, as a
+    /// single-log SLAM run wants).
+    pub lost: Option<LostParams>,
 }
 
 impl Default for TrackerParams {
@@ -85,6 +97,7 @@ impl Default for TrackerParams {
             max_match_range_m: 20.0,
             min_edge_sigma: (0.01, 0.2f64.to_radians()),
             odometry_prior: (0.02, 0.1, 1f64.to_radians(), 0.1, 2f64.to_radians()),
+            lost: Some(LostParams::default()),
         }
     }
 }
@@ -139,6 +152,11 @@ fn odometry_matcher_params() -> ScanMatchParams {
     params
 }
 
+/// Cells of the free space a scan's rays cross when it is read against the submap (m) …
+const SEEN_THROUGH_CELL_M: f64 = 0.1;
+/// … and at most about this many submap points read.
+const SEEN_THROUGH_POINTS: usize = 4000;
+
 /// Branch-and-bound depth of finished submaps: 128-cell blocks, a few roots per angle for
 /// loop windows up to ±7 m at 5 cm.
 pub const LOOP_BRANCH_AND_BOUND_DEPTH: usize = 7;
@@ -166,13 +184,42 @@ pub struct KeyframeInsertion {
     pub finished_submap: Option<Submap>,
 }
 
+/// How well one scan was tracked: what a tracking-failure detector reads
+/// ([`crate::LostDetector`]). All `None` when the scan was not matched (no submap yet, or no
+/// acceptable match).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackingReading {
+    /// The match's score (mean likelihood of the points in the submap, `[0, 1]`).
+    pub score: Option<f64>,
+    /// Fraction of the points ICP paired with the submap, when ICP ran.
+    pub inlier_fraction: Option<f64>,
+    /// How far the match moved the odometry prediction, in standard deviations of the
+    /// odometry prior (Mahalanobis distance, before the two are fused).
+    pub correction_sigma: Option<f64>,
+    /// Read only when the match failed or jumped: the share of the submap's points near the
+    /// robot that lie where the scan saw through, at the predicted pose (the scan
+    /// contradicts the map there; new ground the map does not cover contradicts nothing).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seen_through: Option<f64>,
+    /// The odometry window found nothing and a wider search in the submap did
+    /// ([`crate::LostParams::relocalize_window`]): the score and correction are that match's.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub relocalized: bool,
+}
+
 /// What happened to one scan.
 #[derive(Debug)]
 pub struct TrackedScan {
     /// The scan's pose in the tracker's local frame after matching.
     pub local_from_robot: Se2,
-    /// Match score, when the scan was matched.
-    pub score: Option<f64>,
+    /// How well it was tracked (the match's score and more).
+    pub reading: TrackingReading,
+    /// The tracker's state after it: while relocalizing, scans make no keyframe and change
+    /// no submap.
+    pub state: TrackingState,
+    /// When this scan made the tracker lost: why, and the scans in doubt (this one last),
+    /// which belong to a new epoch.
+    pub lost: Option<LostReport>,
     /// The keyframe the scan hangs on and its pose in that keyframe's frame.
     pub anchor: (NodeId, Se2),
     /// The keyframe the scan became.
@@ -198,6 +245,32 @@ pub struct TrackerInfo {
     pub matching_seconds: f64,
     /// Wall time (s) of inserting keyframes into submaps and finishing submaps.
     pub submaps_seconds: f64,
+    /// Scans relocalized by the wider search, read in doubt (relocalizing), and times the
+    /// tracker lost track.
+    pub relocalized: usize,
+    pub in_doubt: usize,
+    pub lost: usize,
+}
+
+impl std::ops::Add for TrackerInfo {
+    type Output = Self;
+
+    /// The counters of two runs (epochs) together.
+    fn add(self, other: Self) -> Self {
+        Self {
+            scans: self.scans + other.scans,
+            matched: self.matched + other.matched,
+            odometry_only: self.odometry_only + other.odometry_only,
+            refined: self.refined + other.refined,
+            keyframes: self.keyframes + other.keyframes,
+            submaps: self.submaps + other.submaps,
+            matching_seconds: self.matching_seconds + other.matching_seconds,
+            submaps_seconds: self.submaps_seconds + other.submaps_seconds,
+            relocalized: self.relocalized + other.relocalized,
+            in_doubt: self.in_doubt + other.in_doubt,
+            lost: self.lost + other.lost,
+        }
+    }
 }
 
 /// The current keyframe: its node, local pose, wheel-odometry pose, scans since it.
@@ -222,12 +295,18 @@ pub struct LocalTracker {
     /// Travel (m) when the newest submap started.
     newest_submap_started_m: f64,
     info: TrackerInfo,
+    detector: Option<LostDetector>,
 }
 
 impl LocalTracker {
     /// A tracker with no scans yet.
     pub fn new(params: TrackerParams) -> Result<Self, TrackerError> {
+        if let Some(lost) = &params.lost {
+            lost.validate()
+                .map_err(|(field, reason)| TrackerError::Parameter { field, reason })?;
+        }
         Ok(Self {
+            detector: params.lost.clone().map(LostDetector::new),
             matcher: ScanMatcher::new(params.matcher)?,
             params,
             active: VecDeque::new(),
@@ -270,12 +349,14 @@ impl LocalTracker {
         Ok(taken)
     }
 
-    /// Processes the next scan, taken at wheel-odometry pose `odom_from_robot`. Should it
-    /// become a keyframe, its node is `next_node` (the graph owner's next free id).
+    /// Processes the next scan, taken at wheel-odometry pose `odom_from_robot` (stamped
+    /// `stamp_secs`, if known). Should it become a keyframe, its node is `next_node` (the
+    /// graph owner's next free id).
     pub fn add_scan(
         &mut self,
         odom_from_robot: &Se2,
         scan: &LaserScan,
+        stamp_secs: Option<f64>,
         next_node: NodeId,
     ) -> Result<TrackedScan, TrackerError> {
         let index = self.info.scans;
@@ -297,18 +378,51 @@ impl LocalTracker {
         };
         let points = scan.points_in_robot(&filter);
         let started = Instant::now();
-        let matched = self.match_to_submap(&points, &predicted);
+        let mut matched = self.match_to_submap(&points, &predicted);
+        // Colosi et al.'s relocalization in the tracker's own map: where the odometry window
+        // found nothing, a wider one around the prediction (a wheel slip, not a kidnap).
+        if matched.is_none() {
+            matched = self.relocalize(&points, &predicted);
+        }
         self.info.matching_seconds += started.elapsed().as_secs_f64();
-        let (local_from_robot, score) = match &matched {
-            Some((m, local_from_robot)) => {
+        let (mut local_from_robot, mut reading) = match &matched {
+            Some((_, local_from_robot, reading)) => {
                 self.info.matched += 1;
-                (*local_from_robot, Some(m.score))
+                (*local_from_robot, *reading)
             }
             None => {
                 self.info.odometry_only += 1;
-                (predicted, None)
+                (predicted, TrackingReading::default())
             }
         };
+        if let Some(lost) = &self.params.lost {
+            if !reading.relocalized
+                && (reading.score.is_none()
+                    || reading
+                        .correction_sigma
+                        .is_some_and(|s| s > lost.jump_sigma))
+            {
+                reading.seen_through = self.seen_through(scan, &points, &predicted);
+            }
+        }
+        // The detector reads the scan (Colosi et al.'s states): an off match in doubt is not
+        // followed, and nothing in doubt changes the map.
+        let (state, verdict) = match self.detector.as_mut() {
+            Some(detector) => {
+                let verdict = detector.observe(&reading, stamp_secs);
+                (detector.state(), verdict)
+            }
+            None => (TrackingState::Tracking, Verdict::default()),
+        };
+        let lost = verdict.lost;
+        let in_doubt = state != TrackingState::Tracking;
+        if in_doubt {
+            self.info.in_doubt += 1;
+            self.info.lost += usize::from(lost.is_some());
+            if matches!(verdict.off, Some(OffReading::NoMatch | OffReading::Jump)) {
+                local_from_robot = predicted;
+            }
+        }
         if let Some((_, previous_local)) = self.previous {
             self.travel_m += previous_local
                 .between(&local_from_robot)
@@ -319,21 +433,24 @@ impl LocalTracker {
         // 3. Keyframe or anchor.
         if let Some(current) = self.current.as_mut() {
             let keyframe_from_robot = current.local_from_robot.between(&local_from_robot);
-            if !self
-                .params
-                .keyframes
-                .is_keyframe(&keyframe_from_robot, current.scans_since + 1)
+            if in_doubt
+                || !self
+                    .params
+                    .keyframes
+                    .is_keyframe(&keyframe_from_robot, current.scans_since + 1)
             {
                 current.scans_since += 1;
                 return Ok(TrackedScan {
                     local_from_robot,
-                    score,
+                    reading,
+                    state,
+                    lost,
                     anchor: (current.node, keyframe_from_robot),
                     keyframe: None,
                 });
             }
         }
-        let submap_match = matched.map(|(m, _)| (m.target_from_query, m.covariance));
+        let submap_match = matched.map(|(m, _, _)| (m.target_from_query, m.covariance));
         let started = Instant::now();
         let insertion = self.add_keyframe(
             next_node,
@@ -345,7 +462,9 @@ impl LocalTracker {
         self.info.submaps_seconds += started.elapsed().as_secs_f64();
         Ok(TrackedScan {
             local_from_robot,
-            score,
+            reading,
+            state,
+            lost,
             anchor: (next_node, Se2::identity()),
             keyframe: Some(insertion),
         })
@@ -354,13 +473,14 @@ impl LocalTracker {
     /// Matches `points` (robot frame) predicted at `predicted` (local frame) against the
     /// older active submap: ICP from the prediction when it clearly lands in the right basin,
     /// else the correlative search over the odometry window; then directions the match does
-    /// not constrain (a corridor's axis) keep the prediction. The match in the submap frame
-    /// and the matched pose in the local frame.
+    /// not constrain (a corridor's axis) keep the prediction. The match in the submap frame,
+    /// the matched pose in the local frame and the reading.
     fn match_to_submap(
         &mut self,
         points: &[Point2],
         predicted: &Se2,
-    ) -> Option<(mapmerge_scanmatch::Match, Se2)> {
+    ) -> Option<(mapmerge_scanmatch::Match, Se2, TrackingReading)> {
+        let prior_covariance = self.prior_covariance(predicted);
         let submap = self.active.front_mut()?;
         if submap.is_empty() {
             return None;
@@ -385,11 +505,7 @@ impl LocalTracker {
                 )?
             }
         };
-        let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
-        let prior_covariance = odometry_covariance(
-            &previous_local.between(predicted),
-            &self.params.odometry_prior,
-        );
+        let reading = TrackingReading::of(&found, &guess, &prior_covariance, false);
         found.target_from_query = fuse_with_prior(
             &found.target_from_query,
             &found.covariance,
@@ -397,7 +513,79 @@ impl LocalTracker {
             &prior_covariance,
         );
         let local_from_robot = submap.local_from_submap.compose(&found.target_from_query);
-        Some((found, local_from_robot))
+        Some((found, local_from_robot, reading))
+    }
+
+    /// Covariance of the odometry increment from the previous scan to `predicted`.
+    fn prior_covariance(&self, predicted: &Se2) -> Matrix3<f64> {
+        let previous_local = self.previous.map_or(*predicted, |(_, local)| local);
+        odometry_covariance(
+            &previous_local.between(predicted),
+            &self.params.odometry_prior,
+        )
+    }
+
+    /// A match of `points` within the detector's `relocalize_window` around `predicted`
+    /// scoring at least its `relocalize_min_score`, taken as it is (the prediction is what
+    /// failed); `None` without a detector, a submap or such a match.
+    fn relocalize(
+        &mut self,
+        points: &[Point2],
+        predicted: &Se2,
+    ) -> Option<(mapmerge_scanmatch::Match, Se2, TrackingReading)> {
+        let lost = self.params.lost.as_ref()?;
+        let (linear_m, angular_rad) = lost.relocalize_window?;
+        let min_score = lost.relocalize_min_score;
+        let prior_covariance = self.prior_covariance(predicted);
+        let submap = self.active.front_mut()?;
+        if submap.is_empty() {
+            return None;
+        }
+        submap.prepare();
+        let guess = submap.local_from_submap.between(predicted);
+        let found = self.matcher.match_scan_above(
+            submap.target(),
+            points,
+            &guess,
+            &SearchWindow::new(linear_m, angular_rad),
+            min_score,
+        )?;
+        self.info.relocalized += 1;
+        let reading = TrackingReading::of(&found, &guess, &prior_covariance, true);
+        let local_from_robot = submap.local_from_submap.compose(&found.target_from_query);
+        Some((found, local_from_robot, reading))
+    }
+
+    /// The share of the older active submap's points within reach of the scan (robot at
+    /// `local_from_robot`) that lie in cells its rays crossed; `None` without a submap or
+    /// with no submap point within reach.
+    fn seen_through(
+        &self,
+        scan: &LaserScan,
+        points_in_robot: &[Point2],
+        local_from_robot: &Se2,
+    ) -> Option<f64> {
+        let submap = self.active.front()?;
+        let sensor = scan.robot_from_sensor.translation();
+        let free = mapmerge_grid::FreeSpace::from_rays(
+            SEEN_THROUGH_CELL_M,
+            points_in_robot.iter().map(|p| (sensor, *p)),
+        )
+        .ok()?;
+        let robot_from_submap = local_from_robot.between(&submap.local_from_submap);
+        let map_points = submap.target().correlative().points_in_target();
+        let stride = (map_points.len() / SEEN_THROUGH_POINTS).max(1);
+        let reach_m = f64::from(self.params.max_match_range_m);
+        let (mut near, mut crossed) = (0usize, 0usize);
+        for p in map_points.iter().step_by(stride) {
+            let q = robot_from_submap.transform_point(p);
+            if q.norm() > reach_m {
+                continue;
+            }
+            near += 1;
+            crossed += usize::from(free.is_free_around(&q));
+        }
+        (near > 0).then(|| crossed as f64 / near as f64)
     }
 
     /// Makes keyframe `node` with its edges and inserts it into the active submaps.
@@ -490,6 +678,31 @@ impl LocalTracker {
             submap: first_submap,
             finished_submap,
         })
+    }
+}
+
+impl TrackingReading {
+    /// The reading of match `found` of a scan predicted at `guess` (both in the submap
+    /// frame), the prediction's covariance `prior_covariance`: the correction is the
+    /// Mahalanobis distance `√(δᵀ Σ⁻¹ δ)` of the match from the prediction.
+    fn of(
+        found: &mapmerge_scanmatch::Match,
+        guess: &Se2,
+        prior_covariance: &Matrix3<f64>,
+        relocalized: bool,
+    ) -> Self {
+        let offset = guess.local(&found.target_from_query);
+        Self {
+            score: Some(found.score),
+            inlier_fraction: found.icp.map(|icp| icp.inlier_fraction),
+            correction_sigma: prior_covariance.try_inverse().map(|information| {
+                (offset.transpose() * information * offset)[0]
+                    .max(0.0)
+                    .sqrt()
+            }),
+            seen_through: None,
+            relocalized,
+        }
     }
 }
 

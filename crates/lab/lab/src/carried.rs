@@ -118,11 +118,12 @@ pub fn carried_log(
 
 /// One session per log (`(name, log)`), each carried and noised with `seed` (plus its index):
 /// `kidnap_at` counts the original scans over all logs from 0, and a log without one gets its
-/// kidnaps drawn ([`draw_carries`]). Every session carries its reference and its announced
-/// kidnaps.
+/// kidnaps drawn ([`draw_carries`]) when `draw_kidnaps`, else none. Every session carries its
+/// reference and its kidnaps.
 pub fn carried_sessions(
     logs: Vec<(String, LaserLog)>,
     kidnap_at: &[usize],
+    draw_kidnaps: bool,
     noise: &str,
     seed: u64,
 ) -> anyhow::Result<(Vec<mapmerge_jobs::AtlasSession>, Vec<Vec<Carry>>)> {
@@ -136,8 +137,12 @@ pub fn carried_sessions(
     for (k, ((name, log), here)) in logs.into_iter().zip(kidnaps).enumerate() {
         let session_seed = seed.wrapping_add(k as u64);
         let poses = scan_poses(&log).map_err(bad_input)?;
-        let carries = draw_carries(&poses, &here, session_seed)
-            .map_err(|e| bad_input(format!("{name}: {e}")))?;
+        let carries = if here.is_empty() && !draw_kidnaps {
+            Vec::new()
+        } else {
+            draw_carries(&poses, &here, session_seed)
+                .map_err(|e| bad_input(format!("{name}: {e}")))?
+        };
         let carried = carried_log(&log, &carries, noise, session_seed)?;
         sessions.push(mapmerge_jobs::AtlasSession {
             name,

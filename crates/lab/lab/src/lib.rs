@@ -28,6 +28,7 @@ pub mod area_truth;
 mod areas_eval;
 mod assemble_eval;
 pub mod atlas_judge;
+pub mod break_judge;
 mod calibrate_eval;
 pub mod carried;
 pub mod compare;

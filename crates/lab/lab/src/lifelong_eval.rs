@@ -17,6 +17,7 @@ use mapmerge_jobs::{AtlasJob, AtlasOptions, AtlasReport, AtlasSession};
 use mapmerge_posegraph::NodeId;
 use serde::Serialize;
 
+use crate::break_judge::{judge_breaks, BreakJudgement, DETECT_WITHIN_SCANS};
 use crate::map_judge::{judge_maps, Frames, MapsJudgement, SegmentJudgement};
 use crate::print_json;
 use crate::protrusion_eval::seeds;
@@ -46,6 +47,14 @@ pub struct LifelongEvalArgs {
     /// Engine parameters as JSON (any subset).
     #[arg(long)]
     pub config: Option<PathBuf>,
+    /// Withhold the kidnaps from the engine (the honest stream): its tracking-failure
+    /// detector must notice them. They are still judged.
+    #[arg(long)]
+    pub hide_kidnaps: bool,
+    /// Carry the logs nowhere (no kidnaps; with `--hide-kidnaps`, every epoch break the
+    /// engine makes is a false one).
+    #[arg(long)]
+    pub no_kidnaps: bool,
     /// Folder for every run's outputs (`<run>/maps/…`).
     #[arg(short, long)]
     pub output: PathBuf,
@@ -146,11 +155,16 @@ pub struct RunRow {
     pub merged_maps: Vec<(String, Option<f64>, Option<f64>)>,
     /// With `--diagnose`.
     pub queries: Option<QueryStages>,
+    /// The engine's `tracking_lost` breaks against the true kidnaps.
+    pub breaks: BreakJudgement,
 }
 
 #[derive(Serialize)]
 struct Report {
     runs: Vec<RunRow>,
+    /// Over every run: kidnaps detected, false breaks and travel.
+    breaks: BreakJudgement,
+    false_breaks_per_500_m: Option<f64>,
     revisiting: usize,
     merged: usize,
     misplaced: usize,
@@ -177,6 +191,7 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
             let (sessions, _) = crate::carried::carried_sessions(
                 vec![(name.clone(), log.clone())],
                 &[],
+                !args.no_kidnaps,
                 &args.noise,
                 seed,
             )?;
@@ -207,6 +222,10 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
     };
     let (conditional, full) = (all(|r| &r.to_conditional_m), all(|r| &r.to_full_m));
     let scans = sum(|r| r.scans);
+    let mut breaks = BreakJudgement::default();
+    for r in &runs {
+        breaks.add(&r.breaks);
+    }
     let ms: f64 = runs.iter().map(|r| r.ms_per_scan * r.scans as f64).sum();
     let report = Report {
         revisiting: sum(|r| r.revisiting),
@@ -218,6 +237,8 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         to_full_median_m: quantile(&full, 0.5),
         to_full_p90_m: quantile(&full, 0.9),
         ms_per_scan: ms / scans.max(1) as f64,
+        false_breaks_per_500_m: breaks.false_per_500_m(),
+        breaks,
         queries: args.diagnose.then(|| {
             let mut all = QueryStages::default();
             for q in runs.iter().filter_map(|r| r.queries.as_ref()) {
@@ -277,6 +298,18 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         m(report.to_full_p90_m),
         report.ms_per_scan
     );
+    let b = &report.breaks;
+    println!(
+        "kidnaps detected within {DETECT_WITHIN_SCANS} scans: {} of {} ({} later); false breaks {} over {:.0} m ({} per 500 m)",
+        b.detected,
+        b.kidnaps,
+        b.late,
+        b.false_breaks,
+        b.travel_m,
+        report
+            .false_breaks_per_500_m
+            .map_or_else(|| "-".to_owned(), |r| format!("{r:.2}"))
+    );
     if let Some(q) = &report.queries {
         println!(
             "merge queries at true revisits: {}; a true place retrieved {}, admitted {}, verified to the true pose {} ({} at the acceptance score), accepted {}; wrong matches accepted {}",
@@ -307,6 +340,7 @@ fn run_one(
         pictures: false,
         store: None,
         keep_versions: 1,
+        announce_kidnaps: !args.hide_kidnaps,
     })
     .map_err(crate::job_error)?;
     let done = job.run(sessions, |_| {}).map_err(crate::job_error)?;
@@ -372,6 +406,7 @@ fn run_one(
         ms_per_scan: report.ms_per_scan,
         merged_maps: merged_maps(&judged),
         queries: args.diagnose.then(|| query_stages(&done, params)),
+        breaks: judge_breaks(done.engine.events(), sessions),
     })
 }
 

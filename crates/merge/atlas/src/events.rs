@@ -18,8 +18,10 @@ pub enum EpochEndReason {
     Kidnap,
     /// The robot was switched off and on again (a new log or session).
     Restart,
-    /// The front-end lost track (no usable data, failed matching).
-    TrackingFailure,
+    /// The engine noticed it lost track (its tracking-failure detector: failed matching, a
+    /// jump against the odometry, a gap in the stamps), or the caller says so.
+    #[serde(alias = "tracking_failure")]
+    TrackingLost,
     /// Anything else, in words.
     Other(String),
 }

@@ -38,7 +38,7 @@ fn map_scans(
         let record = &log.scans[index];
         odometry = record.odom_from_robot.unwrap_or(odometry);
         let tracked = tracker
-            .add_scan(&odometry, &record.scan, atlas.next_node_id())
+            .add_scan(&odometry, &record.scan, None, atlas.next_node_id())
             .unwrap();
         let Some(insertion) = tracked.keyframe else {
             continue;

@@ -438,7 +438,7 @@ fn pruning_is_free_again_after_the_epoch_ends() {
         )
         .unwrap();
     assert!(!atlas.can_prune(old[1]));
-    let ended = atlas.end_epoch(EpochEndReason::TrackingFailure);
+    let ended = atlas.end_epoch(EpochEndReason::TrackingLost);
     assert!(matches!(
         &ended[0],
         mapmerge_atlas::AtlasEvent::EpochEnded { finalized_merges, .. } if finalized_merges.len() == 1
