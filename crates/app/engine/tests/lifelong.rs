@@ -578,6 +578,24 @@ fn a_disagreement_bound_of_no_edge_is_refused() {
     }
 }
 
+/// A tracking-failure bound out of range is refused with its field's name, and a run with
+/// the detector off (`tracker.lost: null`) is allowed.
+#[test]
+fn a_tracking_failure_bound_out_of_range_is_refused() {
+    let mut engine_params = EngineParams::default();
+    if let Some(lost) = engine_params.tracker.lost.as_mut() {
+        lost.off_to_lose = 0;
+    }
+    let message = Engine::new(engine_params).err().map(|e| e.to_string());
+    assert_eq!(
+        message.as_deref(),
+        Some("parameter tracker.lost.off_to_lose: 0 would lose track on every scan")
+    );
+    let mut engine_params = EngineParams::default();
+    engine_params.tracker.lost = None;
+    assert!(Engine::new(engine_params).is_ok());
+}
+
 #[test]
 fn a_match_verified_where_a_hypothesis_says_is_searched_for_a_rival_nearby() {
     // The warehouse's aisles repeat: a match verified where a tracked hypothesis puts the
