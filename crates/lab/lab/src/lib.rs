@@ -44,6 +44,7 @@ pub mod sim;
 pub mod sim_graph;
 pub mod slam_judge;
 pub mod split;
+pub mod start_judge;
 
 pub use eval::{run as run_eval, EvalArgs, INDEX_HEADER};
 

@@ -21,6 +21,7 @@ use crate::break_judge::{judge_breaks, BreakJudgement, DETECT_WITHIN_SCANS};
 use crate::map_judge::{judge_maps, Frames, MapsJudgement, SegmentJudgement};
 use crate::print_json;
 use crate::protrusion_eval::seeds;
+use crate::start_judge::{judge_starts, StartJudgement, START_LOCALIZED_WITHIN_M};
 
 /// Arguments of `mapmerge eval lifelong`.
 #[derive(Args, Debug)]
@@ -157,6 +158,8 @@ pub struct RunRow {
     pub queries: Option<QueryStages>,
     /// The engine's `tracking_lost` breaks against the true kidnaps.
     pub breaks: BreakJudgement,
+    /// How each later session started (simulated runs).
+    pub starts: StartJudgement,
 }
 
 #[derive(Serialize)]
@@ -165,6 +168,9 @@ struct Report {
     /// Over every run: kidnaps detected, false breaks and travel.
     breaks: BreakJudgement,
     false_breaks_per_500_m: Option<f64>,
+    /// Over every simulated run: later sessions, those starting covered, and started
+    /// localized within 2 m correctly and wrongly.
+    starts: StartJudgement,
     revisiting: usize,
     merged: usize,
     misplaced: usize,
@@ -223,8 +229,10 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
     let (conditional, full) = (all(|r| &r.to_conditional_m), all(|r| &r.to_full_m));
     let scans = sum(|r| r.scans);
     let mut breaks = BreakJudgement::default();
+    let mut starts = StartJudgement::default();
     for r in &runs {
         breaks.add(&r.breaks);
+        starts.add(&r.starts);
     }
     let ms: f64 = runs.iter().map(|r| r.ms_per_scan * r.scans as f64).sum();
     let report = Report {
@@ -239,6 +247,7 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
         ms_per_scan: ms / scans.max(1) as f64,
         false_breaks_per_500_m: breaks.false_per_500_m(),
         breaks,
+        starts,
         queries: args.diagnose.then(|| {
             let mut all = QueryStages::default();
             for q in runs.iter().filter_map(|r| r.queries.as_ref()) {
@@ -310,6 +319,17 @@ pub fn run(args: &LifelongEvalArgs) -> anyhow::Result<()> {
             .false_breaks_per_500_m
             .map_or_else(|| "-".to_owned(), |r| format!("{r:.2}"))
     );
+    let st = &report.starts;
+    if st.sessions > 0 {
+        println!(
+            "later sessions: {}; starting where an earlier session passed: {}; started localized within {START_LOCALIZED_WITHIN_M} m: {} correctly, {} wrongly; travel to the first correct merge, median {} m",
+            st.sessions,
+            st.covered,
+            st.localized,
+            st.wrongly,
+            quantile(&st.to_localized_m, 0.5).map_or_else(|| "-".to_owned(), |d| format!("{d:.1}"))
+        );
+    }
     if let Some(q) = &report.queries {
         println!(
             "merge queries at true revisits: {}; a true place retrieved {}, admitted {}, verified to the true pose {} ({} at the acceptance score), accepted {}; wrong matches accepted {}",
@@ -343,7 +363,15 @@ fn run_one(
         announce_kidnaps: !args.hide_kidnaps,
     })
     .map_err(crate::job_error)?;
-    let done = job.run(sessions, |_| {}).map_err(crate::job_error)?;
+    let mut done = job.run(sessions, |_| {}).map_err(crate::job_error)?;
+    // Sessions that share one truth frame (the simulator's): how each later one started.
+    let started = match frames {
+        Frames::Shared => {
+            crate::atlas_judge::judge_atlas(&mut done, sessions);
+            judge_starts(done.engine.events(), &done.report.merges, sessions)
+        }
+        Frames::PerSession => StartJudgement::default(),
+    };
     let judged = judge_maps(&output, sessions, frames)?;
     let report = &done.report;
     let starts = session_starts(sessions);
@@ -407,6 +435,7 @@ fn run_one(
         merged_maps: merged_maps(&judged),
         queries: args.diagnose.then(|| query_stages(&done, params)),
         breaks: judge_breaks(done.engine.events(), sessions),
+        starts: started,
     })
 }
 
