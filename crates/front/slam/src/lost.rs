@@ -225,7 +225,6 @@ pub struct LostDetector {
     in_doubt: Vec<ReadScan>,
     off_in_doubt: usize,
     good_in_a_row: usize,
-    last_off: Option<OffReading>,
     /// The doubt began with a gap in the stamps.
     after_gap: bool,
 }
@@ -241,7 +240,6 @@ impl LostDetector {
             in_doubt: Vec::new(),
             off_in_doubt: 0,
             good_in_a_row: 0,
-            last_off: None,
             after_gap: false,
         }
     }
@@ -254,15 +252,6 @@ impl LostDetector {
     /// Reads the next scan: its reading and stamp. The verdict holds the report when this
     /// scan made the tracker lost; the detector then starts over (warming up).
     pub fn observe(&mut self, reading: &TrackingReading, stamp_s: Option<f64>) -> Verdict {
-        let lost = self.read(reading, stamp_s);
-        Verdict {
-            off: self.last_off,
-            lost,
-        }
-    }
-
-    fn read(&mut self, reading: &TrackingReading, stamp_s: Option<f64>) -> Option<LostReport> {
-        self.last_off = None;
         if self.state == TrackingState::Lost {
             self.state = TrackingState::Tracking;
         }
@@ -276,13 +265,12 @@ impl LostDetector {
         let warm = self.matched >= self.params.warm_up_scans;
         self.matched += usize::from(reading.score.is_some());
         if !warm {
-            return None;
+            return Verdict::default();
         }
         let jump = reading.correction_sigma.unwrap_or(0.0);
         let gap = stamp_gap_s
             .zip(self.params.doubt_gap_s)
             .is_some_and(|(gap, bound)| gap > bound);
-        // A good match: within `recover_sigma` of the prediction, as clean as tracking.
         // A good match: within `recover_sigma` of the prediction, as clean as tracking; or
         // found by the wider search (a slip) within `lost_jump_sigma`.
         let good = reading.score.is_some()
@@ -307,7 +295,7 @@ impl LostDetector {
         } else {
             None
         };
-        self.last_off = off;
+        let verdict = |lost| Verdict { off, lost };
         let read = ReadScan {
             reading: *reading,
             stamp_gap_s,
@@ -315,11 +303,11 @@ impl LostDetector {
         };
         if jump > self.params.lost_jump_sigma {
             self.in_doubt.push(read);
-            return Some(self.lose(LostCause::Jump));
+            return verdict(Some(self.lose(LostCause::Jump)));
         }
         if self.state == TrackingState::Tracking && off.is_none() {
             self.after_gap = false;
-            return None;
+            return verdict(None);
         }
         self.state = TrackingState::Relocalizing;
         self.in_doubt.push(read);
@@ -335,18 +323,18 @@ impl LostDetector {
             None => self.good_in_a_row = 0,
         }
         if self.off_in_doubt >= self.params.off_to_lose {
-            return Some(self.lose(LostCause::OffReadings));
+            return verdict(Some(self.lose(LostCause::OffReadings)));
         }
         if self.good_in_a_row >= self.params.good_to_recover {
             self.recover();
         } else if self.in_doubt.len() >= self.params.max_doubt_scans {
             if self.off_in_doubt > 0 {
-                return Some(self.lose(LostCause::Unresolved));
+                return verdict(Some(self.lose(LostCause::Unresolved)));
             }
             // Only a stamp gap, and nothing contradicted the map since.
             self.recover();
         }
-        None
+        verdict(None)
     }
 
     fn recover(&mut self) {
@@ -362,10 +350,8 @@ impl LostDetector {
             cause,
             in_doubt: std::mem::take(&mut self.in_doubt),
         };
-        let off = self.last_off;
         *self = Self::new(self.params.clone());
         self.state = TrackingState::Lost;
-        self.last_off = off;
         report
     }
 }
