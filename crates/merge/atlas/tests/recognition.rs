@@ -533,3 +533,62 @@ fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
         .view_surroundings(MapId(3), view, 12.0, 2.0, 8)
         .is_none());
 }
+
+/// A new session (`EpochEndReason::Restart`, or an atlas restored between sessions, as
+/// from a store) searches the stored map from its first keyframe
+/// (`recognition.search_at_session_start`) and finds its pose there; a kidnapped robot's
+/// epoch waits for `recognition.min_epoch_keyframes` as before.
+#[test]
+fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
+    let world = world();
+    let tour = along(&[
+        (0.0, 0.0),
+        (12.0, 0.0),
+        (12.0, 4.0),
+        (16.0, 5.0),
+        (16.0, 8.0),
+    ]);
+    // The new epoch's first keyframes: turning on the spot near the tour's start.
+    let start = Se2::new(1.0, 0.3, 0.4);
+    let first: Vec<Se2> = (0..3)
+        .map(|i| start.compose(&Se2::new(0.0, 0.0, 0.3 * i as f64)))
+        .collect();
+    let search = |reason: EpochEndReason, restore: bool| {
+        let params = AtlasParams::default();
+        let mut atlas = Atlas::new(params.clone()).unwrap();
+        add_epoch(&mut atlas, &world, &tour, &Se2::identity());
+        atlas.end_epoch(reason);
+        if restore {
+            let snapshot = atlas.snapshot().unwrap();
+            atlas = Atlas::restore(params, Default::default(), snapshot).unwrap();
+        }
+        let nodes = add_epoch(&mut atlas, &world, &first, &start);
+        let verifier = default_verifier().unwrap();
+        let node = *nodes.last().unwrap();
+        let found = atlas.search_constraints(node, &verifier).unwrap();
+        (
+            found.merge_candidates,
+            atlas.constraint_info().merge_queries,
+        )
+    };
+    let (candidates, queries) = search(EpochEndReason::Kidnap, false);
+    assert_eq!(queries, 0, "a kidnapped robot's epoch waits");
+    assert!(candidates.is_empty());
+    for restore in [false, true] {
+        let (candidates, queries) = search(EpochEndReason::Restart, restore);
+        assert_eq!(
+            queries, 1,
+            "a new session searches at once (restored: {restore})"
+        );
+        let truth = start.inverse(); // active (new session) from inactive (world)
+        let found = candidates
+            .first()
+            .expect("the start is found in the stored map");
+        let error = truth.between(&found.active_from_inactive);
+        assert!(
+            error.translation().norm() < 0.2 && error.theta_rad.abs() < 2f64.to_radians(),
+            "{:?} vs {truth:?}",
+            found.active_from_inactive
+        );
+    }
+}
