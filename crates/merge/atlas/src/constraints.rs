@@ -558,13 +558,11 @@ impl<B: BackupStore> Atlas<B> {
     }
 
     /// True while a new session looks for its pose in the stored maps: the epoch a restart
-    /// began, before it has `recognition.min_epoch_keyframes` and before any merge
-    /// (`recognition.search_at_session_start`).
+    /// began, before it has travelled `recognition.session_start_search_m` and before any
+    /// merge.
     fn starting_session(&self) -> bool {
-        let recognition = &self.params.recognition;
-        recognition.search_at_session_start
-            && self.constraints.session_start
-            && self.constraints.epoch_keyframes < recognition.min_epoch_keyframes
+        self.constraints.session_start
+            && self.constraints.travel_m < self.params.recognition.session_start_search_m
             && !self.is_undoable()
     }
 

@@ -536,7 +536,7 @@ fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
 
 /// A new session (`EpochEndReason::Restart`, or an atlas restored between sessions, as
 /// from a store) searches the stored map from its first keyframe
-/// (`recognition.search_at_session_start`) and finds its pose there; a kidnapped robot's
+/// (`recognition.session_start_search_m`) and finds its pose there; a kidnapped robot's
 /// epoch waits for `recognition.min_epoch_keyframes` as before.
 #[test]
 fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
