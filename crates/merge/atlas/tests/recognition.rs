@@ -121,6 +121,18 @@ fn along(corners: &[(f64, f64)]) -> Vec<Se2> {
     poses
 }
 
+/// A tour of the room (world frame).
+fn room_tour() -> Vec<Se2> {
+    along(&[
+        (0.0, 0.0),
+        (12.0, 0.0),
+        (12.0, 4.0),
+        (16.0, 5.0),
+        (16.0, 8.0),
+        (8.0, 8.0),
+    ])
+}
+
 #[test]
 fn recognition_merges_onto_the_true_transform_and_unmerge_restores() {
     merges_onto_the_true_transform(AtlasParams::default());
@@ -271,19 +283,7 @@ fn merges_onto_the_true_transform_after(params: AtlasParams, restore: bool) {
     let world = world();
     let mut atlas = Atlas::new(params.clone()).unwrap();
     // Epoch 0 tours the room in the world frame.
-    add_epoch(
-        &mut atlas,
-        &world,
-        &along(&[
-            (0.0, 0.0),
-            (12.0, 0.0),
-            (12.0, 4.0),
-            (16.0, 5.0),
-            (16.0, 8.0),
-            (8.0, 8.0),
-        ]),
-        &Se2::identity(),
-    );
+    add_epoch(&mut atlas, &world, &room_tour(), &Se2::identity());
     atlas.end_epoch(EpochEndReason::Kidnap);
     if restore {
         let snapshot = atlas.snapshot().unwrap();
@@ -337,16 +337,9 @@ fn maintenance_keeps_the_atlas_bounded_and_its_map_close_to_the_unpruned_one() {
     use mapmerge_atlas::{MaintenanceParams, MergeRequest, RenderedMap};
     use mapmerge_grid::ClassThresholds;
     let world = world();
-    let tour = along(&[
-        (0.0, 0.0),
-        (12.0, 0.0),
-        (12.0, 4.0),
-        (16.0, 5.0),
-        (16.0, 8.0),
-        (8.0, 8.0),
-        (1.0, 8.0),
-        (1.5, 1.0),
-    ]);
+    // The room's tour, then back along the left wall.
+    let mut tour = room_tour();
+    tour.extend(along(&[(8.0, 8.0), (1.0, 8.0), (1.5, 1.0)]));
     let run = |prune: bool| {
         let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
         let params = MaintenanceParams {
@@ -541,13 +534,7 @@ fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
 #[test]
 fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
     let world = world();
-    let tour = along(&[
-        (0.0, 0.0),
-        (12.0, 0.0),
-        (12.0, 4.0),
-        (16.0, 5.0),
-        (16.0, 8.0),
-    ]);
+    let tour = room_tour();
     // The new epoch's first keyframes: turning on the spot near the tour's start.
     let start = Se2::new(1.0, 0.3, 0.4);
     let first: Vec<Se2> = (0..3)
