@@ -560,7 +560,7 @@ impl<B: BackupStore> Atlas<B> {
     /// True while a new session looks for its pose in the stored maps: the epoch a restart
     /// began, before it has travelled `recognition.session_start_search_m` and before any
     /// merge.
-    fn starting_session(&self) -> bool {
+    pub fn starting_session(&self) -> bool {
         self.constraints.session_start
             && self.constraints.travel_m < self.params.recognition.session_start_search_m
             && !self.is_undoable()
