@@ -85,6 +85,11 @@ pub struct DecisionParams {
     /// twin is in the map and whose own place is not, where no rival exists yet), against
     /// 62 with 23 without it.
     pub track_unique: bool,
+    /// A match a new session's start search makes (`recognition.session_start_search_m`)
+    /// counts only when the robot's local map fits nowhere else, by `track_unique`'s search:
+    /// the first metres of a session are seen from one spot, and in a periodic world one
+    /// spot fits many (default: true). Needs `self_similarity`.
+    pub start_unique: bool,
 
     /// A view of an inactive graph whose own local map fits itself at another place (a
     /// periodic or symmetric place: rack rows an aisle apart, a hall a half turn maps onto
@@ -143,6 +148,7 @@ impl Default for DecisionParams {
             confirm_every_keyframes: 2,
             track_every_keyframes: None,
             track_unique: false,
+            start_unique: true,
             probation_m: 10.0,
             self_similarity: Some(SelfSimilarityParams::default()),
             self_similar_from_score: 0.9,

@@ -718,12 +718,14 @@ impl Engine {
                 }
             }
         }
+        let starting = decisions.start_unique && self.atlas.starting_session();
         for (map, edge, covariance) in merge_matches {
+            let ambiguous = starting && self.has_rival(map, &edge);
             accepted_hypotheses.extend(self.observe_merge_match(
                 map,
                 edge,
                 &covariance,
-                false,
+                ambiguous,
                 travel_m,
             ));
         }

@@ -624,8 +624,9 @@ fn a_match_verified_where_a_hypothesis_says_is_searched_for_a_rival_nearby() {
         rivals.iter().any(|s| *s < threshold),
         "all rivals: {rivals:?}"
     );
-    // Off, nothing is searched.
+    // Off (and off for the sessions' start matches too), nothing is searched.
     engine_params.decisions.track_unique = false;
+    engine_params.decisions.start_unique = false;
     let (engine, _) = run_with(engine_params, "warehouse", 7, 3, 120.0);
     assert!(!engine
         .events()

@@ -1575,6 +1575,7 @@ fn evaluation_engine(params: &EngineParams) -> anyhow::Result<Engine> {
         ..params.clone()
     };
     params.atlas.recognition.min_epoch_keyframes = usize::MAX;
+    params.atlas.recognition.session_start_search_m = 0.0;
     Ok(Engine::new(params)?)
 }
 

@@ -485,7 +485,8 @@ impl<B: BackupStore> Atlas<B> {
         let ended = self.epoch;
         // Its keyframes not indexed yet (unfinished submaps) join the place index now.
         self.index_active_graph();
-        self.constraints.start_epoch();
+        self.constraints
+            .start_epoch(matches!(reason, EpochEndReason::Restart));
         self.map_from_local = Se2::identity();
         let graph = std::mem::take(&mut self.active);
         let map = (graph.num_vertices() > 0).then(|| {

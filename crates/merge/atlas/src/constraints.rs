@@ -282,6 +282,8 @@ pub(crate) struct ConstraintBuilder {
     loops_at_last_search: usize,
     /// Keyframes since the last search of merged data and of the inactive graphs.
     keyframes_since_merge_search: usize,
+    /// The current epoch began with a restart (a new session).
+    pub(crate) session_start: bool,
     loops: Vec<LoopRecord>,
     /// Matches the drift gate refused since the last search returned them.
     gated: Vec<LoopRecord>,
@@ -322,6 +324,7 @@ impl ConstraintBuilder {
             loops_since_optimization: 0,
             loops_at_last_search: 0,
             keyframes_since_merge_search: 0,
+            session_start: false,
             loops: Vec::new(),
             gated: Vec::new(),
             info: ConstraintInfo::default(),
@@ -329,8 +332,10 @@ impl ConstraintBuilder {
         })
     }
 
-    /// A new epoch: its submaps and drift bookkeeping start afresh (the index stays).
-    pub(crate) fn start_epoch(&mut self) {
+    /// A new epoch (`session_start`: a restart began it): its submaps and drift bookkeeping
+    /// start afresh (the index stays).
+    pub(crate) fn start_epoch(&mut self, session_start: bool) {
+        self.session_start = session_start;
         self.submaps.clear();
         self.travel_m = 0.0;
         self.travel_at_last_loop_m = 0.0;
@@ -523,8 +528,9 @@ impl<B: BackupStore> Atlas<B> {
             found.merged_loops = self.close_loops_into_merged(every, verifier)?;
         }
         self.constraints.keyframes_since_merge_search += 1;
-        if self.constraints.epoch_keyframes >= self.params.recognition.min_epoch_keyframes
-            && self.constraints.keyframes_since_merge_search >= every
+        let grown = self.constraints.epoch_keyframes >= self.params.recognition.min_epoch_keyframes;
+        if self.starting_session()
+            || (grown && self.constraints.keyframes_since_merge_search >= every)
         {
             self.constraints.keyframes_since_merge_search = 0;
             let started = Instant::now();
@@ -549,6 +555,15 @@ impl<B: BackupStore> Atlas<B> {
             self.constraints.info.merge_search_seconds += started.elapsed().as_secs_f64();
         }
         Ok(found)
+    }
+
+    /// True while a new session looks for its pose in the stored maps: the epoch a restart
+    /// began, before it has travelled `recognition.session_start_search_m` and before any
+    /// merge.
+    pub fn starting_session(&self) -> bool {
+        self.constraints.session_start
+            && self.constraints.travel_m < self.params.recognition.session_start_search_m
+            && !self.is_undoable()
     }
 
     /// Optimises the active graph when the last search added loops inside the epoch and

@@ -78,6 +78,11 @@ pub struct RecognitionParams {
     /// ... once the current epoch has at least this many keyframes (default: 10): a local
     /// map needs some travel before it is distinctive.
     pub min_epoch_keyframes: usize,
+    /// An epoch that a restart began (a new session with a stored map) searches the
+    /// inactive graphs at every keyframe from its first until it has travelled this far
+    /// (m): a new session first looks for its pose in the stored map (default: 5; 0: as any
+    /// epoch).
+    pub session_start_search_m: f64,
     /// The geometric verifier of the merge search (default: [`PlaceVerifierParams`]'s).
     pub verifier: PlaceVerifierParams,
     /// The query is also described as if seen from these offsets (m) to the robot's left
@@ -121,6 +126,7 @@ impl Default for RecognitionParams {
             min_confidence: 0.05,
             every_keyframes: 5,
             min_epoch_keyframes: 10,
+            session_start_search_m: 5.0,
             verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
             lateral_offsets_m: Vec::new(),
             trace: false,

@@ -295,6 +295,8 @@ impl<B: BackupStore> Atlas<B> {
             .vertices()
             .filter(|(_, v)| EpochId::of(&v.meta) == epoch)
             .count();
+        // A snapshot between sessions (the store's) resumes at a new session's start.
+        atlas.constraints.session_start = atlas.constraints.epoch_keyframes == 0;
         atlas.constraints.travel_m = c
             .robot
             .and_then(|r| atlas.keyframes.record(r))

@@ -121,6 +121,18 @@ fn along(corners: &[(f64, f64)]) -> Vec<Se2> {
     poses
 }
 
+/// A tour of the room (world frame).
+fn room_tour() -> Vec<Se2> {
+    along(&[
+        (0.0, 0.0),
+        (12.0, 0.0),
+        (12.0, 4.0),
+        (16.0, 5.0),
+        (16.0, 8.0),
+        (8.0, 8.0),
+    ])
+}
+
 #[test]
 fn recognition_merges_onto_the_true_transform_and_unmerge_restores() {
     merges_onto_the_true_transform(AtlasParams::default());
@@ -271,19 +283,7 @@ fn merges_onto_the_true_transform_after(params: AtlasParams, restore: bool) {
     let world = world();
     let mut atlas = Atlas::new(params.clone()).unwrap();
     // Epoch 0 tours the room in the world frame.
-    add_epoch(
-        &mut atlas,
-        &world,
-        &along(&[
-            (0.0, 0.0),
-            (12.0, 0.0),
-            (12.0, 4.0),
-            (16.0, 5.0),
-            (16.0, 8.0),
-            (8.0, 8.0),
-        ]),
-        &Se2::identity(),
-    );
+    add_epoch(&mut atlas, &world, &room_tour(), &Se2::identity());
     atlas.end_epoch(EpochEndReason::Kidnap);
     if restore {
         let snapshot = atlas.snapshot().unwrap();
@@ -337,16 +337,9 @@ fn maintenance_keeps_the_atlas_bounded_and_its_map_close_to_the_unpruned_one() {
     use mapmerge_atlas::{MaintenanceParams, MergeRequest, RenderedMap};
     use mapmerge_grid::ClassThresholds;
     let world = world();
-    let tour = along(&[
-        (0.0, 0.0),
-        (12.0, 0.0),
-        (12.0, 4.0),
-        (16.0, 5.0),
-        (16.0, 8.0),
-        (8.0, 8.0),
-        (1.0, 8.0),
-        (1.5, 1.0),
-    ]);
+    // The room's tour, then back along the left wall.
+    let mut tour = room_tour();
+    tour.extend(along(&[(8.0, 8.0), (1.0, 8.0), (1.5, 1.0)]));
     let run = |prune: bool| {
         let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
         let params = MaintenanceParams {
@@ -532,4 +525,57 @@ fn a_views_surroundings_join_its_neighbours_local_maps_in_its_frame() {
     assert!(atlas
         .view_surroundings(MapId(3), view, 12.0, 2.0, 8)
         .is_none());
+}
+
+/// A new session (`EpochEndReason::Restart`, or an atlas restored between sessions, as
+/// from a store) searches the stored map from its first keyframe
+/// (`recognition.session_start_search_m`) and finds its pose there; a kidnapped robot's
+/// epoch waits for `recognition.min_epoch_keyframes` as before.
+#[test]
+fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
+    let world = world();
+    let tour = room_tour();
+    // The new epoch's first keyframes: turning on the spot near the tour's start.
+    let start = Se2::new(1.0, 0.3, 0.4);
+    let first: Vec<Se2> = (0..3)
+        .map(|i| start.compose(&Se2::new(0.0, 0.0, 0.3 * i as f64)))
+        .collect();
+    let search = |reason: EpochEndReason, restore: bool| {
+        let params = AtlasParams::default();
+        let mut atlas = Atlas::new(params.clone()).unwrap();
+        add_epoch(&mut atlas, &world, &tour, &Se2::identity());
+        atlas.end_epoch(reason);
+        if restore {
+            let snapshot = atlas.snapshot().unwrap();
+            atlas = Atlas::restore(params, Default::default(), snapshot).unwrap();
+        }
+        let nodes = add_epoch(&mut atlas, &world, &first, &start);
+        let verifier = default_verifier().unwrap();
+        let node = *nodes.last().unwrap();
+        let found = atlas.search_constraints(node, &verifier).unwrap();
+        (
+            found.merge_candidates,
+            atlas.constraint_info().merge_queries,
+        )
+    };
+    let (candidates, queries) = search(EpochEndReason::Kidnap, false);
+    assert_eq!(queries, 0, "a kidnapped robot's epoch waits");
+    assert!(candidates.is_empty());
+    for restore in [false, true] {
+        let (candidates, queries) = search(EpochEndReason::Restart, restore);
+        assert_eq!(
+            queries, 1,
+            "a new session searches at once (restored: {restore})"
+        );
+        let truth = start.inverse(); // active (new session) from inactive (world)
+        let found = candidates
+            .first()
+            .expect("the start is found in the stored map");
+        let error = truth.between(&found.active_from_inactive);
+        assert!(
+            error.translation().norm() < 0.2 && error.theta_rad.abs() < 2f64.to_radians(),
+            "{:?} vs {truth:?}",
+            found.active_from_inactive
+        );
+    }
 }
