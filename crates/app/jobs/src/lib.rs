@@ -58,7 +58,7 @@ pub use grid_merge::{
 pub use lifelong::{
     kidnaps_per_log, log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun,
     AtlasSession, CommittedSession, MapEpoch, MapReport, MergeReport, SelfSimilarityReport,
-    SiteMap, StoreRunReport, UnmergeReport,
+    RejoinReport, SiteMap, StoreRunReport, UnmergeReport,
 };
 pub use mapmerge_store::DEFAULT_KEEP_VERSIONS;
 pub use optimize::{

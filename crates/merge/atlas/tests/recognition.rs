@@ -579,3 +579,54 @@ fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
         );
     }
 }
+
+/// Issue 66: an epoch that never merged (a fragment) rejoins the site map at the session's
+/// end, on the true transform; a fragment of a place the site never saw stays apart, and
+/// nothing rejoins with rejoining off.
+#[test]
+fn a_fragment_the_site_map_covers_rejoins_it_on_the_true_transform() {
+    use mapmerge_atlas::{AtlasEvent, RejoinParams};
+    let world = world();
+    let verifier = default_verifier().unwrap();
+    let fragmented = |params: &RejoinParams| {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        // The site: the room's tour in the world frame.
+        add_epoch(&mut atlas, &world, &room_tour(), &Se2::identity());
+        atlas.end_epoch(EpochEndReason::Restart);
+        // A fragment in its own frame, back through the room.
+        let start = Se2::new(1.0, 8.0, -1.2);
+        let path = along(&[(1.0, 8.0), (1.5, 4.0), (2.0, 0.5), (9.0, 0.5)]);
+        let fragment_nodes = add_epoch(&mut atlas, &world, &path, &start);
+        atlas.end_epoch(EpochEndReason::Restart);
+        // A fragment beyond the room's walls, where the site never was.
+        let outside: Vec<Se2> = along(&[(30.0, 0.0), (36.0, 0.0)]);
+        add_epoch(&mut atlas, &world, &outside, &Se2::new(30.0, 0.0, 0.0));
+        atlas.end_epoch(EpochEndReason::Restart);
+        let events = atlas.rejoin_fragments(params, &verifier).unwrap();
+        (atlas, events, fragment_nodes, path)
+    };
+    let (atlas, events, nodes, path) = fragmented(&RejoinParams::default());
+    assert_eq!(events.len(), 1, "{events:?}");
+    let AtlasEvent::Rejoined(rejoin) = &events[0] else {
+        panic!("{events:?}");
+    };
+    assert_eq!((rejoin.map, rejoin.into), (MapId(1), MapId(0)));
+    assert!(rejoin.loops.len() >= 2, "{rejoin:?}");
+    assert_eq!(atlas.inactive_maps().len(), 2);
+    assert!(atlas.inactive(MapId(1)).is_none());
+    let site = atlas.inactive(MapId(0)).unwrap();
+    for (node, truth) in nodes.iter().zip(&path) {
+        let d = truth.between(&site.vertex(*node).unwrap().pose);
+        assert!(
+            d.translation().norm() < 0.3 && d.theta_rad.abs() < 2f64.to_radians(),
+            "{node}: {d:?}"
+        );
+    }
+    let off = RejoinParams {
+        queries: 0,
+        ..RejoinParams::default()
+    };
+    let (atlas, events, _, _) = fragmented(&off);
+    assert!(events.is_empty());
+    assert_eq!(atlas.inactive_maps().len(), 3);
+}
