@@ -50,8 +50,14 @@ pub struct MaintenanceParams {
     /// … and heading (rad) (default: π, any heading: a 360° scan relocalises from any
     /// direction; use π/2 for lasers of 180°) …
     pub view_heading_rad: f64,
-    /// … and it is redundant unless it is in recent use ([`ViewUse::utility`] ≥ 1) and at
-    /// least this fraction of its returns fall in cells (`view_cell_m`) where no kept view of
+    /// A view not in recent use (neither made nor re-observed in the last `recent_sessions`)
+    /// is redundant when a kept view lies within this larger distance (m) (default: 2, the
+    /// verifier's window): where sessions no longer drive, the map keeps a sparser net of
+    /// views and the net of the paths driven lately stays fine, so the views stop filling in
+    /// as sessions pass (iRobot Sec. 4.1: outdated views go where others remain) …
+    pub stale_view_radius_m: f64,
+    /// … and a view is redundant unless it is in recent use (and [`ViewUse::utility`] ≥ 1) and
+    /// at least this fraction of its returns fall in cells (`view_cell_m`) where no kept view of
     /// its graph saw structure: what it adds to the map (default: 0.3; above 1: by distance
     /// alone, a fixed net).
     pub view_min_new_fraction: f64,
@@ -81,6 +87,7 @@ impl Default for MaintenanceParams {
             resolution_m: 0.05,
             view_radius_m: 0.75,
             view_heading_rad: std::f64::consts::PI,
+            stale_view_radius_m: 2.0,
             view_min_new_fraction: 0.3,
             view_cell_m: 0.2,
             recent_sessions: 5,
@@ -114,6 +121,12 @@ impl ViewUse {
             None => self.created_session == session,
         };
         f64::from(u8::from(recent)) + f64::from(self.observations) / age
+    }
+
+    /// Made or re-observed in the last `recent_sessions` sessions before `session`.
+    pub fn is_recent(&self, session: u32, recent_sessions: u32) -> bool {
+        let last = self.last_observed_session.unwrap_or(0).max(self.created_session);
+        session.saturating_sub(last) < recent_sessions
     }
 }
 
@@ -327,38 +340,40 @@ impl<B: BackupStore> Atlas<B> {
     /// Returns how many were deleted.
     fn prune_views(&mut self, params: &MaintenanceParams) -> usize {
         let session = self.sessions;
-        let mut ranked: Vec<(f64, NodeId, Option<MapId>, Se2)> = self
+        // (utility, node, graph, pose, in recent use)
+        let mut ranked: Vec<(f64, NodeId, Option<MapId>, Se2, bool)> = self
             .keyframes
             .records()
             .filter_map(|(node, _)| {
                 let (map, graph) = self.graph_of(node)?;
                 let pose = graph.vertex(node)?.pose;
-                let utility = self
-                    .views
-                    .get(&node)
-                    .map_or(1.0, |v| v.utility(session, params.recent_sessions));
-                Some((utility, node, map, pose))
+                let view = self.views.get(&node);
+                let utility = view.map_or(1.0, |v| v.utility(session, params.recent_sessions));
+                let recent = view.is_none_or(|v| v.is_recent(session, params.recent_sessions));
+                Some((utility, node, map, pose, recent))
             })
             .collect();
         // Most useful first; among equals the newest (its scan is the most up to date).
         ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)));
-        // Kept views by graph and grid cell of side `view_radius_m`; the structure cells the
-        // kept views saw, by graph.
+        // Kept views by graph and grid cell (side: the larger radius); the structure cells
+        // the kept views saw, by graph.
         let radius = params.view_radius_m.max(1e-3);
+        let stale_radius = params.stale_view_radius_m.max(radius);
         let structure_cell = params.view_cell_m.max(1e-3);
         let mut kept: BTreeMap<(Option<MapId>, i64, i64), Vec<Se2>> = BTreeMap::new();
         let mut seen: BTreeMap<Option<MapId>, HashSet<(i64, i64)>> = BTreeMap::new();
         let mut deleted = Vec::new();
-        for (utility, node, map, pose) in ranked {
+        for (utility, node, map, pose, recent) in ranked {
+            let reach = if recent { radius } else { stale_radius };
             let (cx, cy) = (
-                (pose.x_m / radius).floor() as i64,
-                (pose.y_m / radius).floor() as i64,
+                (pose.x_m / stale_radius).floor() as i64,
+                (pose.y_m / stale_radius).floor() as i64,
             );
             let near = (cx - 1..=cx + 1).any(|x| {
                 (cy - 1..=cy + 1).any(|y| {
                     kept.get(&(map, x, y)).is_some_and(|poses| {
                         poses.iter().any(|other| {
-                            (other.translation() - pose.translation()).norm() <= radius
+                            (other.translation() - pose.translation()).norm() <= reach
                                 && wrap_angle_rad(other.theta_rad - pose.theta_rad).abs()
                                     <= params.view_heading_rad
                         })
@@ -385,7 +400,8 @@ impl<B: BackupStore> Atlas<B> {
             let seen_here = seen.entry(map).or_default();
             let adds = || {
                 let new = cells.iter().filter(|c| !seen_here.contains(c)).count();
-                utility >= 1.0
+                recent
+                    && utility >= 1.0
                     && !cells.is_empty()
                     && new as f64 >= params.view_min_new_fraction * cells.len() as f64
             };

@@ -630,3 +630,53 @@ fn a_fragment_the_site_map_covers_rejoins_it_on_the_true_transform() {
     assert!(events.is_empty());
     assert_eq!(atlas.inactive_maps().len(), 3);
 }
+
+/// Issue 66: views are pruned by what they add. Three views 0.2 m apart in one graph, all
+/// new this session: the first two see one wall, the third another. The newest is placed
+/// first; the second adds its wall and stays; the first adds nothing and goes. With
+/// distance alone (a fixed net) only the newest stays.
+#[test]
+fn a_view_is_kept_near_another_only_while_it_adds_structure_the_other_did_not_see() {
+    use mapmerge_atlas::MaintenanceParams;
+    let wall = |y: f64| -> Arc<[Point2]> {
+        (-20..=20)
+            .map(|i| Point2::new(f64::from(i) * 0.1, y))
+            .collect()
+    };
+    let kept_views = |params: &MaintenanceParams| {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        let first = atlas.next_node_id();
+        let mut nodes: Vec<NodeId> = Vec::new();
+        for (k, y) in [2.0, 2.0, -2.0].into_iter().enumerate() {
+            let pose = Se2::new(0.2 * k as f64, 0.0, 0.0);
+            let node = atlas.add_vertex(Vertex::new(pose), wall(y));
+            if let Some(previous) = nodes.last() {
+                atlas
+                    .add_edge(Edge {
+                        from: *previous,
+                        to: node,
+                        measurement: Se2::new(0.2, 0.0, 0.0),
+                        information: Matrix3::identity() * 100.0,
+                        kind: EdgeKind::Odometry,
+                    })
+                    .unwrap();
+            }
+            nodes.push(node);
+        }
+        atlas.end_epoch(EpochEndReason::Restart);
+        atlas.maintain(params, first).unwrap();
+        nodes
+            .iter()
+            .map(|n| atlas.keyframes().get(*n).is_some())
+            .collect::<Vec<bool>>()
+    };
+    assert_eq!(
+        kept_views(&MaintenanceParams::default()),
+        vec![false, true, true]
+    );
+    let net = MaintenanceParams {
+        view_min_new_fraction: f64::INFINITY,
+        ..MaintenanceParams::default()
+    };
+    assert_eq!(kept_views(&net), vec![false, false, true]);
+}
