@@ -680,3 +680,38 @@ fn a_view_is_kept_near_another_only_while_it_adds_structure_the_other_did_not_se
     };
     assert_eq!(kept_views(&net), vec![false, false, true]);
 }
+
+/// Issue 66: two views 1.5 m apart both stay while in recent use (the fine net, 0.75 m);
+/// once no session made or re-observed them for `recent_sessions`, the sparser net of views
+/// out of use (2 m) keeps one.
+#[test]
+fn views_out_of_recent_use_keep_a_sparser_net() {
+    use mapmerge_atlas::MaintenanceParams;
+    let params = MaintenanceParams::default();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let first = atlas.next_node_id();
+    let wall: Arc<[Point2]> = (-20..=20)
+        .map(|i| Point2::new(f64::from(i) * 0.1, 2.0))
+        .collect();
+    let a = atlas.add_vertex(Vertex::new(Se2::identity()), wall.clone());
+    let b = atlas.add_vertex(Vertex::new(Se2::new(1.5, 0.0, 0.0)), wall);
+    atlas
+        .add_edge(Edge {
+            from: a,
+            to: b,
+            measurement: Se2::new(1.5, 0.0, 0.0),
+            information: Matrix3::identity() * 100.0,
+            kind: EdgeKind::Odometry,
+        })
+        .unwrap();
+    atlas.end_epoch(EpochEndReason::Restart);
+    let views = |atlas: &Atlas| [a, b].map(|n| atlas.keyframes().get(n).is_some());
+    atlas.maintain(&params, first).unwrap();
+    assert_eq!(views(&atlas), [true, true]);
+    for session in 1..=params.recent_sessions {
+        let first = atlas.next_node_id();
+        atlas.maintain(&params, first).unwrap();
+        let expected = if session < params.recent_sessions { [true, true] } else { [false, true] };
+        assert_eq!(views(&atlas), expected, "session {session}");
+    }
+}
