@@ -227,11 +227,7 @@ impl<B: BackupStore> Atlas<B> {
         let Some(oldest_recent) = self.session_first_nodes.first().copied() else {
             return (0, 0);
         };
-        let largest = self
-            .inactive
-            .iter()
-            .max_by_key(|(m, g)| (g.num_vertices(), std::cmp::Reverse(**m)))
-            .map(|(m, _)| *m);
+        let largest = self.site_map();
         let stale: Vec<MapId> = self
             .inactive
             .iter()
