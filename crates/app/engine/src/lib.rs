@@ -506,7 +506,8 @@ impl Engine {
     pub fn end_session(&mut self, first_node: NodeId) -> Result<MaintenanceReport, EngineError> {
         self.end_epoch(EpochEndReason::Restart)?;
         let params = self.params.atlas.maintenance.clone();
-        self.atlas.rejoin_fragments(&params.rejoin, &self.verifier)?;
+        self.atlas
+            .rejoin_fragments(&params.rejoin, &self.verifier)?;
         self.collect_events();
         let before = self.nodes_before();
         let report = self.atlas.maintain(&params, first_node)?;

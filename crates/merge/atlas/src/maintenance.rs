@@ -125,7 +125,10 @@ impl ViewUse {
 
     /// Made or re-observed in the last `recent_sessions` sessions before `session`.
     pub fn is_recent(&self, session: u32, recent_sessions: u32) -> bool {
-        let last = self.last_observed_session.unwrap_or(0).max(self.created_session);
+        let last = self
+            .last_observed_session
+            .unwrap_or(0)
+            .max(self.created_session);
         session.saturating_sub(last) < recent_sessions
     }
 }

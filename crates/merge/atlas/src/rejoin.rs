@@ -96,7 +96,12 @@ impl<B: BackupStore> Atlas<B> {
         let Some(site) = self.site_map() else {
             return Ok(events);
         };
-        let fragments: Vec<MapId> = self.inactive.keys().copied().filter(|m| *m != site).collect();
+        let fragments: Vec<MapId> = self
+            .inactive
+            .keys()
+            .copied()
+            .filter(|m| *m != site)
+            .collect();
         for fragment in fragments {
             let matches = self.fragment_matches(site, fragment, params, verifier);
             let Some(agreeing) = agreeing_matches(matches, params) else {
@@ -124,7 +129,8 @@ impl<B: BackupStore> Atlas<B> {
         params: &RejoinParams,
         verifier: &dyn GeometricVerifier,
     ) -> Vec<FragmentMatch> {
-        let (Some(site_graph), Some(graph)) = (self.inactive.get(&site), self.inactive.get(&fragment))
+        let (Some(site_graph), Some(graph)) =
+            (self.inactive.get(&site), self.inactive.get(&fragment))
         else {
             return Vec::new();
         };
@@ -171,7 +177,8 @@ impl<B: BackupStore> Atlas<B> {
         fragment: MapId,
         agreeing: Vec<FragmentMatch>,
     ) -> Result<AtlasEvent, AtlasError> {
-        let (Some(site_graph), Some(graph)) = (self.inactive.get(&site), self.inactive.get(&fragment))
+        let (Some(site_graph), Some(graph)) =
+            (self.inactive.get(&site), self.inactive.get(&fragment))
         else {
             return Err(AtlasError::MissingMap(fragment));
         };
@@ -217,7 +224,10 @@ impl<B: BackupStore> Atlas<B> {
 
 /// The largest set of matches whose transforms agree with one of them where they matched
 /// (each match's view placed by both), when it has at least `params.min_agreeing`.
-fn agreeing_matches(matches: Vec<FragmentMatch>, params: &RejoinParams) -> Option<Vec<FragmentMatch>> {
+fn agreeing_matches(
+    matches: Vec<FragmentMatch>,
+    params: &RejoinParams,
+) -> Option<Vec<FragmentMatch>> {
     let agree = |seed: &Se2, m: &FragmentMatch| {
         let d = seed
             .compose(&m.fragment_from_view)

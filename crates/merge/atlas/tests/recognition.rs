@@ -711,7 +711,11 @@ fn views_out_of_recent_use_keep_a_sparser_net() {
     for session in 1..=params.recent_sessions {
         let first = atlas.next_node_id();
         atlas.maintain(&params, first).unwrap();
-        let expected = if session < params.recent_sessions { [true, true] } else { [false, true] };
+        let expected = if session < params.recent_sessions {
+            [true, true]
+        } else {
+            [false, true]
+        };
         assert_eq!(views(&atlas), expected, "session {session}");
     }
 }
