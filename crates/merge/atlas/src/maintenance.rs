@@ -9,10 +9,11 @@
 //! 3. counts which older views (keyframes) the session re-observed: a loop or merge edge
 //!    between one of its vertices and the older vertex (Sec. 4.1's observation statistics);
 //! 4. prunes views by the information each adds (Sec. 4.1): from the most useful down, a view
-//!    is kept when no kept view of its graph lies within `view_radius_m` and
-//!    `view_heading_rad` (every region keeps a view to relocalise from), or when it is in
-//!    recent use and at least `view_min_new_fraction` of its returns fall where no kept view
-//!    saw structure; so once a place is covered, a session's views replace, not add;
+//!    is kept when no kept view of its graph lies within `view_radius_m` (a view in recent
+//!    use) or `stale_view_radius_m` (any other) and `view_heading_rad`, so every region keeps
+//!    a view to relocalise from; or when it is in recent use and at least
+//!    `view_min_new_fraction` of its returns fall where no kept view saw structure. Once a
+//!    place is covered, a session's views replace, not add;
 //! 5. prunes local maps greedily, oldest first, while the rendered map's class changes stay
 //!    within `local_map_tolerance` of its known cells (Sec. 4.3, Eq. 9, with q = the
 //!    fraction of cells whose class changes);
