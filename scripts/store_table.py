@@ -49,6 +49,8 @@ def load(out):
             "wrong_undone": report.get("wrong_undone_within_10m") or 0,
             "epochs": report["epochs_with_a_map"],
             "merged_epochs": report.get("epochs_merged_correctly") or 0,
+            "rejoins_ok": report.get("correct_rejoins") or 0,
+            "rejoins_wrong": report.get("wrong_rejoins") or 0,
         })
     return rows
 
@@ -65,7 +67,7 @@ def flatness(rows, first=20, window=20):
     result = {}
     if len(span) < 2 * window:
         return result
-    for key in ["nodes_m2", "edges_m2", "keyframes_m2", "local_maps_m2", "area_m2", "bytes",
+    for key in ["nodes_m2", "edges_m2", "keyframes_m2", "local_maps_m2", "area_m2", "all_nodes", "bytes",
                 "wall_s", "ate_m", "open_s", "commit_s", "maintain_s", "store_s"]:
         head, tail = mean(span[:window], key), mean(span[-window:], key)
         overall = mean(span, key)
@@ -100,14 +102,15 @@ def main():
         print("|---|---|---|---|---|")
         for key, f in flat.items():
             print(f"| {key} | {f['first']:.4g} | {f['last']:.4g} | {100 * f['change']:+.1f} % | {100 * f['max_moving_deviation']:.1f} % |")
-    totals = {k: sum(r[k] for r in rows) for k in ["correct", "wrong", "correct_undone", "wrong_undone", "epochs", "merged_epochs"]}
+    totals = {k: sum(r[k] for r in rows) for k in ["correct", "wrong", "correct_undone", "wrong_undone", "epochs", "merged_epochs", "rejoins_ok", "rejoins_wrong"]}
     store = [r["store_s"] for r in rows]
     print(f"\nStore overhead (open + commit, maintenance excluded): mean {statistics.fmean(store):.3f} s, "
           f"max {max(store):.3f} s; at the last session {rows[-1]['store_s']:.3f} s "
           f"(with maintenance {rows[-1]['open_s'] + rows[-1]['commit_s']:.3f} s).")
     print(f"\nMerges over all sessions: {totals['correct']} correct ({totals['correct_undone']} undone), "
           f"{totals['wrong']} wrong ({totals['wrong_undone']} undone within 10 m); "
-          f"{totals['merged_epochs']} of {totals['epochs']} epochs with a map end merged correctly.")
+          f"{totals['merged_epochs']} of {totals['epochs']} epochs with a map end merged correctly; "
+          f"fragments rejoined {totals['rejoins_ok']} correctly, {totals['rejoins_wrong']} wrongly.")
 
 
 if __name__ == "__main__":

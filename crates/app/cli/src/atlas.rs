@@ -405,6 +405,12 @@ fn print_text(run: &AtlasReport, judgement: &AtlasJudgement, maps: Option<&MapsJ
             );
         }
     }
+    for r in &run.rejoins {
+        println!(
+            "  fragment map {} (epochs {:?}, {} vertices) rejoined map {} by {} matches (score {:.3})",
+            r.map, r.epochs, r.vertices, r.into, r.loops, r.score
+        );
+    }
     if let Some(first) = run.pictures.first() {
         println!(
             "  pictures: {} ({} files); events: {}",

@@ -499,12 +499,16 @@ impl Engine {
     }
 
     /// Ends a session of a lifelong robot (iRobot Sec. 4): its epoch ends (a restart), every
-    /// merge becomes final, and the atlas is maintained with `atlas.maintenance`
+    /// merge becomes final, fragments rejoin the site map where found in it
+    /// ([`Atlas::rejoin_fragments`]), and the atlas is maintained with `atlas.maintenance`
     /// ([`Atlas::maintain`]); the session's vertices are those from `first_node` on. The next
     /// scan starts a new epoch.
     pub fn end_session(&mut self, first_node: NodeId) -> Result<MaintenanceReport, EngineError> {
         self.end_epoch(EpochEndReason::Restart)?;
         let params = self.params.atlas.maintenance.clone();
+        self.atlas
+            .rejoin_fragments(&params.rejoin, &self.verifier)?;
+        self.collect_events();
         let before = self.nodes_before();
         let report = self.atlas.maintain(&params, first_node)?;
         let atlas = &self.atlas;

@@ -57,8 +57,8 @@ pub use grid_merge::{
 };
 pub use lifelong::{
     kidnaps_per_log, log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun,
-    AtlasSession, CommittedSession, MapEpoch, MapReport, MergeReport, SelfSimilarityReport,
-    SiteMap, StoreRunReport, UnmergeReport,
+    AtlasSession, CommittedSession, MapEpoch, MapReport, MergeReport, RejoinReport,
+    SelfSimilarityReport, SiteMap, StoreRunReport, UnmergeReport,
 };
 pub use mapmerge_store::DEFAULT_KEEP_VERSIONS;
 pub use optimize::{

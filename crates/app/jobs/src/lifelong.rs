@@ -168,6 +168,29 @@ pub struct UnmergeReport {
     pub reason: String,
 }
 
+/// A fragment that joined the site map at a session's end
+/// ([`mapmerge_atlas::Atlas::rejoin_fragments`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct RejoinReport {
+    /// Scan and travel of the session's end.
+    pub scan: usize,
+    pub travel_m: f64,
+    /// The fragment, with its epochs and vertices, and the site map it joined.
+    pub map: u32,
+    pub into: u32,
+    pub epochs: Vec<u32>,
+    pub vertices: usize,
+    /// Agreeing matches that joined it, and the best one's score.
+    pub loops: usize,
+    pub score: f64,
+    /// Judged against the reference poses as a merge is (the lab's judge fills these).
+    pub correct: Option<bool>,
+    pub error_m_deg: Option<[f64; 2]>,
+    /// The joining edges `(site view, fragment view, measurement)`.
+    #[serde(skip)]
+    pub edges: Vec<(NodeId, NodeId, Se2)>,
+}
+
 /// Views of inactive graphs searched for another placement of their own local map.
 #[derive(Clone, Debug, Serialize)]
 pub struct SelfSimilarityReport {
@@ -254,6 +277,8 @@ pub struct AtlasReport {
     pub epochs_with_a_map: usize,
     pub merges: Vec<MergeReport>,
     pub unmerges: Vec<UnmergeReport>,
+    /// Fragments that joined the site map at a session's end.
+    pub rejoins: Vec<RejoinReport>,
     pub hypotheses: mapmerge_engine::HypothesisSummary,
     /// Every epoch: its merge hypotheses and how far they got (why a later epoch did or did
     /// not merge).
@@ -528,7 +553,7 @@ impl AtlasJob {
         write_atlas(&self.engine, &output.join("atlas"))?;
         let maps = write_maps(&self.engine, sessions, &session_starts, &output)?;
         let engine = &self.engine;
-        let (merges, unmerges) = summarise(engine);
+        let (merges, unmerges, rejoins) = summarise(engine);
         let epochs = engine
             .events()
             .iter()
@@ -552,6 +577,7 @@ impl AtlasJob {
             },
             merges,
             unmerges,
+            rejoins,
             hypotheses: mapmerge_engine::hypothesis_summary(engine.events()),
             epoch_outcomes: mapmerge_engine::epoch_outcomes(engine.events(), engine.travel_m()),
             ambiguous_keyframes: mapmerge_engine::ambiguous_views(engine.events()).len(),
@@ -669,8 +695,8 @@ fn write_events(engine: &Engine, path: &Path) -> Result<PathBuf, JobError> {
     Ok(path.to_path_buf())
 }
 
-/// Merges from the engine's merge log, unmerges from the events.
-fn summarise(engine: &Engine) -> (Vec<MergeReport>, Vec<UnmergeReport>) {
+/// Merges from the engine's merge log, unmerges and rejoins from the events.
+fn summarise(engine: &Engine) -> (Vec<MergeReport>, Vec<UnmergeReport>, Vec<RejoinReport>) {
     let merges = engine
         .merge_log()
         .iter()
@@ -737,7 +763,31 @@ fn summarise(engine: &Engine) -> (Vec<MergeReport>, Vec<UnmergeReport>) {
             _ => None,
         })
         .collect();
-    (merges, unmerges)
+    let rejoins = engine
+        .events()
+        .iter()
+        .filter_map(|e| match e.atlas() {
+            Some(AtlasEvent::Rejoined(r)) => Some(RejoinReport {
+                scan: e.scan,
+                travel_m: e.travel_m,
+                map: r.map.0,
+                into: r.into.0,
+                epochs: r.epochs.iter().map(|x| x.0).collect(),
+                vertices: r.vertices,
+                loops: r.loops.len(),
+                score: r.score,
+                correct: None,
+                error_m_deg: None,
+                edges: r
+                    .loops
+                    .iter()
+                    .map(|(site, fragment, [x, y, yaw])| (*site, *fragment, Se2::new(*x, *y, *yaw)))
+                    .collect(),
+            }),
+            _ => None,
+        })
+        .collect();
+    (merges, unmerges, rejoins)
 }
 
 /// Ends the session ([`Engine::end_session`]: its epoch ends, the atlas is maintained) and

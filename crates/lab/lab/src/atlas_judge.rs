@@ -75,6 +75,10 @@ pub struct AtlasJudgement {
     pub correct_undone: Option<usize>,
     pub correct_rejected: Option<usize>,
     pub epochs_merged_correctly: Option<usize>,
+    /// Fragments that rejoined the site map at a session's end, correctly and wrongly (by
+    /// the merges' rule).
+    pub correct_rejoins: Option<usize>,
+    pub wrong_rejoins: Option<usize>,
     /// Fresh runs: epochs after the first whose true path ran at least [`REVISIT_MIN_M`]
     /// within [`REVISIT_RADIUS_M`] of an earlier epoch's (the others had little or no chance
     /// to merge), those of them that end with a kept correct merge, and every epoch's
@@ -92,6 +96,12 @@ pub fn judge_atlas(run: &mut AtlasRun, sessions: &[AtlasSession]) -> AtlasJudgem
         if let Some((correct, error)) = judge_edges(references, &record.edges) {
             report.correct = Some(correct);
             report.error_m_deg = Some(error);
+        }
+    }
+    for rejoin in &mut run.report.rejoins {
+        if let Some((correct, error)) = judge_edges(references, &rejoin.edges) {
+            rejoin.correct = Some(correct);
+            rejoin.error_m_deg = Some(error);
         }
     }
     if let Some(store) = run.report.store.as_mut() {
@@ -118,6 +128,13 @@ pub fn judge_atlas(run: &mut AtlasRun, sessions: &[AtlasSession]) -> AtlasJudgem
         .map(|m| m.epoch)
         .collect();
     let correct_in = |state| correct.iter().filter(|m| m.state == state).count();
+    let rejoined = |correct: bool| {
+        run.report
+            .rejoins
+            .iter()
+            .filter(|r| r.correct == Some(correct))
+            .count()
+    };
     let epoch_revisits = epoch_revisits(run, sessions, &kept_correct);
     let revisiting = |e: &&EpochRevisit| e.revisit_travel_m >= REVISIT_MIN_M;
     AtlasJudgement {
@@ -132,6 +149,8 @@ pub fn judge_atlas(run: &mut AtlasRun, sessions: &[AtlasSession]) -> AtlasJudgem
         correct_undone: Some(correct_in(MergeState::Undone)),
         correct_rejected: Some(correct_in(MergeState::Rejected)),
         epochs_merged_correctly: Some(kept_correct.len()),
+        correct_rejoins: Some(rejoined(true)),
+        wrong_rejoins: Some(rejoined(false)),
         epochs_revisiting: epoch_revisits
             .as_ref()
             .map(|r| r.iter().filter(revisiting).count()),

@@ -1136,10 +1136,30 @@ impl<B: BackupStore> Atlas<B> {
 
     /// Active vertex `node` as a place-recognition query.
     fn query_of(&self, node: NodeId) -> Option<PlaceQuery> {
-        let (_, descriptor) = self.describe(&self.active, &[node]).pop()?;
-        let offset_descriptors = self.describe_beside(&self.active, node);
-        let keyframe = self.query_keyframe(node)?;
-        let pose = self.active.vertex(node)?.pose;
+        self.query_in(&self.active, node, false)
+    }
+
+    /// Vertex `node` of `graph` as a place-recognition query; its local map also from the
+    /// stored local maps with `stored` (a view of an older map, see
+    /// [`crate::recognition::local_map_keyframes`]).
+    pub(crate) fn query_in(
+        &self,
+        graph: &PoseGraph2,
+        node: NodeId,
+        stored: bool,
+    ) -> Option<PlaceQuery> {
+        let (_, descriptor) = self.describe(graph, &[node]).pop()?;
+        let offset_descriptors = self.describe_beside(graph, node);
+        let keyframe = local_map_keyframes(
+            graph,
+            &self.keyframes,
+            &self.params.keyframes,
+            &[node],
+            stored.then_some(&self.local_maps),
+        )
+        .into_values()
+        .next()?;
+        let pose = graph.vertex(node)?.pose;
         Some(PlaceQuery {
             node,
             pose,
@@ -1260,7 +1280,7 @@ impl<B: BackupStore> Atlas<B> {
     /// Retrieves `query`'s candidates among the keyframes of `graph` that `keep` allows from
     /// the place index, verifies them as local maps and accepts the best above
     /// `recognition.place.min_score` and `recognition.min_confidence`.
-    fn recognise(
+    pub(crate) fn recognise(
         &self,
         query: &PlaceQuery,
         graph: &mapmerge_posegraph::PoseGraph2,
@@ -1309,11 +1329,11 @@ impl<B: BackupStore> Atlas<B> {
     }
 }
 
-/// The newest keyframe as a place-recognition query.
-struct PlaceQuery {
+/// A keyframe as a place-recognition query.
+pub(crate) struct PlaceQuery {
     node: NodeId,
-    /// Its pose in the active graph.
-    pose: Se2,
+    /// Its pose in its graph.
+    pub(crate) pose: Se2,
     /// Its descriptor (the place index's kind).
     descriptor: PlaceSignature,
     /// Its descriptors as seen from `recognition.lateral_offsets_m` beside the robot.

@@ -169,6 +169,8 @@ pub enum AtlasEvent {
     Merged(MergeEvent),
     /// Every merge into the active graph was undone.
     Unmerged(UnmergeEvent),
+    /// A fragment (an inactive graph) joined the site map at a session's end.
+    Rejoined(crate::rejoin::RejoinEvent),
     /// A vertex was pruned (with its edges and scan).
     Pruned {
         /// The vertex.

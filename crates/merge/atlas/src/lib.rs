@@ -55,6 +55,7 @@ mod maintenance;
 mod merge;
 mod protrusion;
 mod recognition;
+mod rejoin;
 mod snapshot;
 
 pub use atlas::{epochs_of, AppliedMerge, Atlas, AtlasParams};
@@ -79,4 +80,5 @@ pub use protrusion::{
 pub use recognition::{
     default_verifier, KeyframeParams, MergeProposal, MergeQueryTrace, RecognitionParams,
 };
+pub use rejoin::{RejoinEvent, RejoinParams};
 pub use snapshot::{points_from_le_bytes, points_to_le_bytes, AtlasCounters, AtlasSnapshot};

@@ -8,9 +8,12 @@
 //!    map; iRobot keeps one map per robot);
 //! 3. counts which older views (keyframes) the session re-observed: a loop or merge edge
 //!    between one of its vertices and the older vertex (Sec. 4.1's observation statistics);
-//! 4. prunes views: from the most useful down, a view is kept unless a kept view of the same
-//!    graph lies within `view_radius_m` and `view_heading_rad`, so every region keeps a view
-//!    to relocalise from (Sec. 4.1);
+//! 4. prunes views by the information each adds (Sec. 4.1): from the most useful down, a view
+//!    is kept when no kept view of its graph lies within `view_radius_m` (a view in recent
+//!    use) or `stale_view_radius_m` (any other) and `view_heading_rad`, so every region keeps
+//!    a view to relocalise from; or when it is in recent use and at least
+//!    `view_min_new_fraction` of its returns fall where no kept view saw structure. Once a
+//!    place is covered, a session's views replace, not add;
 //! 5. prunes local maps greedily, oldest first, while the rendered map's class changes stay
 //!    within `local_map_tolerance` of its known cells (Sec. 4.3, Eq. 9, with q = the
 //!    fraction of cells whose class changes);
@@ -18,7 +21,7 @@
 //!    tree ([`mapmerge_posegraph::PoseGraph::marginalize_vertex`], Sec. 4.2);
 //! 7. prunes edges to `max_edges_per_vertex · |V|` ([`mapmerge_posegraph::PoseGraph::prune_edges`]).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashSet};
 use std::time::Instant;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
@@ -41,13 +44,27 @@ pub struct MaintenanceParams {
     pub prune: bool,
     /// Cell side of local maps and of the rendered map (m) (default: 0.05).
     pub resolution_m: f64,
-    /// A view is redundant when a kept view of its graph lies within this distance (m)
+    /// A view may be redundant when a kept view of its graph lies within this distance (m)
     /// (default: 0.75, chosen on the simulator's tuning seed 3: over 22 sessions 16 of 34
     /// epochs merged, against 10 at 1.5 m and 24 of 32 unpruned)…
     pub view_radius_m: f64,
     /// … and heading (rad) (default: π, any heading: a 360° scan relocalises from any
-    /// direction; use π/2 for lasers of 180°).
+    /// direction; use π/2 for lasers of 180°) …
     pub view_heading_rad: f64,
+    /// A view not in recent use (neither made nor re-observed in the last `recent_sessions`)
+    /// is redundant when a kept view lies within this larger distance (m) (default: 2, the
+    /// verifier's window): where sessions no longer drive, the map keeps a sparser net of
+    /// views and the net of the paths driven lately stays fine, so the views stop filling in
+    /// as sessions pass (iRobot Sec. 4.1: outdated views go where others remain) …
+    pub stale_view_radius_m: f64,
+    /// … and a view is redundant unless it is in recent use (and [`ViewUse::utility`] ≥ 1) and
+    /// at least this fraction of its returns fall in cells (`view_cell_m`) where no kept view of
+    /// its graph saw structure: what it adds to the map (default: 0.3; above 1: by distance
+    /// alone, a fixed net).
+    pub view_min_new_fraction: f64,
+    /// Cell side (m) at which returns count as the same structure (default: 0.2, a few
+    /// times the trackers' drift between sessions).
+    pub view_cell_m: f64,
     /// Sessions that count as recent for a view's short-term use (default: 5).
     pub recent_sessions: u32,
     /// ε_q of Eq. 9: the largest fraction of the rendered map's known cells whose class
@@ -59,6 +76,9 @@ pub struct MaintenanceParams {
     /// largest, is dropped: a fragment place recognition never joined to the site's map
     /// (default: 5; 0 keeps every graph).
     pub stale_after_sessions: u32,
+    /// Fragments searched for in the site map before maintenance, and joined to it when
+    /// found ([`Atlas::rejoin_fragments`]).
+    pub rejoin: crate::RejoinParams,
 }
 
 impl Default for MaintenanceParams {
@@ -68,10 +88,14 @@ impl Default for MaintenanceParams {
             resolution_m: 0.05,
             view_radius_m: 0.75,
             view_heading_rad: std::f64::consts::PI,
+            stale_view_radius_m: 2.0,
+            view_min_new_fraction: 0.3,
+            view_cell_m: 0.2,
             recent_sessions: 5,
             local_map_tolerance: 0.01,
             max_edges_per_vertex: 2.0,
             stale_after_sessions: 5,
+            rejoin: crate::RejoinParams::default(),
         }
     }
 }
@@ -98,6 +122,15 @@ impl ViewUse {
             None => self.created_session == session,
         };
         f64::from(u8::from(recent)) + f64::from(self.observations) / age
+    }
+
+    /// Made or re-observed in the last `recent_sessions` sessions before `session`.
+    pub fn is_recent(&self, session: u32, recent_sessions: u32) -> bool {
+        let last = self
+            .last_observed_session
+            .unwrap_or(0)
+            .max(self.created_session);
+        session.saturating_sub(last) < recent_sessions
     }
 }
 
@@ -198,11 +231,7 @@ impl<B: BackupStore> Atlas<B> {
         let Some(oldest_recent) = self.session_first_nodes.first().copied() else {
             return (0, 0);
         };
-        let largest = self
-            .inactive
-            .iter()
-            .max_by_key(|(m, g)| (g.num_vertices(), std::cmp::Reverse(**m)))
-            .map(|(m, _)| *m);
+        let largest = self.site_map();
         let stale: Vec<MapId> = self
             .inactive
             .iter()
@@ -306,48 +335,81 @@ impl<B: BackupStore> Atlas<B> {
     }
 
     /// Sec. 4.1: keeps, from the most useful view down, every view with no kept view of its
-    /// graph nearby; deletes the others' keyframes. Returns how many were deleted.
+    /// graph nearby, and every view in recent use that adds structure no kept view saw
+    /// (see [`MaintenanceParams::view_min_new_fraction`]); deletes the others' keyframes.
+    /// Returns how many were deleted.
     fn prune_views(&mut self, params: &MaintenanceParams) -> usize {
         let session = self.sessions;
-        let mut ranked: Vec<(f64, NodeId, Option<MapId>, Se2)> = self
+        // (utility, node, graph, pose, in recent use)
+        let mut ranked: Vec<(f64, NodeId, Option<MapId>, Se2, bool)> = self
             .keyframes
             .records()
             .filter_map(|(node, _)| {
                 let (map, graph) = self.graph_of(node)?;
                 let pose = graph.vertex(node)?.pose;
-                let utility = self
-                    .views
-                    .get(&node)
-                    .map_or(1.0, |v| v.utility(session, params.recent_sessions));
-                Some((utility, node, map, pose))
+                let view = self.views.get(&node);
+                let utility = view.map_or(1.0, |v| v.utility(session, params.recent_sessions));
+                let recent = view.is_none_or(|v| v.is_recent(session, params.recent_sessions));
+                Some((utility, node, map, pose, recent))
             })
             .collect();
         // Most useful first; among equals the newest (its scan is the most up to date).
         ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)));
-        // Kept views by graph and grid cell of side `view_radius_m`.
+        // Kept views by graph and grid cell (side: the larger radius); the structure cells
+        // the kept views saw, by graph.
         let radius = params.view_radius_m.max(1e-3);
+        let stale_radius = params.stale_view_radius_m.max(radius);
+        let structure_cell = params.view_cell_m.max(1e-3);
         let mut kept: BTreeMap<(Option<MapId>, i64, i64), Vec<Se2>> = BTreeMap::new();
+        let mut seen: BTreeMap<Option<MapId>, HashSet<(i64, i64)>> = BTreeMap::new();
         let mut deleted = Vec::new();
-        for (_, node, map, pose) in ranked {
+        for (utility, node, map, pose, recent) in ranked {
+            let reach = if recent { radius } else { stale_radius };
             let (cx, cy) = (
-                (pose.x_m / radius).floor() as i64,
-                (pose.y_m / radius).floor() as i64,
+                (pose.x_m / stale_radius).floor() as i64,
+                (pose.y_m / stale_radius).floor() as i64,
             );
             let near = (cx - 1..=cx + 1).any(|x| {
                 (cy - 1..=cy + 1).any(|y| {
                     kept.get(&(map, x, y)).is_some_and(|poses| {
                         poses.iter().any(|other| {
-                            (other.translation() - pose.translation()).norm() <= radius
+                            (other.translation() - pose.translation()).norm() <= reach
                                 && wrap_angle_rad(other.theta_rad - pose.theta_rad).abs()
                                     <= params.view_heading_rad
                         })
                     })
                 })
             });
-            if near {
+            // The structure cells its returns fall in (map frame).
+            let cells: HashSet<(i64, i64)> = self
+                .keyframes
+                .get(node)
+                .map(|points| {
+                    points
+                        .iter()
+                        .map(|p| {
+                            let q = pose.transform_point(p);
+                            (
+                                (q.x / structure_cell).floor() as i64,
+                                (q.y / structure_cell).floor() as i64,
+                            )
+                        })
+                        .collect()
+                })
+                .unwrap_or_default();
+            let seen_here = seen.entry(map).or_default();
+            let adds = || {
+                let new = cells.iter().filter(|c| !seen_here.contains(c)).count();
+                recent
+                    && utility >= 1.0
+                    && !cells.is_empty()
+                    && new as f64 >= params.view_min_new_fraction * cells.len() as f64
+            };
+            if near && !adds() {
                 deleted.push(node);
             } else {
                 kept.entry((map, cx, cy)).or_default().push(pose);
+                seen_here.extend(cells);
             }
         }
         for node in &deleted {

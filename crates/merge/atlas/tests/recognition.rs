@@ -579,3 +579,143 @@ fn a_new_session_searches_the_stored_map_from_its_first_keyframe() {
         );
     }
 }
+
+/// Issue 66: an epoch that never merged (a fragment) rejoins the site map at the session's
+/// end, on the true transform; a fragment of a place the site never saw stays apart, and
+/// nothing rejoins with rejoining off.
+#[test]
+fn a_fragment_the_site_map_covers_rejoins_it_on_the_true_transform() {
+    use mapmerge_atlas::{AtlasEvent, RejoinParams};
+    let world = world();
+    let verifier = default_verifier().unwrap();
+    let fragmented = |params: &RejoinParams| {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        // The site: the room's tour in the world frame.
+        add_epoch(&mut atlas, &world, &room_tour(), &Se2::identity());
+        atlas.end_epoch(EpochEndReason::Restart);
+        // A fragment in its own frame, back through the room.
+        let start = Se2::new(1.0, 8.0, -1.2);
+        let path = along(&[(1.0, 8.0), (1.5, 4.0), (2.0, 0.5), (9.0, 0.5)]);
+        let fragment_nodes = add_epoch(&mut atlas, &world, &path, &start);
+        atlas.end_epoch(EpochEndReason::Restart);
+        // A fragment beyond the room's walls, where the site never was.
+        let outside: Vec<Se2> = along(&[(30.0, 0.0), (36.0, 0.0)]);
+        add_epoch(&mut atlas, &world, &outside, &Se2::new(30.0, 0.0, 0.0));
+        atlas.end_epoch(EpochEndReason::Restart);
+        let events = atlas.rejoin_fragments(params, &verifier).unwrap();
+        (atlas, events, fragment_nodes, path)
+    };
+    let (atlas, events, nodes, path) = fragmented(&RejoinParams::default());
+    assert_eq!(events.len(), 1, "{events:?}");
+    let AtlasEvent::Rejoined(rejoin) = &events[0] else {
+        panic!("{events:?}");
+    };
+    assert_eq!((rejoin.map, rejoin.into), (MapId(1), MapId(0)));
+    assert!(rejoin.loops.len() >= 2, "{rejoin:?}");
+    assert_eq!(atlas.inactive_maps().len(), 2);
+    assert!(atlas.inactive(MapId(1)).is_none());
+    let site = atlas.inactive(MapId(0)).unwrap();
+    for (node, truth) in nodes.iter().zip(&path) {
+        let d = truth.between(&site.vertex(*node).unwrap().pose);
+        assert!(
+            d.translation().norm() < 0.3 && d.theta_rad.abs() < 2f64.to_radians(),
+            "{node}: {d:?}"
+        );
+    }
+    let off = RejoinParams {
+        queries: 0,
+        ..RejoinParams::default()
+    };
+    let (atlas, events, _, _) = fragmented(&off);
+    assert!(events.is_empty());
+    assert_eq!(atlas.inactive_maps().len(), 3);
+}
+
+/// Issue 66: views are pruned by what they add. Three views 0.2 m apart in one graph, all
+/// new this session: the first two see one wall, the third another. The newest is placed
+/// first; the second adds its wall and stays; the first adds nothing and goes. With
+/// distance alone (a fixed net) only the newest stays.
+#[test]
+fn a_view_is_kept_near_another_only_while_it_adds_structure_the_other_did_not_see() {
+    use mapmerge_atlas::MaintenanceParams;
+    let wall = |y: f64| -> Arc<[Point2]> {
+        (-20..=20)
+            .map(|i| Point2::new(f64::from(i) * 0.1, y))
+            .collect()
+    };
+    let kept_views = |params: &MaintenanceParams| {
+        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+        let first = atlas.next_node_id();
+        let mut nodes: Vec<NodeId> = Vec::new();
+        for (k, y) in [2.0, 2.0, -2.0].into_iter().enumerate() {
+            let pose = Se2::new(0.2 * k as f64, 0.0, 0.0);
+            let node = atlas.add_vertex(Vertex::new(pose), wall(y));
+            if let Some(previous) = nodes.last() {
+                atlas
+                    .add_edge(Edge {
+                        from: *previous,
+                        to: node,
+                        measurement: Se2::new(0.2, 0.0, 0.0),
+                        information: Matrix3::identity() * 100.0,
+                        kind: EdgeKind::Odometry,
+                    })
+                    .unwrap();
+            }
+            nodes.push(node);
+        }
+        atlas.end_epoch(EpochEndReason::Restart);
+        atlas.maintain(params, first).unwrap();
+        nodes
+            .iter()
+            .map(|n| atlas.keyframes().get(*n).is_some())
+            .collect::<Vec<bool>>()
+    };
+    assert_eq!(
+        kept_views(&MaintenanceParams::default()),
+        vec![false, true, true]
+    );
+    let net = MaintenanceParams {
+        view_min_new_fraction: f64::INFINITY,
+        ..MaintenanceParams::default()
+    };
+    assert_eq!(kept_views(&net), vec![false, false, true]);
+}
+
+/// Issue 66: two views 1.5 m apart both stay while in recent use (the fine net, 0.75 m);
+/// once no session made or re-observed them for `recent_sessions`, the sparser net of views
+/// out of use (2 m) keeps one.
+#[test]
+fn views_out_of_recent_use_keep_a_sparser_net() {
+    use mapmerge_atlas::MaintenanceParams;
+    let params = MaintenanceParams::default();
+    let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
+    let first = atlas.next_node_id();
+    let wall: Arc<[Point2]> = (-20..=20)
+        .map(|i| Point2::new(f64::from(i) * 0.1, 2.0))
+        .collect();
+    let a = atlas.add_vertex(Vertex::new(Se2::identity()), wall.clone());
+    let b = atlas.add_vertex(Vertex::new(Se2::new(1.5, 0.0, 0.0)), wall);
+    atlas
+        .add_edge(Edge {
+            from: a,
+            to: b,
+            measurement: Se2::new(1.5, 0.0, 0.0),
+            information: Matrix3::identity() * 100.0,
+            kind: EdgeKind::Odometry,
+        })
+        .unwrap();
+    atlas.end_epoch(EpochEndReason::Restart);
+    let views = |atlas: &Atlas| [a, b].map(|n| atlas.keyframes().get(n).is_some());
+    atlas.maintain(&params, first).unwrap();
+    assert_eq!(views(&atlas), [true, true]);
+    for session in 1..=params.recent_sessions {
+        let first = atlas.next_node_id();
+        atlas.maintain(&params, first).unwrap();
+        let expected = if session < params.recent_sessions {
+            [true, true]
+        } else {
+            [false, true]
+        };
+        assert_eq!(views(&atlas), expected, "session {session}");
+    }
+}

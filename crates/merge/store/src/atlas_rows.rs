@@ -121,6 +121,7 @@ impl Store {
         }
         finish_version(transaction, version, keep).map_err(classify)?;
         self.checkpoint()?;
+        self.reclaim()?;
         Ok(version)
     }
 

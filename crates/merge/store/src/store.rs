@@ -75,6 +75,9 @@ pub struct StoreInfo {
 /// Versions whose atlas a store keeps by default (older ones keep their row in `versions`).
 pub const DEFAULT_KEEP_VERSIONS: usize = 10;
 
+/// Free pages are reclaimed once they are this fraction of the file ([`Store::reclaim`]).
+pub const RECLAIM_FROM_FRACTION: f64 = 0.25;
+
 /// An open store, held by this process until dropped.
 pub struct Store {
     pub(crate) path: PathBuf,
@@ -312,6 +315,7 @@ impl Store {
             .map_err(classify)?;
         transaction.commit().map_err(classify)?;
         self.checkpoint()?;
+        self.reclaim()?;
         Ok(deleted)
     }
 
@@ -321,6 +325,37 @@ impl Store {
         self.connection
             .query_row("PRAGMA wal_checkpoint(TRUNCATE)", [], |_| Ok(()))
             .map_err(|e| classify(&self.path, e))
+    }
+
+    /// Reclaims free pages (SQLite's `VACUUM`) once they are at least
+    /// [`RECLAIM_FROM_FRACTION`] of the file: versions beyond [`Store::keep_versions`] and
+    /// pruned views leave pages free that SQLite reuses but never returns. Then the newest
+    /// version's recorded size is the file's again. Returns the bytes reclaimed.
+    pub(crate) fn reclaim(&self) -> Result<i64, StoreError> {
+        let classify = |e: rusqlite::Error| classify(&self.path, e);
+        let pages = |sql: &str| -> Result<i64, StoreError> {
+            self.connection
+                .query_row(sql, [], |row| row.get(0))
+                .map_err(classify)
+        };
+        let total = pages("SELECT page_count FROM pragma_page_count")?;
+        let free = pages("SELECT freelist_count FROM pragma_freelist_count")?;
+        if total <= 0 || (free as f64) < RECLAIM_FROM_FRACTION * total as f64 {
+            return Ok(0);
+        }
+        let size = "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size";
+        let before = pages(size)?;
+        self.connection.execute_batch("VACUUM").map_err(classify)?;
+        self.checkpoint()?;
+        let after = pages(size)?;
+        self.connection
+            .execute(
+                "UPDATE versions SET bytes = ?1 WHERE version = (SELECT MAX(version) FROM versions)",
+                [after],
+            )
+            .map_err(classify)?;
+        self.checkpoint()?;
+        Ok(before - after)
     }
 
     /// `Ok` when the store is intact: SQLite's integrity and foreign-key checks pass, every

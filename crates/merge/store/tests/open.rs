@@ -185,6 +185,35 @@ fn old_versions_forget_their_atlas_and_the_store_stays_bounded() {
     assert_eq!(sizes[29], sizes[19], "{sizes:?}");
 }
 
+/// Issue 66: a store whose map shrinks (a large atlas, then small ones, each keeping one
+/// version) gives the freed pages back: the file ends near the size of a store that only
+/// ever held the small atlas, and every version it keeps still loads.
+#[test]
+fn pages_freed_by_forgotten_versions_are_reclaimed() {
+    let dir = tempfile::tempdir().unwrap();
+    let size_after = |sessions: &[(usize, usize)], name: &str| {
+        let path = dir.path().join(name);
+        let mut store = Store::open(&path).unwrap();
+        store.keep_versions(1);
+        let mut robot = Robot::new();
+        let mut last = None;
+        for (k, (nodes, keep)) in sessions.iter().enumerate() {
+            let (atlas, reference) = robot.session(*nodes, *keep);
+            commit(&mut store, &format!("session {k}"), &atlas, &reference);
+            last = Some(atlas);
+        }
+        store.check().unwrap();
+        let stored = store.load(None).unwrap().unwrap();
+        assert_eq!(Some(stored.atlas), last);
+        let recorded = store.versions().unwrap().last().unwrap().bytes;
+        (store.info().unwrap().bytes, recorded)
+    };
+    let (shrunk, recorded) = size_after(&[(3000, 3000), (10, 10), (10, 10)], "shrunk.mapmerge");
+    let (small, _) = size_after(&[(10, 10), (10, 10)], "small.mapmerge");
+    assert!(shrunk < 2 * small, "{shrunk} bytes against {small}");
+    assert_eq!(recorded, shrunk as i64);
+}
+
 #[test]
 fn an_inconsistent_atlas_is_refused_and_nothing_is_written() {
     let dir = tempfile::tempdir().unwrap();
