@@ -1042,13 +1042,24 @@ impl<B: BackupStore> Atlas<B> {
     /// (see [`crate::KeyframeParams`]) with what the stored local maps keep of the place;
     /// `None` for an unknown graph or vertex.
     pub fn view_keyframe(&self, map: MapId, node: NodeId) -> Option<mapmerge_place::Keyframe> {
-        let graph = self.inactive.get(&map)?;
+        self.keyframe_in(self.inactive.get(&map)?, node, true)
+    }
+
+    /// Vertex `node` of `graph` as a local-map keyframe ([`crate::KeyframeParams`]), with
+    /// what the stored local maps keep of the place when `stored` (a view of an older map;
+    /// a query's own keyframe is its own data); `None` for an unknown vertex.
+    fn keyframe_in(
+        &self,
+        graph: &PoseGraph2,
+        node: NodeId,
+        stored: bool,
+    ) -> Option<mapmerge_place::Keyframe> {
         local_map_keyframes(
             graph,
             &self.keyframes,
             &self.params.keyframes,
             &[node],
-            Some(&self.local_maps),
+            stored.then_some(&self.local_maps),
         )
         .into_values()
         .next()
@@ -1116,15 +1127,7 @@ impl<B: BackupStore> Atlas<B> {
     /// Vertex `node` of the active graph as the merge search's query: its local map (see
     /// [`crate::KeyframeParams`]); `None` for an unknown vertex.
     pub fn query_keyframe(&self, node: NodeId) -> Option<mapmerge_place::Keyframe> {
-        local_map_keyframes(
-            &self.active,
-            &self.keyframes,
-            &self.params.keyframes,
-            &[node],
-            None,
-        )
-        .into_values()
-        .next()
+        self.keyframe_in(&self.active, node, false)
     }
 
     /// The newest current-epoch keyframe as a place-recognition query.
@@ -1139,9 +1142,8 @@ impl<B: BackupStore> Atlas<B> {
         self.query_in(&self.active, node, false)
     }
 
-    /// Vertex `node` of `graph` as a place-recognition query; its local map also from the
-    /// stored local maps with `stored` (a view of an older map, see
-    /// [`crate::recognition::local_map_keyframes`]).
+    /// Vertex `node` of `graph` as a place-recognition query; its local map as
+    /// [`Atlas::keyframe_in`] makes it.
     pub(crate) fn query_in(
         &self,
         graph: &PoseGraph2,
@@ -1150,15 +1152,7 @@ impl<B: BackupStore> Atlas<B> {
     ) -> Option<PlaceQuery> {
         let (_, descriptor) = self.describe(graph, &[node]).pop()?;
         let offset_descriptors = self.describe_beside(graph, node);
-        let keyframe = local_map_keyframes(
-            graph,
-            &self.keyframes,
-            &self.params.keyframes,
-            &[node],
-            stored.then_some(&self.local_maps),
-        )
-        .into_values()
-        .next()?;
+        let keyframe = self.keyframe_in(graph, node, stored)?;
         let pose = graph.vertex(node)?.pose;
         Some(PlaceQuery {
             node,

@@ -380,6 +380,10 @@ impl<B: BackupStore> Atlas<B> {
                     })
                 })
             });
+            if near && !recent {
+                deleted.push(node);
+                continue;
+            }
             // The structure cells its returns fall in (map frame).
             let cells: HashSet<(i64, i64)> = self
                 .keyframes
@@ -400,8 +404,7 @@ impl<B: BackupStore> Atlas<B> {
             let seen_here = seen.entry(map).or_default();
             let adds = || {
                 let new = cells.iter().filter(|c| !seen_here.contains(c)).count();
-                recent
-                    && utility >= 1.0
+                utility >= 1.0
                     && !cells.is_empty()
                     && new as f64 >= params.view_min_new_fraction * cells.len() as f64
             };
