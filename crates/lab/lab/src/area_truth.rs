@@ -166,20 +166,9 @@ pub fn score_session(
         .into_iter()
         .filter_map(|p| Some((p, session.world.door(p.door)?.center_m)))
         .collect();
-    let truth: Vec<(usize, Point2)> = passings.iter().map(|(p, c)| (p.scan, *c)).collect();
-    let placed: Vec<(usize, Point2)> = detections
-        .iter()
-        .filter_map(|d| {
-            let (_, world_from_robot) = session.truth.get(d.scan)?;
-            Some((
-                d.crossing_scan,
-                world_from_robot.transform_point(&d.center_in_robot_m),
-            ))
-        })
-        .collect();
-    let matched = match_detections(&placed, &truth, scoring);
+    let (_, placed, matched) = place_and_match(&detections, session, scoring);
     let mut counts = DoorCounts {
-        passings: truth.len(),
+        passings: passings.len(),
         detections: detections.len(),
         true_detections: matched.iter().filter(|m| m.is_some()).count(),
         scans: detector.scans(),
@@ -208,7 +197,7 @@ pub fn score_session(
                 .iter()
                 .map(|door| (door.center_m - p).norm())
                 .fold(f64::INFINITY, f64::min),
-            nearest_passing_scans: truth.iter().map(|(s, _)| s.abs_diff(*scan)).min(),
+            nearest_passing_scans: passings.iter().map(|(p, _)| p.scan.abs_diff(*scan)).min(),
         })
         .collect();
     let mut missed: Vec<MissedPassing> = passings
@@ -622,20 +611,39 @@ pub fn score_tour(
     Ok(score)
 }
 
-/// Door passings of a segmented session against the truth: each detection placed by the
-/// true pose of its scan and matched as [`score_session`] matches them.
+/// Door passings of a segmented session against the truth, as [`score_session`] scores a
+/// detector's.
 fn passing_counts(
     split: &Segmentation,
     session: &SessionData,
     scoring: &DoorScoring,
 ) -> DoorCounts {
-    let truth: Vec<(usize, Point2)> = session
+    let (truth, _, matched) = place_and_match(&split.passings, session, scoring);
+    DoorCounts {
+        passings: truth.len(),
+        detections: split.passings.len(),
+        true_detections: matched.iter().filter(|m| m.is_some()).count(),
+        ..DoorCounts::default()
+    }
+}
+
+/// Passings as (crossing scan, door centre in the world).
+type PlacedPassings = Vec<(usize, Point2)>;
+
+/// The session's true passings (scan, door centre), each detection placed in the world by
+/// the true pose of its scan (crossing scan, door centre), and the true passing it matches
+/// ([`match_detections`]).
+fn place_and_match(
+    detections: &[DoorPassingDetection],
+    session: &SessionData,
+    scoring: &DoorScoring,
+) -> (PlacedPassings, PlacedPassings, Vec<Option<usize>>) {
+    let truth: PlacedPassings = session
         .door_passings()
         .into_iter()
         .filter_map(|p| Some((p.scan, session.world.door(p.door)?.center_m)))
         .collect();
-    let placed: Vec<(usize, Point2)> = split
-        .passings
+    let placed: PlacedPassings = detections
         .iter()
         .filter_map(|d| {
             let (_, world_from_robot) = session.truth.get(d.scan)?;
@@ -646,12 +654,7 @@ fn passing_counts(
         })
         .collect();
     let matched = match_detections(&placed, &truth, scoring);
-    DoorCounts {
-        passings: truth.len(),
-        detections: split.passings.len(),
-        true_detections: matched.iter().filter(|m| m.is_some()).count(),
-        ..DoorCounts::default()
-    }
+    (truth, placed, matched)
 }
 
 /// Each placed later session's placement error (m): its frame as placed against its frame
