@@ -283,12 +283,9 @@ pub struct TrackingStep {
     pub boundary: usize,
     /// Travel since the last link point whose global pose was re-observed (m).
     pub travel_since_closure_m: f64,
-    /// Eq. 3's search radius (m)…
+    /// Eq. 3's search radius (m): from the crossing's marginal covariance in the link-point
+    /// graph (from the travel since the last closure where the solver gives none).
     pub radius_m: f64,
-    /// … from the crossing's marginal covariance in the link-point graph (else from the
-    /// travel since the last closure).
-    #[serde(default)]
-    pub radius_from_marginal: bool,
     /// Earlier boundaries (not themselves re-observations) whose crossing lay within it;
     /// the nearest `max_candidates` were checked.
     pub within_radius: Vec<usize>,
@@ -321,8 +318,9 @@ pub struct ManagedMap {
     /// Whether each session was placed in session 0's frame (session 0 is; a later one when
     /// the global search placed it). Unplaced sessions' areas stay in their own frames.
     pub session_placed: Vec<bool>,
-    /// How each placed later session was placed.
-    #[serde(default)]
+    /// How each placed later session was placed. Not stored: the lifelong store keeps the
+    /// map in a fixed binary layout, and a map read back from it has none.
+    #[serde(skip)]
     pub placements: Vec<SessionPlacement>,
 }
 
@@ -788,7 +786,6 @@ pub fn manage_sessions(
                 boundary: i,
                 travel_since_closure_m: since_closure_m,
                 radius_m,
-                radius_from_marginal: marginal.is_some(),
                 within_radius: candidates.iter().map(|(_, j)| *j).collect(),
             });
             candidates.truncate(tracking.max_candidates);
