@@ -67,7 +67,8 @@ struct AreaEntry {
     /// `[session, first scan, last scan + 1]` of each stretch of scans mapped into it.
     sessions_scans: Vec<[usize; 3]>,
     dir: String,
-    /// Whether its frame is placed in the first area's (false: a session never relocalised).
+    /// Whether its frame is placed in the first area's (false: a session the search did not
+    /// place).
     placed: bool,
 }
 
@@ -101,8 +102,14 @@ struct PassingEntry {
     session: usize,
     scan: usize,
     crossing_scan: usize,
-    x: f64,
-    y: f64,
+    /// The area whose scans hold it, and the door's centre in that area's frame.
+    area: Option<usize>,
+    area_x: Option<f64>,
+    area_y: Option<f64>,
+    /// Whether its session is placed; then the centre in the first area's frame.
+    placed: bool,
+    x: Option<f64>,
+    y: Option<f64>,
     /// Whether it starts a new area (a passing too soon after the last one does not).
     boundary: bool,
 }
@@ -289,22 +296,37 @@ pub fn manage_areas(
             }
         }
     }
+    // Every passing of every session, placed or not.
     let mut door_passings = Vec::new();
     for (s, m) in sessions.iter().enumerate() {
         for (i, passing) in m.segmentation.passings.iter().enumerate() {
-            let is_boundary = m.segmentation.boundaries.contains(&i);
-            let placed = first_from_robot[s].get(passing.scan).copied().flatten();
-            if let Some(robot) = placed {
-                let center = robot.transform_point(&passing.center_in_robot_m);
-                door_passings.push(PassingEntry {
-                    session: s,
-                    scan: passing.scan,
-                    crossing_scan: passing.crossing_scan,
-                    x: center.x,
-                    y: center.y,
-                    boundary: is_boundary,
+            let center = |robot: Se2| robot.transform_point(&passing.center_in_robot_m);
+            let in_area = spans
+                .iter()
+                .enumerate()
+                .filter(|(_, (owner, _))| *owner == s)
+                .find_map(|(g, (_, k))| {
+                    let span = m.segmentation.spans.get(*k)?;
+                    let robot = m
+                        .trajectories
+                        .get(*k)?
+                        .get(passing.scan.checked_sub(span.scans.start)?)?;
+                    let area = *managed.span_area.get(g)?;
+                    Some((area, center(managed.area_from_span(g)?.compose(robot))))
                 });
-            }
+            let placed = first_from_robot[s].get(passing.scan).copied().flatten();
+            door_passings.push(PassingEntry {
+                session: s,
+                scan: passing.scan,
+                crossing_scan: passing.crossing_scan,
+                area: in_area.map(|(a, _)| a),
+                area_x: in_area.map(|(_, p)| p.x),
+                area_y: in_area.map(|(_, p)| p.y),
+                placed: placed.is_some(),
+                x: placed.map(|robot| center(robot).x),
+                y: placed.map(|robot| center(robot).y),
+                boundary: m.segmentation.boundaries.contains(&i),
+            });
         }
     }
     let link_points: Vec<LinkPointEntry> = hybrid
@@ -387,6 +409,7 @@ pub fn manage_areas(
             "candidate_closures": managed.candidate_closures,
             "tracking": managed.tracking,
             "sessions_placed": managed.session_placed,
+            "placements": managed.placements,
         }),
     )?;
     // The overview: every placed session's scans in the first area's frame.

@@ -12,7 +12,7 @@ use mapmerge_sim::{simulate, SessionData, SimParams};
 use serde::{Deserialize, Serialize};
 
 use mapmerge_areas::{
-    Criteria, DoorDetector, DoorParams, DoorPassingDetection, ManagerParams, MapSpan,
+    Criteria, DoorDetector, DoorParams, DoorPassingDetection, ManagedMap, ManagerParams, MapSpan,
     MappedSession, Segmentation,
 };
 
@@ -72,7 +72,8 @@ impl DoorCounts {
         1e3 * self.seconds / self.scans.max(1) as f64
     }
 
-    fn add(&mut self, other: &DoorCounts) {
+    /// Adds `other`'s counts to these.
+    pub fn add(&mut self, other: &DoorCounts) {
         self.passings += other.passings;
         self.detections += other.detections;
         self.true_detections += other.true_detections;
@@ -165,20 +166,9 @@ pub fn score_session(
         .into_iter()
         .filter_map(|p| Some((p, session.world.door(p.door)?.center_m)))
         .collect();
-    let truth: Vec<(usize, Point2)> = passings.iter().map(|(p, c)| (p.scan, *c)).collect();
-    let placed: Vec<(usize, Point2)> = detections
-        .iter()
-        .filter_map(|d| {
-            let (_, world_from_robot) = session.truth.get(d.scan)?;
-            Some((
-                d.crossing_scan,
-                world_from_robot.transform_point(&d.center_in_robot_m),
-            ))
-        })
-        .collect();
-    let matched = match_detections(&placed, &truth, scoring);
+    let (_, placed, matched) = place_and_match(&detections, session, scoring);
     let mut counts = DoorCounts {
-        passings: truth.len(),
+        passings: passings.len(),
         detections: detections.len(),
         true_detections: matched.iter().filter(|m| m.is_some()).count(),
         scans: detector.scans(),
@@ -207,7 +197,7 @@ pub fn score_session(
                 .iter()
                 .map(|door| (door.center_m - p).norm())
                 .fold(f64::INFINITY, f64::min),
-            nearest_passing_scans: truth.iter().map(|(s, _)| s.abs_diff(*scan)).min(),
+            nearest_passing_scans: passings.iter().map(|(p, _)| p.scan.abs_diff(*scan)).min(),
         })
         .collect();
     let mut missed: Vec<MissedPassing> = passings
@@ -369,11 +359,32 @@ pub struct TourScore {
     pub areas: usize,
     /// …
     pub spans: usize,
+    /// Each placed later session's placement error (m), see `placement_errors`…
+    #[serde(default)]
+    pub placement_errors_m: Vec<f64>,
+    /// … and those placed where they are not: farther than `WRONG_PLACEMENT_M`.
+    #[serde(default)]
+    pub sessions_placed_wrongly: usize,
+    /// Door passings every session detected (areas.json lists them all), scored as `eval
+    /// doors` scores them.
+    #[serde(default)]
+    pub passings: DoorCounts,
+    /// Pairs of areas of placed sessions, and those `route` joins.
+    #[serde(default)]
+    pub area_pairs: usize,
+    /// …
+    #[serde(default)]
+    pub area_pairs_routed: usize,
 }
+
+/// A later session placed farther than this from where the truth puts it (m), beside session
+/// 0, is placed wrongly: an aliased room or aisle is 3 m or more away in the simulator's
+/// worlds; drift bends the warehouse's session maps by up to about 1.7 m.
+pub const WRONG_PLACEMENT_M: f64 = 2.0;
 
 /// Runs the map manager over `sessions` sessions of `world` (`duration_secs` each, no
 /// kidnaps), mapping each span with `map_span` (scans in, `map_from_robot` per scan out), and
-/// scores tracking; later sessions must relocalise at a known door.
+/// scores tracking, the placement of later sessions and the door passings of every session.
 #[allow(clippy::too_many_arguments)]
 pub fn score_tour(
     world: &str,
@@ -566,7 +577,140 @@ pub fn score_tour(
         .filter_map(|b| Some(chain_crossing(first?, trajectories.first()?, b)?.translation()))
         .collect();
     score.chain_ate_m = aligned_rms(&chain, &truth[..chain.len().min(truth.len())]);
+    score.placement_errors_m = placement_errors(&mapped, &managed, &dataset.sessions);
+    score.sessions_placed_wrongly = score
+        .placement_errors_m
+        .iter()
+        .filter(|e| **e > WRONG_PLACEMENT_M)
+        .count();
+    for (m, session) in mapped.iter().zip(&dataset.sessions) {
+        score.passings.add(&passing_counts(
+            &m.segmentation,
+            session,
+            &DoorScoring::default(),
+        ));
+    }
+    let placed_areas: Vec<usize> = (0..managed.hybrid.areas.len())
+        .filter(|a| {
+            managed
+                .span_area
+                .iter()
+                .zip(&managed.span_session)
+                .any(|(area, s)| area == a && managed.session_placed.get(*s) == Some(&true))
+        })
+        .collect();
+    let origin = mapmerge_scan::Point2::zeros();
+    for (k, a) in placed_areas.iter().enumerate() {
+        for b in &placed_areas[k + 1..] {
+            score.area_pairs += 1;
+            if managed.hybrid.route(*a, origin, *b, origin).is_some() {
+                score.area_pairs_routed += 1;
+            }
+        }
+    }
     Ok(score)
+}
+
+/// Door passings of a segmented session against the truth, as [`score_session`] scores a
+/// detector's.
+fn passing_counts(
+    split: &Segmentation,
+    session: &SessionData,
+    scoring: &DoorScoring,
+) -> DoorCounts {
+    let (truth, _, matched) = place_and_match(&split.passings, session, scoring);
+    DoorCounts {
+        passings: truth.len(),
+        detections: split.passings.len(),
+        true_detections: matched.iter().filter(|m| m.is_some()).count(),
+        ..DoorCounts::default()
+    }
+}
+
+/// Passings as (crossing scan, door centre in the world).
+type PlacedPassings = Vec<(usize, Point2)>;
+
+/// The session's true passings (scan, door centre), each detection placed in the world by
+/// the true pose of its scan (crossing scan, door centre), and the true passing it matches
+/// ([`match_detections`]).
+fn place_and_match(
+    detections: &[DoorPassingDetection],
+    session: &SessionData,
+    scoring: &DoorScoring,
+) -> (PlacedPassings, PlacedPassings, Vec<Option<usize>>) {
+    let truth: PlacedPassings = session
+        .door_passings()
+        .into_iter()
+        .filter_map(|p| Some((p.scan, session.world.door(p.door)?.center_m)))
+        .collect();
+    let placed: PlacedPassings = detections
+        .iter()
+        .filter_map(|d| {
+            let (_, world_from_robot) = session.truth.get(d.scan)?;
+            Some((
+                d.crossing_scan,
+                world_from_robot.transform_point(&d.center_in_robot_m),
+            ))
+        })
+        .collect();
+    let matched = match_detections(&placed, &truth, scoring);
+    (truth, placed, matched)
+}
+
+/// Each placed later session's placement error (m): its frame as placed against its frame
+/// as the truth has it, the median over its scans of the distance between the two places a
+/// scan gets from the rigid fits of session 0's scans and of its own to the world. Drift
+/// within a session goes into its fit's residuals, not into the error.
+fn placement_errors(
+    mapped: &[MappedSession],
+    managed: &ManagedMap,
+    truth: &[SessionData],
+) -> Vec<f64> {
+    use mapmerge_geometry::LieGroup;
+    use nalgebra::Vector3;
+    // Each placed session's scans: in the world, in the first frame.
+    type Positions = (Vec<Vector3<f64>>, Vec<Vector3<f64>>);
+    let mut scans: Vec<Positions> = vec![(Vec::new(), Vec::new()); mapped.len()];
+    let mut g = 0usize;
+    for (s, m) in mapped.iter().enumerate() {
+        for (span, trajectory) in m.segmentation.spans.iter().zip(&m.trajectories) {
+            let frame = managed.first_from_span.get(g).copied();
+            g += 1;
+            let (Some(frame), Some(true)) = (frame, managed.session_placed.get(s).copied()) else {
+                continue;
+            };
+            for (scan, pose) in span.scans.clone().zip(trajectory) {
+                if let Some((_, world_from_robot)) = truth.get(s).and_then(|t| t.truth.get(scan)) {
+                    let (w, e) = (
+                        world_from_robot.translation(),
+                        frame.compose(pose).translation(),
+                    );
+                    scans[s].0.push(Vector3::new(w.x, w.y, 0.0));
+                    scans[s].1.push(Vector3::new(e.x, e.y, 0.0));
+                }
+            }
+        }
+    }
+    let fit = |(world, first): &(Vec<Vector3<f64>>, Vec<Vector3<f64>>)| {
+        mapmerge_eval::align_rigid(world, first, true).ok()
+    };
+    let Some(world_from_first) = scans.first().and_then(fit) else {
+        return Vec::new();
+    };
+    scans
+        .iter()
+        .skip(1)
+        .filter_map(|session| {
+            let own = fit(session)?;
+            let mut errors: Vec<f64> = session
+                .1
+                .iter()
+                .map(|e| (world_from_first.apply(e) - own.apply(e)).norm())
+                .collect();
+            errors.sort_by(f64::total_cmp);
+            errors.get(errors.len() / 2).copied()
+        })
+        .collect()
 }
 
 /// Boundary `b`'s crossing by the chain of spans alone (no closure), in span 0's frame.

@@ -26,7 +26,7 @@ pub struct AreasEvalArgs {
     /// Length of each tour (s of robot time; no kidnaps).
     #[arg(long, default_value_t = 600.0)]
     pub duration: f64,
-    /// Sessions per world and seed (later ones must relocalise at a known door).
+    /// Sessions per world and seed (later ones must be placed by the global search).
     #[arg(long, default_value_t = 1)]
     pub sessions: usize,
     /// Map-manager parameters as JSON (any subset of `mapmerge_areas::ManagerParams`).
@@ -52,6 +52,15 @@ struct Report {
     doors_inside_areas: usize,
     sessions: usize,
     sessions_placed: usize,
+    /// Later sessions placed where they are not.
+    sessions_placed_wrongly: usize,
+    /// Door passings over every session, as areas.json lists them.
+    passings: crate::area_truth::DoorCounts,
+    passing_precision: f64,
+    passing_recall: f64,
+    /// Pairs of placed areas, and those `route` joins.
+    area_pairs: usize,
+    area_pairs_routed: usize,
     /// Largest link-point ATE after optimisation over the tours (m).
     worst_link_ate_m: f64,
 }
@@ -88,6 +97,10 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
         }
     }
     let sum = |f: fn(&TourScore) -> usize| tours.iter().map(f).sum::<usize>();
+    let mut passings = crate::area_truth::DoorCounts::default();
+    for t in &tours {
+        passings.add(&t.passings);
+    }
     let report = Report {
         revisits: sum(|t| t.revisits),
         revisits_found: sum(|t| t.revisits_found),
@@ -99,6 +112,12 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
         doors_inside_areas: sum(|t| t.doors_inside_areas),
         sessions: sum(|t| t.sessions),
         sessions_placed: sum(|t| t.sessions_placed),
+        sessions_placed_wrongly: sum(|t| t.sessions_placed_wrongly),
+        passings,
+        passing_precision: passings.precision(),
+        passing_recall: passings.recall(),
+        area_pairs: sum(|t| t.area_pairs),
+        area_pairs_routed: sum(|t| t.area_pairs_routed),
         worst_link_ate_m: tours.iter().map(|t| t.link_ate_m).fold(0.0, f64::max),
         tours,
     };
@@ -130,9 +149,18 @@ pub fn run(args: &AreasEvalArgs) -> anyhow::Result<()> {
             );
         }
         println!(
-            "\nsessions placed {} of {}, revisits found {} of {}, lost {}, closures {} ({} false), at candidates {} ({} false), passed doors inside one area {}, worst link-point ATE {:.3} m",
+            "\nsessions placed {} of {} ({} wrongly), door passings over every session: precision {:.3}, recall {:.3} of {}, area pairs routed {} of {}",
             report.sessions_placed,
             report.sessions,
+            report.sessions_placed_wrongly,
+            report.passing_precision,
+            report.passing_recall,
+            report.passings.passings,
+            report.area_pairs_routed,
+            report.area_pairs,
+        );
+        println!(
+            "revisits found {} of {}, lost {}, closures {} ({} false), at candidates {} ({} false), passed doors inside one area {}, worst link-point ATE {:.3} m",
             report.revisits_found,
             report.revisits,
             report.lost,

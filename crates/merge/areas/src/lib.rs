@@ -11,7 +11,7 @@
 //!   and the transform chain along them ([`HybridMap::route`]);
 //! - Sec. II-C and II-D: global tracking through the link-point chain (Eq. 3's radius),
 //!   topological loop closure at a door passed again, link-point optimisation, and a later
-//!   session relocalised at a known door ([`manage_sessions`]);
+//!   session placed by a global search over the placed areas ([`manage_sessions`]);
 //! - sessions as mapped and stored ([`MappedSession`]), so that the lifelong store can keep a
 //!   site's areas and a later run can add to them ([`manage_mapped`]).
 

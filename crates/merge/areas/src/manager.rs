@@ -11,10 +11,13 @@ use std::f64::consts::FRAC_PI_2;
 use std::ops::Range;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
-use mapmerge_place::{GeometricVerifier, Keyframe, Verification};
+use mapmerge_place::{
+    find_loop_candidates_with_poses, GeometricVerifier, Keyframe, KeyframeId, PlaceParams,
+    Verification,
+};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, Vertex};
 use mapmerge_scan::{voxel_downsample, BeamFilter, LaserScan, Point2};
-use mapmerge_solve::{optimize, OptimizerParams};
+use mapmerge_solve::{marginal_covariances, optimize, OptimizerParams};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -64,18 +67,33 @@ pub struct TrackingParams {
     pub same_door_m: f64,
     /// Stop after this many link points were checked at one passing (default: 5).
     pub max_candidates: usize,
-    /// A later session, unplaced, is relocalised at a crossing that re-observes a placed one
-    /// with at least this score (default: 0.97)…
-    pub relocalisation_min_score: f64,
-    /// … when no other door (a candidate farther than `same_door_m` from the best) scores
-    /// within this of the best: a symmetric building has look-alike doors (default: 0.01)…
-    pub relocalisation_margin: f64,
-    /// … trying this many headings (default: 12, every 30°: the verifier searches ±15°).
-    pub relocalisation_headings: usize,
-    /// A later session is placed only once a second door agrees with the first on where
-    /// its frame lies (default: true; false places it at the first door matched). A building
-    /// with mirror-image doors fools one door.
-    pub relocalisation_second_door: bool,
+    /// A later session is placed by a global search over every placed area (no doors needed):
+    /// its views, one every this much travel (m) (default: 1), are looked up in the placed
+    /// sessions' views and verified (the place crate's search)…
+    pub placement_spacing_m: f64,
+    /// … a match counts at this verification score (default: 0.97)…
+    pub placement_min_score: f64,
+    /// … when no distinct place verifies within this of it: a symmetric building has
+    /// look-alike rooms (default: 0.01)…
+    pub placement_margin: f64,
+    /// … and the session is placed where at least this many matches agree (default: 2).
+    /// Matches agree when a chain of them joins them, each link either within this much of
+    /// the session's travel (m) (default: 10) and within Eq. 3's radius, for the travel
+    /// between them, of where the next puts the session (the tracking of Eq. 3 from match
+    /// to match, so that drift along a session does not split it), or farther apart and
+    /// placing the session within `base_radius_m` of each other; a look-alike room a few
+    /// metres off joins neither way…
+    pub placement_min_support: usize,
+    /// … (see `placement_min_support`).
+    pub placement_track_m: f64,
+    /// … spread over at least this much of its travel (m) (default: 2: one spot fits several
+    /// places)…
+    pub placement_min_spread_m: f64,
+    /// … and at least this many times as many as agree on any other placement (default: 2).
+    pub placement_rival_ratio: f64,
+    /// At most this many of the agreeing matches join the session to the map as edges
+    /// (default: 8).
+    pub placement_max_edges: usize,
 }
 
 impl Default for TrackingParams {
@@ -88,22 +106,34 @@ impl Default for TrackingParams {
             min_score: 0.95,
             same_door_m: 1.0,
             max_candidates: 5,
-            relocalisation_min_score: 0.97,
-            relocalisation_margin: 0.01,
-            relocalisation_headings: 12,
-            relocalisation_second_door: true,
+            placement_spacing_m: 1.0,
+            placement_min_score: 0.97,
+            placement_margin: 0.01,
+            placement_min_support: 2,
+            placement_track_m: 10.0,
+            placement_min_spread_m: 2.0,
+            placement_rival_ratio: 2.0,
+            placement_max_edges: 8,
         }
     }
 }
 
 impl TrackingParams {
-    /// Eq. 3: r = r_orig + 2·√(5.991·λ_max), λ_max the largest eigenvalue of the position
-    /// covariance after `travel_m` since the last link point (5.991: χ² 95 % with 2 degrees
-    /// of freedom), here σ² = q·d + q_θ·d³/3.
+    /// Eq. 3 for the travel model: r = r_orig + 2·√(5.991·λ_max), λ_max the largest
+    /// eigenvalue of the position covariance after `travel_m` of travel (5.991: χ² 95 % with
+    /// 2 degrees of freedom), here σ² = q·d + q_θ·d³/3. Tracking takes λ_max from the
+    /// solver's marginal covariance of the crossing; this serves where the graph gives none
+    /// and for the agreement of two matches along one session.
     pub fn search_radius_m(&self, travel_m: f64) -> f64 {
         let d = travel_m.max(0.0);
-        let lambda = self.variance_per_m * d + self.heading_variance_per_m * d.powi(3) / 3.0;
-        self.base_radius_m + 2.0 * (5.991 * lambda).sqrt()
+        self.radius_for_variance_m(
+            self.variance_per_m * d + self.heading_variance_per_m * d.powi(3) / 3.0,
+        )
+    }
+
+    /// Eq. 3 for a position covariance whose largest eigenvalue is `lambda_max_m2`.
+    pub fn radius_for_variance_m(&self, lambda_max_m2: f64) -> f64 {
+        self.base_radius_m + 2.0 * (5.991 * lambda_max_m2.max(0.0)).sqrt()
     }
 }
 
@@ -253,7 +283,8 @@ pub struct TrackingStep {
     pub boundary: usize,
     /// Travel since the last link point whose global pose was re-observed (m).
     pub travel_since_closure_m: f64,
-    /// Eq. 3's search radius (m).
+    /// Eq. 3's search radius (m): from the crossing's marginal covariance in the link-point
+    /// graph (from the travel since the last closure where the solver gives none).
     pub radius_m: f64,
     /// Earlier boundaries (not themselves re-observations) whose crossing lay within it;
     /// the nearest `max_candidates` were checked.
@@ -284,10 +315,13 @@ pub struct ManagedMap {
     pub candidate_closures: Vec<CandidateClosure>,
     /// Global tracking at each boundary (boundaries of all sessions, in order).
     pub tracking: Vec<TrackingStep>,
-    /// Whether each session was placed in session 0's frame (session 0 is; a later one once a
-    /// crossing of it re-observed a placed one). Unplaced sessions' areas stay in their own
-    /// frames.
+    /// Whether each session was placed in session 0's frame (session 0 is; a later one when
+    /// the global search placed it). Unplaced sessions' areas stay in their own frames.
     pub session_placed: Vec<bool>,
+    /// How each placed later session was placed. Not stored: the lifelong store keeps the
+    /// map in a fixed binary layout, and a map read back from it has none.
+    #[serde(skip)]
+    pub placements: Vec<SessionPlacement>,
 }
 
 impl ManagedMap {
@@ -351,19 +385,26 @@ struct Boundary {
 /// 1. the link-point graph: a node at each session's start and at each boundary's crossing,
 ///    an edge between consecutive nodes of a session measured in the span between them (its
 ///    variance growing with the travel between them); session 0's start is the origin;
-/// 2. global tracking (Sec. II-D): each new crossing's pose through the chain, and Eq. 3's
-///    radius from the travel since the last re-observed link point;
-/// 3. topological loop closure (Sec. II-C): the earlier crossings within the radius are
+/// 2. a later session is placed before its crossings are tracked, by a global search that
+///    needs no door: a view every `placement_spacing_m` of its travel is looked up among the
+///    placed sessions' views and verified (`mapmerge-place`'s search); matches agree when
+///    Eq. 3's tracking leads from one to the next (each within the radius, for the travel
+///    between them, of where the next puts the session), and the largest such chain, spread
+///    over `placement_min_spread_m` and outnumbering any other, places the session. Its
+///    nodes then move onto the map, the chain's best matches join it as edges (their
+///    information allowing for each span's drift from its entry), and the spans they join
+///    become one area when both views lie inside them. A session the search cannot place
+///    keeps its own frame;
+/// 3. global tracking (Sec. II-D): each new crossing's pose through the chain, and Eq. 3's
+///    radius from its marginal covariance in the link-point graph (the solver's);
+/// 4. topological loop closure (Sec. II-C): the earlier crossings within the radius are
 ///    verified by scan matching their local maps (`verifier`, our place recognition's, in
 ///    place of the paper's images); the best accepted one becomes a loop edge, the graph is
 ///    optimised (the re-observed link point is the landmark), and the spans on each side of
 ///    the door are joined into one area. Without an earlier crossing to close with, the
 ///    link-point candidates of other areas (doors seen there before, not passed) are tried
-///    the same way, and a verified one joins the span on the side the door was seen from. A
-///    later session starts unplaced: its crossings are checked against every placed crossing
-///    over all headings (global relocalisation); once two of them agree on where its frame
-///    lies (`relocalisation_second_door`), its nodes join the graph;
-/// 4. areas, link points (one per door), candidates left and edges.
+///    the same way, and a verified one joins the span on the side the door was seen from;
+/// 5. areas, link points (one per door), candidates left and edges.
 pub fn manage_sessions(
     sessions: &[SessionInput<'_>],
     params: &ManagerParams,
@@ -567,82 +608,197 @@ pub fn manage_sessions(
             .compose(&entry_pose[g].inverse())
     };
     let mut candidate_closures = Vec::new();
-    // Per session: a relocalisation waiting for a second door to confirm it.
-    let mut pending: Vec<Option<Pending>> = vec![None; sessions.len()];
-    // 2–3. Tracking and closures, boundary by boundary.
+    // Each span's own part: from its entry crossing to its exit crossing (the overlaps are
+    // its neighbours').
+    let mut exit_scan: Vec<usize> = (0..span_refs.len())
+        .map(|g| span_of(g).0.scans.end)
+        .collect();
+    for b in &boundaries {
+        exit_scan[b.before] = b.crossing + 1;
+    }
+    // Views every `placement_spacing_m` of a span's own part, with their travel from the
+    // span's entry: what a placement search queries and looks up.
+    let has_entry: Vec<bool> = (0..span_refs.len())
+        .map(|g| boundaries.iter().any(|b| b.after == g))
+        .collect();
+    let span_views = |g: usize| -> Vec<View> {
+        let (span, trajectory, s) = span_of(g);
+        let has_exit = boundaries.iter().any(|b| b.before == g);
+        let mut views: Vec<View> = Vec::new();
+        let (mut travel_m, mut previous) = (0.0, None::<Se2>);
+        for k in entry_scan[g]..exit_scan[g] {
+            let Some(pose) = k
+                .checked_sub(span.scans.start)
+                .and_then(|i| trajectory.get(i))
+            else {
+                continue;
+            };
+            if let Some(p) = previous {
+                travel_m += (pose.translation() - p.translation()).norm();
+            }
+            previous = Some(*pose);
+            if views
+                .last()
+                .is_none_or(|v| travel_m - v.travel_m >= tracking.placement_spacing_m)
+            {
+                views.push(View {
+                    span: g,
+                    in_span: *pose,
+                    from_entry_m: travel_m,
+                    to_exit_m: 0.0,
+                    travel_m,
+                    inside: false,
+                    keyframe: local_map(k, pose, span, trajectory, sessions[s].scans, tracking),
+                });
+            }
+        }
+        for v in &mut views {
+            v.to_exit_m = travel_m - v.from_entry_m;
+            v.inside = (!has_entry[g] || v.from_entry_m >= tracking.local_map_m)
+                && (!has_exit || v.to_exit_m >= tracking.local_map_m);
+        }
+        views
+    };
+    let mut views_of_span: Vec<Option<Vec<View>>> = vec![None; span_refs.len()];
+    let mut placements: Vec<SessionPlacement> = Vec::new();
+    // 2–4. A later session is placed, then tracking and closures, boundary by boundary.
     let mut placed: Vec<bool> = (0..sessions.len()).map(|s| s == 0).collect();
     let mut groups = UnionFind::new(span_refs.len());
     let mut closures = Vec::new();
     let mut steps = Vec::with_capacity(boundaries.len());
-    let mut since_closure_m = 0.0;
     let mut merged_into: Vec<Option<usize>> = vec![None; boundaries.len()];
-    for i in 0..boundaries.len() {
-        let b = boundaries[i];
-        if i > 0 && boundaries[i - 1].session != b.session {
-            since_closure_m = 0.0;
-        }
-        since_closure_m += b.leg_m;
-        let radius_m = tracking.search_radius_m(since_closure_m);
-        let pose = |graph: &PoseGraph2, i: usize| {
-            graph
-                .vertex(node(node_of[i]))
-                .map(|v| v.pose)
-                .unwrap_or_else(Se2::identity)
-        };
-        let here = pose(&graph, i);
-        let relocalising = !placed[b.session];
-        // Tracked: earlier crossings within the radius. Unplaced: every placed crossing.
-        let mut candidates: Vec<(f64, usize)> = (0..i)
-            .filter(|j| merged_into[*j].is_none())
-            .filter_map(|j| {
-                if relocalising {
-                    return placed[boundaries[j].session].then_some((0.0, j));
+    let mut session_spans = Vec::with_capacity(sessions.len());
+    let mut first = 0usize;
+    for session in sessions {
+        session_spans.push(first..first + session.segmentation.spans.len());
+        first += session.segmentation.spans.len();
+    }
+    for (s, own_spans) in session_spans.iter().enumerate() {
+        if s > 0 {
+            // The placed sessions' views, in the graph's frame.
+            for (g, (owner, _)) in span_refs.iter().enumerate() {
+                if placed[*owner] && views_of_span[g].is_none() {
+                    views_of_span[g] = Some(span_views(g));
                 }
-                if boundaries[j].session != b.session && !placed[boundaries[j].session] {
-                    return None;
+            }
+            let known: Vec<&View> = views_of_span.iter().flatten().flatten().collect();
+            // This session's views, with their travel over the session.
+            let mut queries: Vec<View> = Vec::new();
+            let mut offset_m = 0.0;
+            for g in own_spans.clone() {
+                let views = span_views(g);
+                queries.extend(views.into_iter().map(|mut v| {
+                    v.travel_m += offset_m;
+                    v
+                }));
+                offset_m += boundaries
+                    .iter()
+                    .find(|b| b.before == g)
+                    .map_or(0.0, |b| b.leg_m);
+            }
+            let found = place_session(
+                s,
+                &queries,
+                &known,
+                |g| frame_of(&graph, g),
+                tracking,
+                verifier,
+            );
+            if let Some(placement) = found {
+                // Move the session's component onto the map, let its start go, and join it
+                // by the agreeing matches.
+                let members = std::iter::once(session_start[s]).chain(
+                    boundaries
+                        .iter()
+                        .zip(&node_of)
+                        .filter(|(x, _)| x.session == s)
+                        .map(|(_, n)| *n),
+                );
+                for n in members {
+                    if let Some(v) = graph.vertex_mut(node(n)) {
+                        v.pose = placement.first_from_session.compose(&v.pose);
+                    }
                 }
-                let d = (pose(&graph, j).translation() - here.translation()).norm();
-                (d <= radius_m).then_some((d, j))
-            })
-            .collect();
-        candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
-        steps.push(TrackingStep {
-            boundary: i,
-            travel_since_closure_m: since_closure_m,
-            radius_m: if relocalising {
-                f64::INFINITY
-            } else {
-                radius_m
-            },
-            within_radius: candidates.iter().map(|(_, j)| *j).collect(),
-        });
-        if !relocalising {
-            candidates.truncate(tracking.max_candidates);
+                if let Some(v) = graph.vertex_mut(node(session_start[s])) {
+                    v.fixed = false;
+                }
+                for m in &placement.joins {
+                    let (query, view) = (&queries[m.query], known[m.view]);
+                    graph
+                        .add_edge(Edge {
+                            from: node(entry_node[view.span]),
+                            to: node(entry_node[query.span]),
+                            measurement: entry_pose[view.span]
+                                .inverse()
+                                .compose(&view.in_span)
+                                .compose(&m.view_from_query)
+                                .compose(&query.in_span.inverse())
+                                .compose(&entry_pose[query.span]),
+                            // The match, and the drift of each span from its entry to the
+                            // view.
+                            information: closure_information(
+                                &(m.covariance
+                                    + leg_covariance(tracking, view.from_entry_m)
+                                    + leg_covariance(tracking, query.from_entry_m)),
+                            ),
+                            kind: EdgeKind::Loop,
+                        })
+                        .map_err(graph_error)?;
+                    // Both views inside their spans, at one place: one area.
+                    if view.inside && query.inside {
+                        groups.union(view.span, query.span);
+                    }
+                }
+                let _ = optimize(&mut graph, &OptimizerParams::default());
+                placed[s] = true;
+                placements.push(placement.report);
+            }
         }
-        // Nothing to verify against: no local map to build.
-        if candidates.is_empty() && (relocalising || span_candidates.iter().all(|c| c.used)) {
-            continue;
-        }
-        let query = local_map_at(i);
-        let mut best: Option<(usize, Verification)> = None;
-        // Relocalising: the best score at each candidate, for the ambiguity test.
-        let mut scores: Vec<(usize, f64)> = Vec::new();
-        for (_, j) in &candidates {
-            let there = pose(&graph, *j);
-            let candidate = local_map_at(*j);
-            // Tracked: one guess from the chain. Relocalising: the same door at every heading.
-            let guesses: Vec<Se2> = if relocalising {
-                (0..tracking.relocalisation_headings.max(1))
-                    .map(|h| {
-                        let step =
-                            std::f64::consts::TAU / tracking.relocalisation_headings.max(1) as f64;
-                        Se2::new(0.0, 0.0, h as f64 * step)
-                    })
-                    .collect()
-            } else {
-                vec![there.inverse().compose(&here)]
+        let mut since_closure_m = 0.0;
+        for i in (0..boundaries.len()).filter(|i| boundaries[*i].session == s) {
+            let b = boundaries[i];
+            since_closure_m += b.leg_m;
+            // Eq. 3 from the crossing's marginal covariance in the link-point graph; the
+            // travel model where the graph gives none.
+            let marginal = position_variance_m2(&graph, node(node_of[i]));
+            let radius_m = marginal.map_or_else(
+                || tracking.search_radius_m(since_closure_m),
+                |variance| tracking.radius_for_variance_m(variance),
+            );
+            let pose = |graph: &PoseGraph2, i: usize| {
+                graph
+                    .vertex(node(node_of[i]))
+                    .map(|v| v.pose)
+                    .unwrap_or_else(Se2::identity)
             };
-            for guess in guesses {
+            let here = pose(&graph, i);
+            // Earlier crossings of this session or a placed one, within the radius.
+            let mut candidates: Vec<(f64, usize)> = (0..i)
+                .filter(|j| merged_into[*j].is_none())
+                .filter(|j| boundaries[*j].session == s || placed[boundaries[*j].session])
+                .filter_map(|j| {
+                    let d = (pose(&graph, j).translation() - here.translation()).norm();
+                    (d <= radius_m).then_some((d, j))
+                })
+                .collect();
+            candidates.sort_by(|a, b| a.0.total_cmp(&b.0));
+            steps.push(TrackingStep {
+                boundary: i,
+                travel_since_closure_m: since_closure_m,
+                radius_m,
+                within_radius: candidates.iter().map(|(_, j)| *j).collect(),
+            });
+            candidates.truncate(tracking.max_candidates);
+            // Nothing to verify against: no local map to build.
+            if candidates.is_empty() && span_candidates.iter().all(|c| c.used) {
+                continue;
+            }
+            let query = local_map_at(i);
+            let mut best: Option<(usize, Verification)> = None;
+            for (_, j) in &candidates {
+                let there = pose(&graph, *j);
+                let candidate = local_map_at(*j);
+                let guess = there.inverse().compose(&here);
                 let Some(found) = verifier.verify(&query, &candidate, &guess) else {
                     continue;
                 };
@@ -650,225 +806,147 @@ pub fn manage_sessions(
                     .between(&found.candidate_from_query)
                     .translation()
                     .norm();
-                let min_score = if relocalising {
-                    tracking.relocalisation_min_score
-                } else {
-                    tracking.min_score
-                };
                 let same_door =
                     found.candidate_from_query.translation().norm() <= tracking.same_door_m;
-                if relocalising && same_door {
-                    scores.push((*j, found.score));
-                }
-                if found.score >= min_score
+                if found.score >= tracking.min_score
                     && same_door
-                    && (relocalising || correction_m <= radius_m)
+                    && correction_m <= radius_m
                     && best.as_ref().is_none_or(|(_, v)| found.score > v.score)
                 {
                     best = Some((*j, found));
                 }
             }
-        }
-        let Some((j, found)) = best else {
-            if relocalising {
-                continue;
-            }
-            // No earlier crossing: a door seen from another area and not passed there, within
-            // the radius, verified on the local map around where it was seen.
-            let mut near: Vec<(f64, usize)> = span_candidates
-                .iter()
-                .enumerate()
-                .filter(|(_, c)| !c.used && groups.find(c.span) != groups.find(b.before))
-                // Seen before this crossing: in an earlier session that is placed, or earlier
-                // in this one.
-                .filter(|(_, c)| {
-                    (c.session < b.session && placed[c.session])
-                        || (c.session == b.session && c.door.scan < b.crossing)
-                })
-                .filter_map(|(k, c)| {
-                    let at = frame_of(&graph, c.span).compose(&c.in_span);
-                    let d = (at.translation() - here.translation()).norm();
-                    (d <= radius_m).then_some((d, k))
-                })
-                .collect();
-            near.sort_by(|a, b| a.0.total_cmp(&b.0));
-            near.truncate(tracking.max_candidates);
-            let mut chosen: Option<(usize, Verification)> = None;
-            for (_, k) in &near {
-                let c = &span_candidates[*k];
-                let (span, trajectory, s) = span_of(c.span);
-                let seen = local_map(
-                    c.door.scan,
-                    &c.robot_in_span,
-                    span,
-                    trajectory,
-                    sessions[s].scans,
-                    tracking,
-                );
-                let guess = frame_of(&graph, c.span)
-                    .compose(&c.robot_in_span)
-                    .inverse()
-                    .compose(&here);
-                let Some(found) = verifier.verify(&query, &seen, &guess) else {
+            let Some((j, found)) = best else {
+                // No earlier crossing: a door seen from another area and not passed there, within
+                // the radius, verified on the local map around where it was seen.
+                let mut near: Vec<(f64, usize)> = span_candidates
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, c)| !c.used && groups.find(c.span) != groups.find(b.before))
+                    // Seen before this crossing: in an earlier session that is placed, or earlier
+                    // in this one.
+                    .filter(|(_, c)| {
+                        (c.session < b.session && placed[c.session])
+                            || (c.session == b.session && c.door.scan < b.crossing)
+                    })
+                    .filter_map(|(k, c)| {
+                        let at = frame_of(&graph, c.span).compose(&c.in_span);
+                        let d = (at.translation() - here.translation()).norm();
+                        (d <= radius_m).then_some((d, k))
+                    })
+                    .collect();
+                near.sort_by(|a, b| a.0.total_cmp(&b.0));
+                near.truncate(tracking.max_candidates);
+                let mut chosen: Option<(usize, Verification)> = None;
+                for (_, k) in &near {
+                    let c = &span_candidates[*k];
+                    let (span, trajectory, s) = span_of(c.span);
+                    let seen = local_map(
+                        c.door.scan,
+                        &c.robot_in_span,
+                        span,
+                        trajectory,
+                        sessions[s].scans,
+                        tracking,
+                    );
+                    let guess = frame_of(&graph, c.span)
+                        .compose(&c.robot_in_span)
+                        .inverse()
+                        .compose(&here);
+                    let Some(found) = verifier.verify(&query, &seen, &guess) else {
+                        continue;
+                    };
+                    let correction_m = guess
+                        .between(&found.candidate_from_query)
+                        .translation()
+                        .norm();
+                    let at_door = (found.candidate_from_query.translation()
+                        - c.door_in_robot.translation())
+                    .norm()
+                        <= tracking.same_door_m;
+                    if found.score >= tracking.min_score
+                        && at_door
+                        && correction_m <= radius_m
+                        && chosen.as_ref().is_none_or(|(_, v)| found.score > v.score)
+                    {
+                        chosen = Some((*k, found));
+                    }
+                }
+                let Some((k, found)) = chosen else {
                     continue;
                 };
-                let correction_m = guess
-                    .between(&found.candidate_from_query)
-                    .translation()
-                    .norm();
-                let at_door = (found.candidate_from_query.translation()
-                    - c.door_in_robot.translation())
-                .norm()
-                    <= tracking.same_door_m;
-                if found.score >= tracking.min_score
-                    && at_door
-                    && correction_m <= radius_m
-                    && chosen.as_ref().is_none_or(|(_, v)| found.score > v.score)
-                {
-                    chosen = Some((*k, found));
+                span_candidates[k].used = true;
+                let c = span_candidates[k];
+                graph
+                    .add_edge(Edge {
+                        from: node(entry_node[c.span]),
+                        to: node(node_of[i]),
+                        measurement: entry_pose[c.span]
+                            .inverse()
+                            .compose(&c.robot_in_span)
+                            .compose(&found.candidate_from_query),
+                        information: closure_information(&found.covariance),
+                        kind: EdgeKind::Loop,
+                    })
+                    .map_err(graph_error)?;
+                let _ = optimize(&mut graph, &OptimizerParams::default());
+                // Heading along the door's normal, away from where it was seen: the robot leaves
+                // the side it was seen from.
+                let leaving_seen_side =
+                    (found.candidate_from_query.theta_rad - c.door_in_robot.theta_rad).cos() > 0.0;
+                if leaving_seen_side {
+                    groups.union(b.before, c.span);
+                } else {
+                    groups.union(b.after, c.span);
                 }
-            }
-            let Some((k, found)) = chosen else {
+                candidate_closures.push(CandidateClosure {
+                    boundary: i,
+                    session: c.session,
+                    door: c.door,
+                    score: found.score,
+                    joined_after: !leaving_seen_side,
+                });
+                since_closure_m = 0.0;
                 continue;
             };
-            span_candidates[k].used = true;
-            let c = span_candidates[k];
-            graph
-                .add_edge(Edge {
-                    from: node(entry_node[c.span]),
-                    to: node(node_of[i]),
-                    measurement: entry_pose[c.span]
-                        .inverse()
-                        .compose(&c.robot_in_span)
-                        .compose(&found.candidate_from_query),
-                    information: closure_information(&found),
-                    kind: EdgeKind::Loop,
-                })
-                .map_err(graph_error)?;
+            // The closure to add.
+            let joins = vec![(i, j, found)];
+            for (i, j, found) in &joins {
+                graph
+                    .add_edge(Edge {
+                        from: node(node_of[*j]),
+                        to: node(node_of[*i]),
+                        measurement: found.candidate_from_query,
+                        information: closure_information(&found.covariance),
+                        kind: EdgeKind::Loop,
+                    })
+                    .map_err(graph_error)?;
+            }
+            // A numerical failure keeps the last good state, which is the chain: still a map.
             let _ = optimize(&mut graph, &OptimizerParams::default());
-            // Heading along the door's normal, away from where it was seen: the robot leaves
-            // the side it was seen from.
-            let leaving_seen_side =
-                (found.candidate_from_query.theta_rad - c.door_in_robot.theta_rad).cos() > 0.0;
-            if leaving_seen_side {
-                groups.union(b.before, c.span);
-            } else {
-                groups.union(b.after, c.span);
+            for (i, j, found) in joins {
+                let (there, here) = (pose(&graph, j), pose(&graph, i));
+                let (now, earlier) = (boundaries[i], boundaries[j]);
+                // Same direction through the door: the same sides; else swapped.
+                if wrap_angle_rad(here.theta_rad - there.theta_rad).abs() < FRAC_PI_2 {
+                    groups.union(now.before, earlier.before);
+                    groups.union(now.after, earlier.after);
+                } else {
+                    groups.union(now.before, earlier.after);
+                    groups.union(now.after, earlier.before);
+                }
+                merged_into[i] = Some(j);
+                closures.push(Closure {
+                    boundary: i,
+                    earlier: j,
+                    score: found.score,
+                });
             }
-            candidate_closures.push(CandidateClosure {
-                boundary: i,
-                session: c.session,
-                door: c.door,
-                score: found.score,
-                joined_after: !leaving_seen_side,
-            });
             since_closure_m = 0.0;
-            continue;
-        };
-        // The closures to add: this one, and the pending relocalisation it confirms.
-        let mut joins = vec![(i, j, found)];
-        if relocalising {
-            // Ambiguous when another door scores about as well.
-            let at_j = pose(&graph, j).translation();
-            let rival = scores
-                .iter()
-                .filter(|(k, _)| {
-                    (pose(&graph, *k).translation() - at_j).norm() > tracking.same_door_m
-                })
-                .map(|(_, score)| *score)
-                .fold(f64::NEG_INFINITY, f64::max);
-            if rival >= joins[0].2.score - tracking.relocalisation_margin {
-                continue;
-            }
-            // Where the session's frame goes for this crossing to sit where the match puts it.
-            let target = pose(&graph, j).compose(&joins[0].2.candidate_from_query);
-            let delta = target.compose(&here.inverse());
-            // Placed once a second door agrees on the frame (both crossings land within Eq.
-            // 3's radius of the travel between them), unless one door is enough.
-            let agrees = |p: &Pending| {
-                let tolerance_m = tracking.search_radius_m(since_closure_m - p.travel_m);
-                let apart = |n: usize| {
-                    let at = pose(&graph, n);
-                    (delta.compose(&at).translation() - p.delta.compose(&at).translation()).norm()
-                };
-                apart(i) <= tolerance_m && apart(p.boundary) <= tolerance_m
-            };
-            let this = Pending {
-                boundary: i,
-                earlier: j,
-                found: joins[0].2.clone(),
-                delta,
-                travel_m: since_closure_m,
-            };
-            let confirmed = match pending[b.session].take() {
-                Some(p) if agrees(&p) => {
-                    joins.insert(0, (p.boundary, p.earlier, p.found));
-                    true
-                }
-                None if !tracking.relocalisation_second_door => true,
-                // The first door, or one that disagrees with the pending: wait for another.
-                _ => {
-                    pending[b.session] = Some(this);
-                    false
-                }
-            };
-            if !confirmed {
-                continue;
-            }
-            // Move the session's component by it, then let its start go.
-            let members: Vec<usize> = std::iter::once(session_start[b.session])
-                .chain(
-                    boundaries
-                        .iter()
-                        .zip(&node_of)
-                        .filter(|(x, _)| x.session == b.session)
-                        .map(|(_, n)| *n),
-                )
-                .collect();
-            for n in members {
-                if let Some(v) = graph.vertex_mut(node(n)) {
-                    v.pose = delta.compose(&v.pose);
-                }
-            }
-            if let Some(v) = graph.vertex_mut(node(session_start[b.session])) {
-                v.fixed = false;
-            }
-            placed[b.session] = true;
         }
-        for (i, j, found) in &joins {
-            graph
-                .add_edge(Edge {
-                    from: node(node_of[*j]),
-                    to: node(node_of[*i]),
-                    measurement: found.candidate_from_query,
-                    information: closure_information(found),
-                    kind: EdgeKind::Loop,
-                })
-                .map_err(graph_error)?;
-        }
-        // A numerical failure keeps the last good state, which is the chain: still a map.
-        let _ = optimize(&mut graph, &OptimizerParams::default());
-        for (i, j, found) in joins {
-            let (there, here) = (pose(&graph, j), pose(&graph, i));
-            let (now, earlier) = (boundaries[i], boundaries[j]);
-            // Same direction through the door: the same sides; else swapped.
-            if wrap_angle_rad(here.theta_rad - there.theta_rad).abs() < FRAC_PI_2 {
-                groups.union(now.before, earlier.before);
-                groups.union(now.after, earlier.after);
-            } else {
-                groups.union(now.before, earlier.after);
-                groups.union(now.after, earlier.before);
-            }
-            merged_into[i] = Some(j);
-            closures.push(Closure {
-                boundary: i,
-                earlier: j,
-                score: found.score,
-            });
-        }
-        since_closure_m = 0.0;
     }
-    // 4. Frames, areas, link points.
+
+    // 5. Frames, areas, link points.
     let pose_of = |n: usize| {
         graph
             .vertex(node(n))
@@ -965,20 +1043,221 @@ pub fn manage_sessions(
         candidate_closures,
         tracking: steps,
         session_placed: placed,
+        placements,
     })
 }
 
-/// A relocalisation of an unplaced session at one door, waiting for a second to agree.
+/// A view of a span for the placement search: the local map at one of its scans.
 #[derive(Clone, Debug)]
-struct Pending {
-    /// The crossing and the placed crossing it matched.
-    boundary: usize,
-    earlier: usize,
-    found: Verification,
-    /// The move of the session's frame it implies.
-    delta: Se2,
-    /// The session's travel at it (m), as tracking counts it.
+struct View {
+    /// The span (over all sessions).
+    span: usize,
+    /// The robot at the view, in the span's frame.
+    in_span: Se2,
+    /// Its travel from the span's entry and to its exit (m)…
+    from_entry_m: f64,
+    to_exit_m: f64,
+    /// … and from its session's start, for a query (m).
     travel_m: f64,
+    /// Whether it lies `local_map_m` or more from its span's crossings: its local map then
+    /// sees its own area only.
+    inside: bool,
+    /// The local map around it, in the robot's frame.
+    keyframe: Keyframe,
+}
+
+/// A verified match of a view of the session being placed to a placed one.
+#[derive(Clone, Debug)]
+struct PlacementMatch {
+    /// Ordinals of the query view and of the placed view.
+    query: usize,
+    view: usize,
+    /// The query view in the placed view's frame, its covariance and score.
+    view_from_query: Se2,
+    covariance: Matrix3<f64>,
+    score: f64,
+    /// Where the session's frame lies in the graph's frame for this match.
+    first_from_session: Se2,
+}
+
+/// A session placed by the global search.
+#[derive(Clone, Debug)]
+struct Placement {
+    first_from_session: Se2,
+    /// The matches that join it to the map.
+    joins: Vec<PlacementMatch>,
+    report: SessionPlacement,
+}
+
+/// How a later session was placed: by a global search over the placed areas, its matches
+/// agreeing as Eq. 3's tracking says they must.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SessionPlacement {
+    /// The session.
+    pub session: usize,
+    /// Its views searched, and those verified unambiguously in a placed area.
+    pub views: usize,
+    /// …
+    pub matches: usize,
+    /// Matches agreeing with the placement, and the most agreeing with any other.
+    pub support: usize,
+    /// …
+    pub rival_support: usize,
+    /// The session's travel the agreeing matches spread over (m).
+    pub spread_m: f64,
+    /// Matches that became edges of the link-point graph.
+    pub edges: usize,
+}
+
+/// The global search for a later session (`queries`, its views, in its own frame through
+/// `first_from_span`) in the placed areas (`known`): every view is looked up and verified;
+/// each unambiguous match says where the session's frame lies. Matches are chained by the
+/// tracking of Eq. 3 (see `TrackingParams::placement_min_support`); the largest chain places
+/// the session when it is large enough, spread over enough travel, and clearly larger than
+/// the next.
+fn place_session(
+    session: usize,
+    queries: &[View],
+    known: &[&View],
+    first_from_span: impl Fn(usize) -> Se2,
+    tracking: &TrackingParams,
+    verifier: &dyn GeometricVerifier,
+) -> Option<Placement> {
+    if queries.is_empty() || known.is_empty() {
+        return None;
+    }
+    let keyframe = |v: &View, ordinal: usize| {
+        let mut k = v.keyframe.clone();
+        k.id = KeyframeId(ordinal as u64);
+        k
+    };
+    let query_keyframes: Vec<Keyframe> = queries
+        .iter()
+        .enumerate()
+        .map(|(k, v)| keyframe(v, k))
+        .collect();
+    let known_keyframes: Vec<Keyframe> = known
+        .iter()
+        .enumerate()
+        .map(|(k, v)| keyframe(v, k))
+        .collect();
+    let first_from_view = |v: &View| first_from_span(v.span).compose(&v.in_span);
+    let known_poses: Vec<Se2> = known.iter().map(|v| first_from_view(v)).collect();
+    let params = PlaceParams {
+        min_score: tracking.placement_min_score,
+        ..PlaceParams::default()
+    };
+    let loops = find_loop_candidates_with_poses(
+        &query_keyframes,
+        &known_keyframes,
+        &known_poses,
+        &verifier,
+        &params,
+    );
+    let matches: Vec<PlacementMatch> = loops
+        .iter()
+        .filter(|l| l.score * l.confidence > tracking.placement_margin)
+        .filter_map(|l| {
+            let (query, view) = (l.a.0 as usize, l.b.0 as usize);
+            let session_from_query = first_from_view(queries.get(query)?);
+            Some(PlacementMatch {
+                query,
+                view,
+                view_from_query: l.b_from_a,
+                covariance: l.covariance,
+                score: l.score,
+                first_from_session: known_poses
+                    .get(view)?
+                    .compose(&l.b_from_a)
+                    .compose(&session_from_query.inverse()),
+            })
+        })
+        .collect();
+    // Tracking from match to match (Eq. 3) chains matches that agree; farther apart along
+    // the session, matches agree when they place it within r_orig of each other.
+    let agree = |a: &PlacementMatch, b: &PlacementMatch| {
+        let (qa, qb) = (&queries[a.query], &queries[b.query]);
+        let travel_m = (qa.travel_m - qb.travel_m).abs();
+        let tolerance_m = if travel_m <= tracking.placement_track_m {
+            tracking.search_radius_m(travel_m)
+        } else {
+            tracking.base_radius_m
+        };
+        [qa, qb].iter().all(|q| {
+            let at = first_from_view(q);
+            let (pa, pb) = (
+                a.first_from_session.compose(&at),
+                b.first_from_session.compose(&at),
+            );
+            (pa.translation() - pb.translation()).norm() <= tolerance_m
+        })
+    };
+    let mut chains = UnionFind::new(matches.len());
+    for a in 0..matches.len() {
+        for b in a + 1..matches.len() {
+            if agree(&matches[a], &matches[b]) {
+                chains.union(a, b);
+            }
+        }
+    }
+    let mut members: BTreeMap<usize, Vec<usize>> = BTreeMap::new();
+    for k in 0..matches.len() {
+        members.entry(chains.find(k)).or_default().push(k);
+    }
+    let score_of = |set: &[usize]| set.iter().map(|k| matches[*k].score).sum::<f64>();
+    let mut ranked_chains: Vec<Vec<usize>> = members.into_values().collect();
+    ranked_chains.sort_by(|a, b| {
+        b.len()
+            .cmp(&a.len())
+            .then(score_of(b).total_cmp(&score_of(a)))
+    });
+    let agreeing = ranked_chains.first()?;
+    let rival_support = ranked_chains.get(1).map_or(0, Vec::len);
+    let travels = agreeing.iter().map(|k| queries[matches[*k].query].travel_m);
+    let spread_m =
+        travels.clone().fold(f64::NEG_INFINITY, f64::max) - travels.fold(f64::INFINITY, f64::min);
+    if agreeing.len() < tracking.placement_min_support
+        || spread_m < tracking.placement_min_spread_m
+        || (agreeing.len() as f64) < tracking.placement_rival_ratio * rival_support as f64
+    {
+        return None;
+    }
+    // The best-scored agreeing matches, a view's spacing apart, join the session.
+    let mut ranked: Vec<&PlacementMatch> = agreeing.iter().map(|k| &matches[*k]).collect();
+    ranked.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.query.cmp(&b.query)));
+    let mut joins: Vec<PlacementMatch> = Vec::new();
+    for m in ranked {
+        let travel_m = queries[m.query].travel_m;
+        let apart = joins
+            .iter()
+            .all(|j| (queries[j.query].travel_m - travel_m).abs() >= tracking.placement_spacing_m);
+        if apart && joins.len() < tracking.placement_max_edges.max(1) {
+            joins.push(m.clone());
+        }
+    }
+    let first_from_session = joins.first()?.first_from_session;
+    Some(Placement {
+        first_from_session,
+        report: SessionPlacement {
+            session,
+            views: queries.len(),
+            matches: matches.len(),
+            support: agreeing.len(),
+            rival_support,
+            spread_m,
+            edges: joins.len(),
+        },
+        joins,
+    })
+}
+
+/// The largest eigenvalue of a vertex's marginal position covariance in the graph (m²), for
+/// Eq. 3; `None` when the solver cannot give it (a singular graph).
+fn position_variance_m2(graph: &PoseGraph2, vertex: NodeId) -> Option<f64> {
+    let covariance = *marginal_covariances(graph, &[vertex]).ok()?.first()?;
+    let (a, b, c) = (covariance[(0, 0)], covariance[(0, 1)], covariance[(1, 1)]);
+    let lambda = 0.5 * (a + c) + (0.25 * (a - c).powi(2) + b * b).sqrt();
+    lambda.is_finite().then_some(lambda.max(0.0))
 }
 
 /// A door a span saw and did not pass: a link-point candidate while the manager runs.
@@ -1001,20 +1280,26 @@ struct SpanCandidate {
 
 /// Information of the link-point edge over a leg of `leg_m` travel.
 fn leg_information(tracking: &TrackingParams, leg_m: f64) -> Matrix3<f64> {
-    let d = leg_m.max(0.1);
+    let covariance = leg_covariance(tracking, leg_m.max(0.1));
+    Matrix3::from_diagonal(&covariance.diagonal().map(|v| 1.0 / v))
+}
+
+/// Covariance of a leg of `leg_m` travel: the travel model of Eq. 3's radius.
+fn leg_covariance(tracking: &TrackingParams, leg_m: f64) -> Matrix3<f64> {
+    let d = leg_m.max(0.0);
     let position = tracking.variance_per_m * d + tracking.heading_variance_per_m * d.powi(3) / 3.0;
     let heading = tracking.heading_variance_per_m * d;
-    Matrix3::from_diagonal(&Vector3::new(1.0 / position, 1.0 / position, 1.0 / heading))
+    Matrix3::from_diagonal(&Vector3::new(position, position, heading))
 }
 
 /// Information of a closure: its verification's covariance with 5 cm and 1° floors.
-fn closure_information(found: &Verification) -> Matrix3<f64> {
+fn closure_information(covariance: &Matrix3<f64>) -> Matrix3<f64> {
     let floor = Matrix3::from_diagonal(&Vector3::new(
         0.05f64.powi(2),
         0.05f64.powi(2),
         1f64.to_radians().powi(2),
     ));
-    (found.covariance + floor)
+    (covariance + floor)
         .try_inverse()
         .unwrap_or_else(|| floor.try_inverse().unwrap_or_else(Matrix3::identity))
 }
@@ -1203,41 +1488,51 @@ mod tests {
         assert!(manage(&split, &trajectories[1..], &scans, &params, &verifier).is_err());
     }
 
-    #[test]
-    fn a_second_session_is_relocalised_at_a_known_door_and_placed_by_it() {
-        let mut sim = SimParams::default()
-            .with_preset_name("office")
-            .unwrap()
-            .with_sessions(2)
-            .with_duration_secs(300.0);
-        sim.kidnap.max_per_session = 0;
-        let data = simulate(&sim, 2).unwrap();
-        let params = ManagerParams::default();
+    /// Two simulated sessions (of `worlds`, seed `seed`), split at their doors and mapped by
+    /// the true poses.
+    type Sessions = (Vec<SessionData>, Vec<Segmentation>, Vec<Vec<Vec<Se2>>>);
+
+    fn sessions_of(worlds: &[(&str, u64)], params: &ManagerParams) -> Sessions {
+        let mut data = Vec::new();
+        for (world, seed) in worlds {
+            let mut sim = SimParams::default()
+                .with_preset_name(world)
+                .unwrap()
+                .with_sessions(2)
+                .with_duration_secs(300.0);
+            sim.kidnap.max_per_session = 0;
+            let simulated = simulate(&sim, *seed).unwrap();
+            data.push(simulated.sessions[data.len()].clone());
+        }
         let mut splits = Vec::new();
         let mut trajectories = Vec::new();
-        let mut scans = Vec::new();
-        for session in &data.sessions {
+        for session in &data {
             let split = segment(
                 session
                     .log
                     .scans
                     .iter()
                     .map(|r| (r.odom_from_robot.unwrap(), &r.scan)),
-                &params,
+                params,
             )
             .unwrap();
             trajectories.push(true_trajectories(&split, session));
-            scans.push(
-                session
-                    .log
-                    .scans
-                    .iter()
-                    .map(|r| &r.scan)
-                    .collect::<Vec<_>>(),
-            );
             splits.push(split);
         }
-        let inputs: Vec<SessionInput> = (0..2)
+        (data, splits, trajectories)
+    }
+
+    fn manage_all(
+        data: &[SessionData],
+        splits: &[Segmentation],
+        trajectories: &[Vec<Vec<Se2>>],
+        params: &ManagerParams,
+    ) -> ManagedMap {
+        let scans: Vec<Vec<&LaserScan>> = data
+            .iter()
+            .map(|session| session.log.scans.iter().map(|r| &r.scan).collect())
+            .collect();
+        let inputs: Vec<SessionInput> = (0..data.len())
             .map(|s| SessionInput {
                 segmentation: &splits[s],
                 trajectories: &trajectories[s],
@@ -1245,17 +1540,20 @@ mod tests {
             })
             .collect();
         let verifier = PlaceVerifierParams::default().verifier().unwrap();
-        let managed = manage_sessions(&inputs, &params, &verifier).unwrap();
-        assert_eq!(
-            managed.session_placed,
-            vec![true, true],
-            "session 1 relocalised"
-        );
-        let world_from_first = data.sessions[0].truth[0].1;
+        manage_sessions(&inputs, params, &verifier).unwrap()
+    }
+
+    /// Whether every span of every placed session lies within 0.1 m of the truth.
+    fn spans_where_the_truth_puts_them(
+        data: &[SessionData],
+        splits: &[Segmentation],
+        managed: &ManagedMap,
+    ) {
+        let world_from_first = data[0].truth[0].1;
         let mut g = 0;
         for (s, split) in splits.iter().enumerate() {
             for span in &split.spans {
-                let world_from_span = data.sessions[s].truth[span.scans.start].1;
+                let world_from_span = data[s].truth[span.scans.start].1;
                 let error = world_from_first
                     .compose(&managed.first_from_span[g])
                     .between(&world_from_span);
@@ -1266,6 +1564,21 @@ mod tests {
                 g += 1;
             }
         }
+    }
+
+    #[test]
+    fn a_second_session_is_placed_by_the_global_search_and_shares_areas() {
+        let params = ManagerParams::default();
+        let (data, splits, trajectories) = sessions_of(&[("office", 2), ("office", 2)], &params);
+        let managed = manage_all(&data, &splits, &trajectories, &params);
+        assert_eq!(managed.session_placed, vec![true, true], "session 1 placed");
+        let placement = &managed.placements[0];
+        assert_eq!(placement.session, 1);
+        assert!(
+            placement.support >= 2 && placement.edges >= 2,
+            "{placement:?}"
+        );
+        spans_where_the_truth_puts_them(&data, &splits, &managed);
         // Some area holds spans of both sessions.
         let shared = (0..managed.hybrid.areas.len()).any(|a| {
             let sessions: Vec<usize> = managed
@@ -1278,5 +1591,104 @@ mod tests {
             sessions.contains(&0) && sessions.contains(&1)
         });
         assert!(shared);
+    }
+
+    #[test]
+    fn a_session_that_passes_no_door_is_placed_all_the_same() {
+        let params = ManagerParams::default();
+        let (data, mut splits, mut trajectories) =
+            sessions_of(&[("office", 2), ("office", 2)], &params);
+        // Session 1 as one span: no passing, no boundary, no door to relocalise at.
+        let n = data[1].log.scans.len();
+        splits[1] = Segmentation {
+            passings: Vec::new(),
+            spans: vec![AreaSpan {
+                scans: 0..n,
+                environment: Environment::Indoor,
+            }],
+            boundaries: Vec::new(),
+            unpassed: Vec::new(),
+        };
+        trajectories[1] = true_trajectories(&splits[1], &data[1]);
+        let managed = manage_all(&data, &splits, &trajectories, &params);
+        assert_eq!(managed.session_placed, vec![true, true]);
+        spans_where_the_truth_puts_them(&data, &splits, &managed);
+    }
+
+    #[test]
+    fn a_session_of_another_building_is_left_unplaced() {
+        let params = ManagerParams::default();
+        let (data, splits, trajectories) =
+            sessions_of(&[("office", 2), ("corridor-loop", 5)], &params);
+        let managed = manage_all(&data, &splits, &trajectories, &params);
+        assert_eq!(managed.session_placed, vec![true, false]);
+        assert!(managed.placements.is_empty());
+        // Its areas are its own.
+        let (first, second): (Vec<_>, Vec<_>) = managed
+            .span_area
+            .iter()
+            .zip(&managed.span_session)
+            .partition(|(_, s)| **s == 0);
+        assert!(first
+            .iter()
+            .all(|(a, _)| second.iter().all(|(b, _)| a != b)));
+    }
+
+    #[test]
+    fn eq_3_radius_follows_the_marginal_covariance_of_the_chain_and_shrinks_at_a_closure() {
+        let tracking = TrackingParams {
+            heading_variance_per_m: 1e-12,
+            ..TrackingParams::default()
+        };
+        let mut graph = PoseGraph2::new();
+        let fixed = Vertex {
+            pose: Se2::identity(),
+            fixed: true,
+            meta: Default::default(),
+        };
+        graph.add_vertex(NodeId(0), fixed).unwrap();
+        let legs_m = [3.0, 4.0, 5.0];
+        let mut x = 0.0;
+        for (k, leg) in legs_m.iter().enumerate() {
+            x += leg;
+            graph
+                .add_vertex(NodeId(k as u64 + 1), Vertex::new(Se2::new(x, 0.0, 0.0)))
+                .unwrap();
+            graph
+                .add_edge(Edge {
+                    from: NodeId(k as u64),
+                    to: NodeId(k as u64 + 1),
+                    measurement: Se2::new(*leg, 0.0, 0.0),
+                    information: leg_information(&tracking, *leg),
+                    kind: EdgeKind::Odometry,
+                })
+                .unwrap();
+        }
+        let last = NodeId(legs_m.len() as u64);
+        let chain = position_variance_m2(&graph, last).unwrap();
+        let travel_m: f64 = legs_m.iter().sum();
+        let expected = tracking.search_radius_m(travel_m);
+        assert!(
+            (tracking.radius_for_variance_m(chain) - expected).abs() < 1e-6,
+            "{chain} against {expected}"
+        );
+        // A closure to the origin makes the last crossing surer.
+        graph
+            .add_edge(Edge {
+                from: NodeId(0),
+                to: last,
+                measurement: Se2::new(x, 0.0, 0.0),
+                information: closure_information(&Matrix3::zeros()),
+                kind: EdgeKind::Loop,
+            })
+            .unwrap();
+        let closed = position_variance_m2(&graph, last).unwrap();
+        // The closure's 5 cm floor in parallel with the chain.
+        let expected = 1.0 / (1.0 / chain + 1.0 / 0.05f64.powi(2));
+        assert!(
+            (closed - expected).abs() < 1e-6,
+            "{closed} against {expected}"
+        );
+        assert!(tracking.radius_for_variance_m(closed) < tracking.radius_for_variance_m(chain));
     }
 }

@@ -1311,7 +1311,7 @@ impl<B: BackupStore> Atlas<B> {
                 })
                 .collect();
         }
-        verify_candidates(&query.keyframe, &candidates, &Dyn(verifier), &p.place)
+        verify_candidates(&query.keyframe, &candidates, &verifier, &p.place)
             .filter(|found| found.confidence >= p.min_confidence)
     }
 
@@ -1338,20 +1338,6 @@ pub(crate) struct PlaceQuery {
 
 /// A keyframe retrieval admitted: node, descriptor yaw (rad) and ordinal in the place index.
 type RetrievedNode = (NodeId, f64, usize);
-
-/// A `&dyn GeometricVerifier` as a sized verifier (the place crate's functions are generic).
-struct Dyn<'a>(&'a dyn GeometricVerifier);
-
-impl GeometricVerifier for Dyn<'_> {
-    fn verify(
-        &self,
-        query: &Keyframe,
-        candidate: &Keyframe,
-        guess_candidate_from_query: &Se2,
-    ) -> Option<Verification> {
-        self.0.verify(query, candidate, guess_candidate_from_query)
-    }
-}
 
 #[cfg(test)]
 mod tests {

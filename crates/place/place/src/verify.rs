@@ -30,3 +30,16 @@ pub trait GeometricVerifier: Sync {
         guess_candidate_from_query: &Se2,
     ) -> Option<Verification>;
 }
+
+/// A borrowed verifier verifies as its referent does, so `&dyn GeometricVerifier` serves where
+/// the place functions take a sized one.
+impl<T: GeometricVerifier + ?Sized> GeometricVerifier for &T {
+    fn verify(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+    ) -> Option<Verification> {
+        (**self).verify(query, candidate, guess_candidate_from_query)
+    }
+}

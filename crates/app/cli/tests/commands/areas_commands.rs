@@ -103,7 +103,7 @@ fn add_session(site: &std::path::Path, index: &str, out: &std::path::Path) -> se
 }
 
 #[test]
-fn areas_in_the_store_take_a_later_session_placed_by_a_door_it_passes_again() {
+fn areas_in_the_store_take_a_later_session_placed_by_the_global_search() {
     let dir = scratch("areas-sessions");
     let site = dir.join("site.mapmerge");
     let first = add_session(&site, "0", &dir.join("first"));
@@ -133,6 +133,14 @@ fn areas_in_the_store_take_a_later_session_placed_by_a_door_it_passes_again() {
         .unwrap()
         .iter()
         .all(|a| a["placed"] == true));
+    // Every passing of both sessions, in its area and in the first area's frame.
+    let passings = file["door_passings"].as_array().unwrap();
+    for session in [0, 1] {
+        assert!(passings.iter().any(|x| x["session"] == session), "{file}");
+    }
+    assert!(passings
+        .iter()
+        .all(|x| x["area"].is_u64() && x["placed"] == true && x["x"].is_f64()));
     // The store alone writes the same areas; rolled back, the first session's.
     let again = ok_json(&[
         "areas",
