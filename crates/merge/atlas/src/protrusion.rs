@@ -630,16 +630,7 @@ fn piecewise_constant(scores: &[Vec<f64>], switch_cost: f64) -> Vec<usize> {
         let (stay_or_switch, from): (Vec<f64>, Vec<usize>) = if i == 0 {
             (best.clone(), (0..states).map(|_| 0).collect())
         } else {
-            let (top, top_state) =
-                best.iter()
-                    .enumerate()
-                    .fold((f64::NEG_INFINITY, 0), |(t, ts), (c, v)| {
-                        if *v > t {
-                            (*v, c)
-                        } else {
-                            (t, ts)
-                        }
-                    });
+            let (top, top_state) = arg_max(&best);
             (0..states)
                 .map(|c| {
                     let stay = best.get(c).copied().unwrap_or(f64::NEG_INFINITY);
@@ -654,17 +645,7 @@ fn piecewise_constant(scores: &[Vec<f64>], switch_cost: f64) -> Vec<usize> {
         best = stay_or_switch.iter().zip(row).map(|(b, s)| b + s).collect();
         back.push(from);
     }
-    let mut state = best
-        .iter()
-        .enumerate()
-        .fold((f64::NEG_INFINITY, 0), |(t, ts), (c, v)| {
-            if *v > t {
-                (*v, c)
-            } else {
-                (t, ts)
-            }
-        })
-        .1;
+    let mut state = arg_max(&best).1;
     let mut path = vec![0; scores.len()];
     for (i, slot) in path.iter_mut().enumerate().rev() {
         *slot = state;
@@ -673,6 +654,20 @@ fn piecewise_constant(scores: &[Vec<f64>], switch_cost: f64) -> Vec<usize> {
         }
     }
     path
+}
+
+/// The largest value and its index (the first of equals; index 0 when empty).
+fn arg_max(values: &[f64]) -> (f64, usize) {
+    values
+        .iter()
+        .enumerate()
+        .fold((f64::NEG_INFINITY, 0), |(top, at), (k, v)| {
+            if *v > top {
+                (*v, k)
+            } else {
+                (top, at)
+            }
+        })
 }
 
 #[cfg(test)]
