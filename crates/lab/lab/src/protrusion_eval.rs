@@ -3,13 +3,13 @@
 //!
 //! Per world and seed, a robot lives a few sessions (`simulate_session_alone` 0, 1, …) through
 //! the engine, each ended by maintenance. For each session that joined the previous one's
-//! map, the parent map is the atlas before it and the child the atlas after it. Every region
-//! of new space in the child is real (new rooms, doors that opened, space first seen): label
-//! *new space*. Then undetected wheel slips are
-//! injected: everything session 1 mapped after a random local map is moved by a random rigid
-//! error about that map's anchor (0.2–1.0 m, 5–25°), as when the tracker follows a slipped
-//! odometry; regions of new space that the correct child does not see as free are labelled
-//! *protrusion*, the others *new space*.
+//! map, the parent map is the atlas before it and the child the atlas after it. Then
+//! undetected wheel slips are injected: everything the session mapped after a random local
+//! map is moved by a random rigid error about that map's anchor (0.2–1.0 m, 5–25°), as when
+//! the tracker follows a slipped odometry. A cell of new space is wrong where the world has
+//! no free space (outside the building or inside an obstacle) or, in a slipped child, where
+//! the child without the slip is not free; a region is a protrusion when most of its cells
+//! are wrong, new space otherwise.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
@@ -25,7 +25,8 @@ use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_posegraph::NodeId;
 use mapmerge_sim::{simulate_session_alone, SimParams};
 use rand::{Rng, SeedableRng};
-use serde::Serialize;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::{bad_input, print_json};
 
@@ -59,6 +60,14 @@ pub struct ProtrusionEvalArgs {
     /// crates/merge/atlas/src/protrusion_training.json).
     #[arg(long)]
     pub write_training: Option<PathBuf>,
+    /// Writes every region, tuning and held out, with its label and its source, one JSON
+    /// object a line.
+    #[arg(long)]
+    pub write_regions: Option<PathBuf>,
+    /// Keeps the lived sessions of each world and seed here (postcard), and reads them back
+    /// on the next run with the same world, seed, duration and sessions.
+    #[arg(long)]
+    pub cache: Option<PathBuf>,
     /// Print one JSON object instead of text.
     #[arg(long)]
     pub json: bool,
@@ -102,6 +111,16 @@ impl Score {
         s.recall = ratio(s.true_positives, s.true_positives + s.false_negatives);
         s
     }
+}
+
+/// One region of `--write-regions`.
+#[derive(Serialize)]
+struct RegionLine {
+    held_out: bool,
+    /// Fraction of its cells that are wrong (over half: a protrusion).
+    wrong_fraction: f64,
+    #[serde(flatten)]
+    region: LabelledRegion,
 }
 
 #[derive(Serialize)]
@@ -186,6 +205,69 @@ fn lived_sessions(
     Ok(lived)
 }
 
+/// [`lived_sessions`], read from and written to `args.cache` when it is set.
+fn cached_lived_sessions(
+    world: &str,
+    seed: u64,
+    args: &ProtrusionEvalArgs,
+) -> anyhow::Result<Vec<Lived>> {
+    let Some(dir) = &args.cache else {
+        return lived_sessions(world, seed, args.duration, args.sessions);
+    };
+    let path = dir.join(format!(
+        "{world}-{seed}-{}s-{}.postcard",
+        args.duration, args.sessions
+    ));
+    // What the detector reads of a version: its graphs and local maps (no keyframes).
+    #[derive(Serialize, Deserialize)]
+    struct Cached {
+        counters: mapmerge_atlas::AtlasCounters,
+        active: mapmerge_posegraph::PoseGraph2,
+        inactive: BTreeMap<mapmerge_atlas::MapId, mapmerge_posegraph::PoseGraph2>,
+        local_maps: BTreeMap<NodeId, mapmerge_atlas::LocalMapGrid>,
+        first: NodeId,
+        world: mapmerge_sim::World,
+        truth: BTreeMap<NodeId, Se2>,
+    }
+    if let Ok(bytes) = std::fs::read(&path) {
+        if let Ok(cached) = postcard::from_bytes::<Vec<Cached>>(&bytes) {
+            return Ok(cached
+                .into_iter()
+                .map(|c| Lived {
+                    atlas: AtlasSnapshot {
+                        counters: c.counters,
+                        active: c.active,
+                        inactive: c.inactive,
+                        keyframes: BTreeMap::new(),
+                        backups: BTreeMap::new(),
+                        local_maps: c.local_maps,
+                    },
+                    first: c.first,
+                    world: c.world,
+                    truth: c.truth,
+                })
+                .collect());
+        }
+    }
+    let lived = lived_sessions(world, seed, args.duration, args.sessions)?;
+    let cached: Vec<Cached> = lived
+        .iter()
+        .map(|l| Cached {
+            counters: l.atlas.counters.clone(),
+            active: l.atlas.active.clone(),
+            inactive: l.atlas.inactive.clone(),
+            local_maps: l.atlas.local_maps.clone(),
+            first: l.first,
+            world: l.world.clone(),
+            truth: l.truth.clone(),
+        })
+        .collect();
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::write(&path, postcard::to_stdvec(&cached)?)
+        .with_context(|| format!("writing {}", path.display()))?;
+    Ok(lived)
+}
+
 /// `world_from_map` of a version's site graph: the rigid transform that best aligns its
 /// vertices with their true poses.
 fn world_from_map(atlas: &AtlasSnapshot, truth: &BTreeMap<NodeId, Se2>) -> Option<Se2> {
@@ -259,16 +341,19 @@ fn slipped(
     Some(slipped)
 }
 
+/// A labelled region and the fraction of its cells that are wrong.
+type Labelled = (LabelledRegion, f64);
+
 /// The labelled regions of one world and seed: every consecutive pair of sessions where
 /// the later joined the earlier's map; `None` when no session did.
 fn regions_of(
     world: &str,
     seed: u64,
     args: &ProtrusionEvalArgs,
-) -> anyhow::Result<Option<Vec<LabelledRegion>>> {
+) -> anyhow::Result<Option<Vec<Labelled>>> {
     let params = ProtrusionParams::default();
-    let lived = lived_sessions(world, seed, args.duration, args.sessions)?;
-    let mut labelled: Vec<LabelledRegion> = Vec::new();
+    let lived = cached_lived_sessions(world, seed, args)?;
+    let mut labelled = Vec::new();
     let mut pairs = 0;
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed ^ 0x05ee_d0f5_11b5);
     for (k, pair) in lived.windows(2).enumerate() {
@@ -279,21 +364,41 @@ fn regions_of(
         let Some(world_from_child) = world_from_map(&child.atlas, &child.truth) else {
             continue;
         };
-        // The truth: a region is a protrusion when most of it is where the world has no
-        // free space (outside the building or inside an obstacle).
-        let label = |map: &mapmerge_atlas::RenderedMap, region: &mapmerge_atlas::Region| {
-            let g = &map.geometry;
-            let stride = (region.cells.len() / 400).max(1);
-            let (mut sampled, mut solid) = (0usize, 0usize);
-            for &i in region.cells.iter().step_by(stride) {
-                let p = world_from_child.transform_point(&g.center_of(g.cell_at(i as usize)));
-                sampled += 1;
-                solid += usize::from(
-                    !child.world.is_inside_building(&p) || child.world.is_inside_obstacle(&p),
-                );
-            }
-            2 * solid > sampled
+        // The truth: a cell of new space is wrong where the world has no free space (outside
+        // the building or inside an obstacle) or, after a slip, where the child without the
+        // slip has no free space; a region is a protrusion when most of it is wrong.
+        let Some(site) = child.atlas.site_graph() else {
+            continue;
         };
+        let Some(correct) =
+            mapmerge_atlas::RenderedMap::render(site, &child.atlas.local_maps, params.resolution_m)
+        else {
+            continue;
+        };
+        let thresholds = mapmerge_grid::ClassThresholds::default();
+        let correct_free = |p: &mapmerge_scan::Point2| {
+            let g = &correct.geometry;
+            g.index_of(g.cell_of(p))
+                .and_then(|i| correct.sums.get(i))
+                .is_some_and(|l| thresholds.classify(*l) == mapmerge_grid::CellClass::Free)
+        };
+        let label =
+            |map: &mapmerge_atlas::RenderedMap, region: &mapmerge_atlas::Region, slipped: bool| {
+                let g = &map.geometry;
+                let stride = (region.cells.len() / 400).max(1);
+                let (mut sampled, mut wrong) = (0usize, 0usize);
+                for &i in region.cells.iter().step_by(stride) {
+                    let child_p = g.center_of(g.cell_at(i as usize));
+                    let p = world_from_child.transform_point(&child_p);
+                    sampled += 1;
+                    wrong += usize::from(
+                        !child.world.is_inside_building(&p)
+                            || child.world.is_inside_obstacle(&p)
+                            || (slipped && !correct_free(&child_p)),
+                    );
+                }
+                wrong as f64 / sampled.max(1) as f64
+            };
         let cases = std::iter::once(("correct".to_owned(), Some(child.atlas.clone()))).chain(
             (0..args.slips)
                 .map(|slip| {
@@ -312,11 +417,15 @@ fn regions_of(
             };
             any = true;
             for region in &regions {
-                labelled.push(LabelledRegion {
-                    source: format!("{world}/{seed}/{}/{case}", k + 1),
-                    features: region.features,
-                    protrusion: label(&map, region),
-                });
+                let wrong_fraction = label(&map, region, case != "correct");
+                labelled.push((
+                    LabelledRegion {
+                        source: format!("{world}/{seed}/{}/{case}", k + 1),
+                        features: region.features,
+                        protrusion: wrong_fraction > 0.5,
+                    },
+                    wrong_fraction,
+                ));
             }
         }
         pairs += usize::from(any);
@@ -337,23 +446,53 @@ pub fn run(args: &ProtrusionEvalArgs) -> anyhow::Result<()> {
         "",
         !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr()),
     );
-    for world in &args.worlds {
-        for (seed, is_test) in train_seeds
-            .iter()
-            .map(|s| (*s, false))
-            .chain(test_seeds.iter().map(|s| (*s, true)))
-        {
+    let jobs: Vec<(&String, u64, bool)> = args
+        .worlds
+        .iter()
+        .flat_map(|world| {
+            train_seeds
+                .iter()
+                .map(move |s| (world, *s, false))
+                .chain(test_seeds.iter().map(move |s| (world, *s, true)))
+        })
+        .collect();
+    let lived: Vec<anyhow::Result<Option<Vec<Labelled>>>> = jobs
+        .par_iter()
+        .map(|(world, seed, _)| {
+            let regions = regions_of(world, *seed, args);
             bar.inc(1);
-            match regions_of(world, seed, args)? {
-                None => skipped.push(format!("{world}/{seed}")),
-                Some(regions) if is_test => {
-                    test.extend(regions.into_iter().map(|r| (world.clone(), r)))
+            regions
+        })
+        .collect();
+    let mut dump: Vec<RegionLine> = Vec::new();
+    for ((world, seed, is_test), regions) in jobs.iter().zip(lived) {
+        match regions? {
+            None => skipped.push(format!("{world}/{seed}")),
+            Some(regions) => {
+                for (region, wrong_fraction) in regions {
+                    dump.push(RegionLine {
+                        held_out: *is_test,
+                        wrong_fraction,
+                        region: region.clone(),
+                    });
+                    if *is_test {
+                        test.push(((*world).clone(), region));
+                    } else {
+                        train.push(region);
+                    }
                 }
-                Some(regions) => train.extend(regions),
             }
         }
     }
     bar.finish_and_clear();
+    if let Some(path) = &args.write_regions {
+        let lines: Vec<String> = dump
+            .iter()
+            .map(serde_json::to_string)
+            .collect::<Result<_, _>>()?;
+        std::fs::write(path, lines.join("\n") + "\n")
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     if let Some(path) = &args.write_training {
         let lines: Vec<String> = train
             .iter()

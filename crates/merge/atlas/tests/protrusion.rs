@@ -141,3 +141,43 @@ fn the_parents_frame_does_not_matter() {
         regions[0].features
     );
 }
+
+#[test]
+fn a_slipped_map_is_realigned_and_only_the_space_it_made_is_lost() {
+    // The parent saw a 4 m × 4 m room. The session mapped a new 3 m × 3 m room at x = 6,
+    // then saw the first room again after an undetected slip: that map lies 0.4 m and 10°
+    // off, painting free space through the parent's walls.
+    let parent = version(&[(0, 0.0, 4.0, 4.0), (1, 0.0, 4.0, 4.0)]);
+    let rooms = [
+        (0, 0.0, 4.0, 4.0),
+        (1, 0.0, 4.0, 4.0),
+        (2, 6.0, 3.0, 3.0),
+        (3, 0.0, 4.0, 4.0),
+    ];
+    let params = ProtrusionParams::default();
+    // Without the slip only the new room is new, and nothing moves.
+    let (_, regions) = new_regions(&parent, &version(&rooms), &params).unwrap();
+    assert_eq!(regions.len(), 1, "{regions:?}");
+    assert!(regions[0].features.realigned_loss < 0.05, "{regions:?}");
+    assert!(regions[0].features.realigned_shift_m < 0.05, "{regions:?}");
+
+    let mut child = version(&rooms);
+    let graph = child.inactive.get_mut(&mapmerge_atlas::MapId(0)).unwrap();
+    graph.vertex_mut(NodeId(3)).unwrap().pose = Se2::new(0.4, 0.3, 10f64.to_radians());
+    let (_, regions) = new_regions(&parent, &child, &params).unwrap();
+    let (room, ghosts): (Vec<_>, Vec<_>) = regions
+        .iter()
+        .partition(|r| (r.centre_m[0] - 6.0).abs() < 1.0);
+    assert_eq!(room.len(), 1, "{regions:?}");
+    assert!(!ghosts.is_empty(), "{regions:?}");
+    // The new room stays: it was mapped before the slip.
+    assert!(room[0].features.realigned_loss < 0.05, "{room:?}");
+    // What the slipped map painted beyond the parent's walls is gone once it is realigned,
+    // and the realignment moved it by about the slip.
+    for ghost in ghosts {
+        let f = ghost.features;
+        assert!(f.realigned_loss > 0.9, "{f:?}");
+        assert!((0.3..1.0).contains(&f.realigned_shift_m), "{f:?}");
+        assert!(f.observer_wall_offset_m > 0.1, "{f:?}");
+    }
+}
