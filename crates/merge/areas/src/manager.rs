@@ -621,9 +621,11 @@ pub fn manage_sessions(
     let has_entry: Vec<bool> = (0..span_refs.len())
         .map(|g| boundaries.iter().any(|b| b.after == g))
         .collect();
+    let has_exit: Vec<bool> = (0..span_refs.len())
+        .map(|g| boundaries.iter().any(|b| b.before == g))
+        .collect();
     let span_views = |g: usize| -> Vec<View> {
         let (span, trajectory, s) = span_of(g);
-        let has_exit = boundaries.iter().any(|b| b.before == g);
         let mut views: Vec<View> = Vec::new();
         let (mut travel_m, mut previous) = (0.0, None::<Se2>);
         for k in entry_scan[g]..exit_scan[g] {
@@ -655,10 +657,12 @@ pub fn manage_sessions(
         for v in &mut views {
             v.to_exit_m = travel_m - v.from_entry_m;
             v.inside = (!has_entry[g] || v.from_entry_m >= tracking.local_map_m)
-                && (!has_exit || v.to_exit_m >= tracking.local_map_m);
+                && (!has_exit[g] || v.to_exit_m >= tracking.local_map_m);
         }
         views
     };
+    // Each span's views, built once: as a later session's queries, then as what the sessions
+    // after it look up once it is placed.
     let mut views_of_span: Vec<Option<Vec<View>>> = vec![None; span_refs.len()];
     let mut placements: Vec<SessionPlacement> = Vec::new();
     // 2–4. A later session is placed, then tracking and closures, boundary by boundary.
@@ -675,19 +679,17 @@ pub fn manage_sessions(
     }
     for (s, own_spans) in session_spans.iter().enumerate() {
         if s > 0 {
-            // The placed sessions' views, in the graph's frame.
             for (g, (owner, _)) in span_refs.iter().enumerate() {
-                if placed[*owner] && views_of_span[g].is_none() {
+                if (placed[*owner] || own_spans.contains(&g)) && views_of_span[g].is_none() {
                     views_of_span[g] = Some(span_views(g));
                 }
             }
-            let known: Vec<&View> = views_of_span.iter().flatten().flatten().collect();
             // This session's views, with their travel over the session.
             let mut queries: Vec<View> = Vec::new();
             let mut offset_m = 0.0;
             for g in own_spans.clone() {
-                let views = span_views(g);
-                queries.extend(views.into_iter().map(|mut v| {
+                let views = views_of_span[g].iter().flatten().cloned();
+                queries.extend(views.map(|mut v| {
                     v.travel_m += offset_m;
                     v
                 }));
@@ -696,6 +698,13 @@ pub fn manage_sessions(
                     .find(|b| b.before == g)
                     .map_or(0.0, |b| b.leg_m);
             }
+            // The placed sessions' views, in the graph's frame.
+            let known: Vec<&View> = span_refs
+                .iter()
+                .zip(&views_of_span)
+                .filter(|((owner, _), _)| placed[*owner])
+                .flat_map(|(_, views)| views.iter().flatten())
+                .collect();
             let found = place_session(
                 s,
                 &queries,
