@@ -65,7 +65,9 @@ pub struct ProtrusionEvalArgs {
     #[arg(long)]
     pub write_regions: Option<PathBuf>,
     /// Keeps the lived sessions of each world and seed here (postcard), and reads them back
-    /// on the next run with the same world, seed, duration and sessions.
+    /// on the next run with the same world, seed, duration and sessions. The files are not
+    /// keyed by the engine's code: empty the directory after changing the engine or the
+    /// simulator (the detector and the labels are computed afresh on every run).
     #[arg(long)]
     pub cache: Option<PathBuf>,
     /// Print one JSON object instead of text.
@@ -456,7 +458,7 @@ pub fn run(args: &ProtrusionEvalArgs) -> anyhow::Result<()> {
                 .chain(test_seeds.iter().map(move |s| (world, *s, true)))
         })
         .collect();
-    let lived: Vec<anyhow::Result<Option<Vec<Labelled>>>> = jobs
+    let per_job: Vec<anyhow::Result<Option<Vec<Labelled>>>> = jobs
         .par_iter()
         .map(|(world, seed, _)| {
             let regions = regions_of(world, *seed, args);
@@ -465,7 +467,7 @@ pub fn run(args: &ProtrusionEvalArgs) -> anyhow::Result<()> {
         })
         .collect();
     let mut dump: Vec<RegionLine> = Vec::new();
-    for ((world, seed, is_test), regions) in jobs.iter().zip(lived) {
+    for ((world, seed, is_test), regions) in jobs.iter().zip(per_job) {
         match regions? {
             None => skipped.push(format!("{world}/{seed}")),
             Some(regions) => {
