@@ -346,8 +346,8 @@ impl<B: BackupStore> Atlas<B> {
 
     /// Sec. 4.1, in two passes per graph. First what each view adds: from the first in rank
     /// down (views in recent use, then those kept before this session, local-map anchors,
-    /// the most useful, the newest), a view stays
-    /// when at least [`MaintenanceParams::view_min_new_fraction`] of its returns within
+    /// the most useful, the newest), a view stays when at least
+    /// [`MaintenanceParams::view_min_new_fraction`] of its returns within
     /// `view_structure_range_m` fall where no kept view saw structure, so every place keeps
     /// a view that sees it. Then a net for relocalisation: of the views left, the one
     /// farthest from every kept view (in steps of `view_spacing_m`; the first in rank among
@@ -357,10 +357,7 @@ impl<B: BackupStore> Atlas<B> {
     fn prune_views(&mut self, params: &MaintenanceParams) -> usize {
         let session = self.sessions;
         let mut deleted = Vec::new();
-        let graphs: Vec<(Option<MapId>, &PoseGraph2)> = std::iter::once((None, &self.active))
-            .chain(self.inactive.iter().map(|(m, g)| (Some(*m), g)))
-            .collect();
-        for (_, graph) in graphs {
+        for graph in std::iter::once(&self.active).chain(self.inactive.values()) {
             // (in recent use, kept before this session, anchors a local map, utility, node,
             // pose)
             let mut ranked: Vec<Rank> = graph
