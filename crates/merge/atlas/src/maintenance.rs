@@ -8,12 +8,15 @@
 //!    map; iRobot keeps one map per robot);
 //! 3. counts which older views (keyframes) the session re-observed: a loop or merge edge
 //!    between one of its vertices and the older vertex (Sec. 4.1's observation statistics);
-//! 4. prunes views by the information each adds (Sec. 4.1): from the most useful down, a view
-//!    is kept when no kept view of its graph lies within `view_radius_m` (a view in recent
-//!    use) or `stale_view_radius_m` (any other) and `view_heading_rad`, so every region keeps
-//!    a view to relocalise from; or when it is in recent use and at least
-//!    `view_min_new_fraction` of its returns fall where no kept view saw structure. Once a
-//!    place is covered, a session's views replace, not add;
+//! 4. prunes views by the information each adds (Sec. 4.1), per graph in two passes. First
+//!    coverage: from the most useful view down, a view stays when enough of its nearby
+//!    returns fall where no kept view saw structure, so every place keeps a view that sees
+//!    it, and a session keeps views only where it sees something new. Then a net for
+//!    relocalisation, farthest first (views in recent use first among equals), stopped by a
+//!    budget of views per m² the graph maps. Views are bound to the mapped area, not to
+//!    every place the robot ever drove through (which grows as long as it lives). Views kept
+//!    before rank above a session's new ones, so the map does not churn; a view that
+//!    anchors a local map comes first, as its vertex stays anyway;
 //! 5. prunes local maps greedily, oldest first, while the rendered map's class changes stay
 //!    within `local_map_tolerance` of its known cells (Sec. 4.3, Eq. 9, with q = the
 //!    fraction of cells whose class changes);
@@ -44,28 +47,30 @@ pub struct MaintenanceParams {
     pub prune: bool,
     /// Cell side of local maps and of the rendered map (m) (default: 0.05).
     pub resolution_m: f64,
-    /// A view may be redundant when a kept view of its graph lies within this distance (m)
-    /// (default: 0.75, chosen on the simulator's tuning seed 3: over 22 sessions 16 of 34
-    /// epochs merged, against 10 at 1.5 m and 24 of 32 unpruned)…
-    pub view_radius_m: f64,
-    /// … and heading (rad) (default: π, any heading: a 360° scan relocalises from any
-    /// direction; use π/2 for lasers of 180°) …
+    /// Two views of the net lie at least this far apart (m) (default: 0.5; the budget, not
+    /// this floor, sets the spacing once a place is covered) …
+    pub view_spacing_m: f64,
+    /// … unless their headings differ by more than this (rad) (default: π, any heading: a
+    /// 360° scan relocalises from any direction; use π/2 for lasers of 180°).
     pub view_heading_rad: f64,
-    /// A view not in recent use (neither made nor re-observed in the last `recent_sessions`)
-    /// is redundant when a kept view lies within this larger distance (m) (default: 2, the
-    /// verifier's window): where sessions no longer drive, the map keeps a sparser net of
-    /// views and the net of the paths driven lately stays fine, so the views stop filling in
-    /// as sessions pass (iRobot Sec. 4.1: outdated views go where others remain) …
-    pub stale_view_radius_m: f64,
-    /// … and a view is redundant unless it is in recent use (and [`ViewUse::utility`] ≥ 1) and
-    /// at least this fraction of its returns fall in cells (`view_cell_m`) where no kept view of
-    /// its graph saw structure: what it adds to the map (default: 0.3; above 1: by distance
-    /// alone, a fixed net).
+    /// A view covers when at least this fraction of its returns within
+    /// `view_structure_range_m` fall in cells (`view_cell_m`) where no kept view of its graph
+    /// saw structure: what it adds to the map (default: 0.3; above 1: no view covers, the
+    /// net alone).
     pub view_min_new_fraction: f64,
     /// Cell side (m) at which returns count as the same structure (default: 0.2, a few
     /// times the trackers' drift between sessions).
     pub view_cell_m: f64,
-    /// Sessions that count as recent for a view's short-term use (default: 5).
+    /// Returns farther than this from their view (m) do not count as what it adds
+    /// (default: 4, twice the verifier's 2 m window: what a robot near the view sees too).
+    pub view_structure_range_m: f64,
+    /// The net stops once its graph holds this many views per m² it maps (known cells of
+    /// its rendered local maps; at least one view) (default: 0.25, about the density of the
+    /// former 0.75 m net on the simulator's tuning seed 3): the store grows with the mapped
+    /// area, not with the sessions lived in it.
+    pub max_views_per_m2: f64,
+    /// Sessions that count as recent for a view's short-term use: views in recent use are
+    /// ranked first and make the net (default: 5).
     pub recent_sessions: u32,
     /// ε_q of Eq. 9: the largest fraction of the rendered map's known cells whose class
     /// local-map pruning may change (default: 0.01).
@@ -86,11 +91,12 @@ impl Default for MaintenanceParams {
         Self {
             prune: true,
             resolution_m: 0.05,
-            view_radius_m: 0.75,
+            view_spacing_m: 0.5,
             view_heading_rad: std::f64::consts::PI,
-            stale_view_radius_m: 2.0,
             view_min_new_fraction: 0.3,
             view_cell_m: 0.2,
+            view_structure_range_m: 4.0,
+            max_views_per_m2: 0.25,
             recent_sessions: 5,
             local_map_tolerance: 0.01,
             max_edges_per_vertex: 2.0,
@@ -133,6 +139,10 @@ impl ViewUse {
         session.saturating_sub(last) < recent_sessions
     }
 }
+
+/// A view's rank in pruning: in recent use, kept before this session, anchors a local map,
+/// utility, node, pose.
+type Rank = (bool, bool, bool, f64, NodeId, Se2);
 
 /// What [`Atlas::maintain`] did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -334,92 +344,153 @@ impl<B: BackupStore> Atlas<B> {
         observed
     }
 
-    /// Sec. 4.1: keeps, from the most useful view down, every view with no kept view of its
-    /// graph nearby, and every view in recent use that adds structure no kept view saw
-    /// (see [`MaintenanceParams::view_min_new_fraction`]); deletes the others' keyframes.
-    /// Returns how many were deleted.
+    /// Sec. 4.1, in two passes per graph. First what each view adds: from the first in rank
+    /// down (views in recent use, then those kept before this session, local-map anchors,
+    /// the most useful, the newest), a view stays when at least
+    /// [`MaintenanceParams::view_min_new_fraction`] of its returns within
+    /// `view_structure_range_m` fall where no kept view saw structure, so every place keeps
+    /// a view that sees it. Then a net for relocalisation: of the views left, the one
+    /// farthest from every kept view (in steps of `view_spacing_m`; the first in rank among
+    /// equals) stays, while it is at least `view_spacing_m` away and the graph holds fewer
+    /// than `max_views_per_m2` views per m² it maps. Deletes the others' keyframes; returns
+    /// how many.
     fn prune_views(&mut self, params: &MaintenanceParams) -> usize {
         let session = self.sessions;
-        // (utility, node, graph, pose, in recent use)
-        let mut ranked: Vec<(f64, NodeId, Option<MapId>, Se2, bool)> = self
-            .keyframes
-            .records()
-            .filter_map(|(node, _)| {
-                let (map, graph) = self.graph_of(node)?;
-                let pose = graph.vertex(node)?.pose;
-                let view = self.views.get(&node);
-                let utility = view.map_or(1.0, |v| v.utility(session, params.recent_sessions));
-                let recent = view.is_none_or(|v| v.is_recent(session, params.recent_sessions));
-                Some((utility, node, map, pose, recent))
-            })
-            .collect();
-        // Most useful first; among equals the newest (its scan is the most up to date).
-        ranked.sort_by(|a, b| b.0.total_cmp(&a.0).then(b.1.cmp(&a.1)));
-        // Kept views by graph and grid cell (side: the larger radius); the structure cells
-        // the kept views saw, by graph.
-        let radius = params.view_radius_m.max(1e-3);
-        let stale_radius = params.stale_view_radius_m.max(radius);
-        let structure_cell = params.view_cell_m.max(1e-3);
-        let mut kept: BTreeMap<(Option<MapId>, i64, i64), Vec<Se2>> = BTreeMap::new();
-        let mut seen: BTreeMap<Option<MapId>, HashSet<(i64, i64)>> = BTreeMap::new();
         let mut deleted = Vec::new();
-        for (utility, node, map, pose, recent) in ranked {
-            let reach = if recent { radius } else { stale_radius };
-            let (cx, cy) = (
-                (pose.x_m / stale_radius).floor() as i64,
-                (pose.y_m / stale_radius).floor() as i64,
-            );
-            let near = (cx - 1..=cx + 1).any(|x| {
-                (cy - 1..=cy + 1).any(|y| {
-                    kept.get(&(map, x, y)).is_some_and(|poses| {
-                        poses.iter().any(|other| {
-                            (other.translation() - pose.translation()).norm() <= reach
-                                && wrap_angle_rad(other.theta_rad - pose.theta_rad).abs()
-                                    <= params.view_heading_rad
-                        })
-                    })
+        for graph in std::iter::once(&self.active).chain(self.inactive.values()) {
+            // (in recent use, kept before this session, anchors a local map, utility, node,
+            // pose)
+            let mut ranked: Vec<Rank> = graph
+                .vertices()
+                .filter(|(node, _)| self.keyframes.get(*node).is_some())
+                .map(|(node, vertex)| {
+                    let view = self.views.get(&node);
+                    let utility = view.map_or(1.0, |v| v.utility(session, params.recent_sessions));
+                    let recent = view.is_none_or(|v| v.is_recent(session, params.recent_sessions));
+                    let older = view.is_some_and(|v| v.created_session < session);
+                    let anchor = self.local_maps.contains_key(&node);
+                    (recent, older, anchor, utility, node, vertex.pose)
                 })
-            });
-            if near && !recent {
-                deleted.push(node);
+                .collect();
+            if ranked.is_empty() {
                 continue;
             }
-            // The structure cells its returns fall in (map frame).
-            let cells: HashSet<(i64, i64)> = self
-                .keyframes
-                .get(node)
-                .map(|points| {
-                    points
-                        .iter()
-                        .map(|p| {
-                            let q = pose.transform_point(p);
-                            (
-                                (q.x / structure_cell).floor() as i64,
-                                (q.y / structure_cell).floor() as i64,
-                            )
-                        })
-                        .collect()
-                })
-                .unwrap_or_default();
-            let seen_here = seen.entry(map).or_default();
-            let adds = || {
-                let new = cells.iter().filter(|c| !seen_here.contains(c)).count();
-                utility >= 1.0
-                    && !cells.is_empty()
+            // Views in recent use first; among them those kept before, so a session's views
+            // enter only where they add (the map does not churn); then anchors, the most
+            // useful, the newest.
+            ranked.sort_by(|a, b| {
+                b.0.cmp(&a.0)
+                    .then(b.1.cmp(&a.1))
+                    .then(b.2.cmp(&a.2))
+                    .then(b.3.total_cmp(&a.3))
+                    .then(b.4.cmp(&a.4))
+            });
+            // 1. What each adds.
+            let structure = self.structure_cells(params, &ranked);
+            let mut seen: HashSet<(i64, i64)> = HashSet::new();
+            let mut kept: Vec<Se2> = Vec::new();
+            let mut candidates: Vec<(f64, NodeId, Se2)> = Vec::new();
+            for ((_, _, _, _, node, pose), cells) in ranked.iter().zip(structure) {
+                let new = cells.iter().filter(|c| !seen.contains(c)).count();
+                if !cells.is_empty()
                     && new as f64 >= params.view_min_new_fraction * cells.len() as f64
-            };
-            if near && !adds() {
-                deleted.push(node);
-            } else {
-                kept.entry((map, cx, cy)).or_default().push(pose);
-                seen_here.extend(cells);
+                {
+                    seen.extend(cells);
+                    kept.push(*pose);
+                } else {
+                    candidates.push((f64::INFINITY, *node, *pose));
+                }
             }
+            // 2. The net, farthest first, within the budget.
+            let budget = RenderedMap::render(graph, &self.local_maps, params.resolution_m).map_or(
+                usize::MAX,
+                |rendered| {
+                    let area = rendered.known_area_m2(&ClassThresholds::default());
+                    ((params.max_views_per_m2.max(0.0) * area).floor() as usize).max(1)
+                },
+            );
+            let distance = |a: &Se2, b: &Se2| {
+                if wrap_angle_rad(a.theta_rad - b.theta_rad).abs() > params.view_heading_rad {
+                    f64::INFINITY
+                } else {
+                    (a.translation() - b.translation()).norm()
+                }
+            };
+            for candidate in &mut candidates {
+                candidate.0 = kept
+                    .iter()
+                    .map(|k| distance(k, &candidate.2))
+                    .fold(f64::INFINITY, f64::min);
+            }
+            // Distances count in steps of `view_spacing_m`, and candidates are in rank order:
+            // of equally far ones the first wins.
+            let spacing_m = params.view_spacing_m.max(1e-3);
+            let step = |d: f64| (d / spacing_m).floor().min(1e6) as i64;
+            let mut taken = vec![false; candidates.len()];
+            while kept.len() < budget {
+                let farthest = candidates
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, _)| !taken[*i])
+                    .fold(None::<(usize, i64)>, |best, (i, c)| match best {
+                        Some((_, d)) if d >= step(c.0) => best,
+                        _ => Some((i, step(c.0))),
+                    });
+                let Some((index, far)) = farthest else {
+                    break;
+                };
+                if far < 1 {
+                    break;
+                }
+                taken[index] = true;
+                let pose = candidates[index].2;
+                kept.push(pose);
+                for candidate in &mut candidates {
+                    candidate.0 = candidate.0.min(distance(&pose, &candidate.2));
+                }
+            }
+            deleted.extend(
+                candidates
+                    .iter()
+                    .zip(&taken)
+                    .filter(|(_, taken)| !**taken)
+                    .map(|(c, _)| c.1),
+            );
         }
         for node in &deleted {
             self.keyframes.remove(*node);
             self.views.remove(node);
         }
         deleted.len()
+    }
+
+    /// The structure cells (`view_cell_m`, map frame) each view's returns within
+    /// `view_structure_range_m` fall in.
+    fn structure_cells(
+        &self,
+        params: &MaintenanceParams,
+        ranked: &[Rank],
+    ) -> Vec<HashSet<(i64, i64)>> {
+        let cell_m = params.view_cell_m.max(1e-3);
+        let range_m = params.view_structure_range_m.max(0.0);
+        ranked
+            .iter()
+            .map(|(_, _, _, _, node, pose)| {
+                self.keyframes
+                    .get(*node)
+                    .map(|points| {
+                        points
+                            .iter()
+                            .filter(|p| p.norm() <= range_m)
+                            .map(|p| {
+                                let q = pose.transform_point(p);
+                                ((q.x / cell_m).floor() as i64, (q.y / cell_m).floor() as i64)
+                            })
+                            .collect()
+                    })
+                    .unwrap_or_default()
+            })
+            .collect()
     }
 
     /// Sec. 4.3, Eq. 9, greedily: per graph, most redundant local map first, one goes when
