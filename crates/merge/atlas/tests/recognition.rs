@@ -631,6 +631,15 @@ fn a_fragment_the_site_map_covers_rejoins_it_on_the_true_transform() {
     assert_eq!(atlas.inactive_maps().len(), 3);
 }
 
+/// A wall's returns in the robot frame: points every 0.1 m along x, from −`half_length_m` to
+/// `half_length_m`, at `y_m`.
+fn wall_along_x(y_m: f64, half_length_m: f64) -> Arc<[Point2]> {
+    let n = (half_length_m / 0.1).round() as i32;
+    (-n..=n)
+        .map(|i| Point2::new(f64::from(i) * 0.1, y_m))
+        .collect()
+}
+
 /// Issue 66: views are pruned by what they add. Three views 0.2 m apart in one graph, all
 /// new this session: the first two see one wall, the third another. The newest is placed
 /// first; the second adds its wall and stays; the first adds nothing and goes. With
@@ -638,11 +647,7 @@ fn a_fragment_the_site_map_covers_rejoins_it_on_the_true_transform() {
 #[test]
 fn a_view_is_kept_near_another_only_while_it_adds_structure_the_other_did_not_see() {
     use mapmerge_atlas::MaintenanceParams;
-    let wall = |y: f64| -> Arc<[Point2]> {
-        (-20..=20)
-            .map(|i| Point2::new(f64::from(i) * 0.1, y))
-            .collect()
-    };
+    let wall = |y_m: f64| wall_along_x(y_m, 2.0);
     let kept_views = |params: &MaintenanceParams| {
         let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
         let first = atlas.next_node_id();
@@ -696,11 +701,7 @@ fn views_stay_while_they_add_structure() {
     };
     let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
     let first = atlas.next_node_id();
-    let wall = |y: f64| -> Arc<[Point2]> {
-        (-20..=20)
-            .map(|i| Point2::new(f64::from(i) * 0.1, y))
-            .collect()
-    };
+    let wall = |y_m: f64| wall_along_x(y_m, 2.0);
     let poses = [
         Se2::identity(),
         Se2::new(1.5, 0.0, 0.0),
@@ -770,16 +771,11 @@ fn views_stay_while_they_add_structure() {
 /// Eight sessions drive the same 6 m of corridor along one wall: the map keeps as many
 /// views after the eighth as after the first, as many as its budget of views per m² allows
 /// (a larger budget keeps more), and while they are in recent use mostly the same views (the
-/// map does not churn). A session
-/// that sees a second wall adds views.
+/// map does not churn). A session that sees a second wall adds views.
 #[test]
 fn a_covered_place_keeps_as_many_views_however_often_it_is_driven() {
     use mapmerge_atlas::MaintenanceParams;
-    let wall = |y: f64| -> Arc<[Point2]> {
-        (-30..=30)
-            .map(|i| Point2::new(f64::from(i) * 0.1, y))
-            .collect()
-    };
+    let wall = |y_m: f64| wall_along_x(y_m, 3.0);
     let drive = |atlas: &mut Atlas,
                  previous: &mut Option<(NodeId, Se2)>,
                  params: &MaintenanceParams,
