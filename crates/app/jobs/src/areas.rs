@@ -524,7 +524,12 @@ pub fn load_hybrid_map(dir: &Path) -> Result<HybridMap, JobError> {
     let file = dir.join("hybrid.json");
     let text = std::fs::read_to_string(&file)
         .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
-    serde_json::from_str(&text).map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))
+    let hybrid: HybridMap = serde_json::from_str(&text)
+        .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
+    hybrid
+        .validate()
+        .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
+    Ok(hybrid)
 }
 
 /// `AREA:x,y`: a position in that area's frame (m).
