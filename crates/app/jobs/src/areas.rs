@@ -164,7 +164,7 @@ pub fn manage_areas(
     // The store first: a refused store stops the run before any mapping.
     let mut store = match &options.store {
         // Without sessions to add, the run only reads: a missing store is an error.
-        Some(path) if logs.is_empty() => Some(crate::open_store(path)?),
+        Some(path) if logs.is_empty() => Some(crate::open_store_read_only(path)?),
         Some(path) => Some(crate::open_or_create_store(path)?),
         None => None,
     };

@@ -72,6 +72,6 @@ pub use session::{
     TUM_CLOCK_PERIOD_S,
 };
 pub use store::{
-    export_version, open_or_create_store, open_store, store_protrusions, ExportReport, ExportedMap,
-    ProtrusionAction, ProtrusionReport, RegionReport,
+    export_version, open_or_create_store, open_store, open_store_read_only, store_protrusions,
+    ExportReport, ExportedMap, ProtrusionAction, ProtrusionReport, RegionReport,
 };
