@@ -238,6 +238,7 @@ fn protrusions(args: &ProtrusionArgs) -> anyhow::Result<()> {
 
 /// Runs `mapmerge store export` (see [`StoreCommand::Export`]).
 fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    crate::check_output_dir(&args.output)?;
     let report =
         mapmerge_jobs::export_version(&args.site.site, args.version, args.resolution, &args.output)
             .map_err(job_error)?;

@@ -182,6 +182,16 @@ pub fn check_resolution(resolution_m: f64) -> anyhow::Result<()> {
     crate::check_resolution(resolution_m).map_err(job_error)
 }
 
+/// [`crate::check_output_dir`] for the command line (exit code 2).
+pub fn check_output_dir(dir: &std::path::Path) -> anyhow::Result<()> {
+    crate::check_output_dir(dir).map_err(job_error)
+}
+
+/// [`crate::check_output_file`] for the command line (exit code 2).
+pub fn check_output_file(file: &std::path::Path) -> anyhow::Result<()> {
+    crate::check_output_file(file).map_err(job_error)
+}
+
 /// A job's error as the binary's: bad input keeps exit code 2 ([`BadInput`]), anything else
 /// exit code 1; the text is the job's.
 pub fn job_error(err: crate::JobError) -> anyhow::Error {

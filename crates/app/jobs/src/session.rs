@@ -58,6 +58,48 @@ pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
     }
 }
 
+/// Checks, before any work, that `dir` can take a command's outputs: it is created (with
+/// its parents) and a file can be written in it. Bad input otherwise, naming the folder.
+pub fn check_output_dir(dir: &Path) -> Result<(), JobError> {
+    if dir.exists() && !dir.is_dir() {
+        return Err(JobError::bad_input(format!(
+            "{}: the output is a folder, and this is a file",
+            dir.display()
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| {
+        JobError::bad_input(format!(
+            "{}: cannot create the output folder: {e}",
+            dir.display()
+        ))
+    })?;
+    let probe = dir.join(format!(".mapmerge-write-check-{}", std::process::id()));
+    std::fs::File::create_new(&probe)
+        .and_then(|_| std::fs::remove_file(&probe))
+        .map_err(|e| {
+            JobError::bad_input(format!(
+                "{}: cannot write the outputs here: {e}",
+                dir.display()
+            ))
+        })
+}
+
+/// Checks, before any work, that the output file `file` can be written: it is no folder, and
+/// its folder can take it ([`check_output_dir`]). An existing file is left as it is until the
+/// command writes it.
+pub fn check_output_file(file: &Path) -> Result<(), JobError> {
+    if file.is_dir() || file.as_os_str().is_empty() {
+        return Err(JobError::bad_input(format!(
+            "{}: the output is a file, and this is a folder",
+            file.display()
+        )));
+    }
+    match file.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => check_output_dir(parent),
+        _ => check_output_dir(Path::new(".")),
+    }
+}
+
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
 /// (`…/intel_03.log.xz` → `intel_03`); a bag's without `.mcap` / `.db3` (a bag directory's
 /// name is its stem).
