@@ -522,8 +522,7 @@ fn overview(
 /// Reads the hybrid map of a folder written by `mapmerge areas` (its hybrid.json).
 pub fn load_hybrid_map(dir: &Path) -> Result<HybridMap, JobError> {
     let file = dir.join("hybrid.json");
-    let text = std::fs::read_to_string(&file)
-        .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
+    let text = mapmerge_io::read_document(&file).map_err(|e| JobError::bad_file(&e))?;
     let hybrid: HybridMap = serde_json::from_str(&text)
         .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
     hybrid

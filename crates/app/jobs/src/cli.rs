@@ -37,7 +37,7 @@ pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
         return Ok(T::default());
     };
     let bad = |e: &dyn std::fmt::Display| bad_input(format!("{}: {e}", path.display()));
-    let text = std::fs::read_to_string(path).map_err(|e| bad(&e))?;
+    let text = mapmerge_io::read_document(path).map_err(bad_file)?;
     let given: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&e))?;
     let mut merged = serde_json::to_value(T::default()).map_err(|e| bad(&e))?;
     overlay(&mut merged, given);
