@@ -58,35 +58,40 @@ pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
     }
 }
 
-/// Checks, before any work, that `dir` can take a command's outputs: it is created (with
-/// its parents) and a file can be written in it. Bad input otherwise, naming the folder.
+/// Checks, before any work, that `dir` can take a command's outputs, and writes nothing
+/// there: it is a folder, or can be made one in its nearest existing ancestor, and a file can
+/// be written where it would be. Bad input otherwise, naming the folder.
 pub fn check_output_dir(dir: &Path) -> Result<(), JobError> {
-    if dir.exists() && !dir.is_dir() {
-        return Err(JobError::bad_input(format!(
-            "{}: the output is a folder, and this is a file",
-            dir.display()
-        )));
+    let refused = |reason: String| JobError::bad_input(format!("{}: {reason}", dir.display()));
+    let mut existing = dir;
+    while !existing.exists() {
+        match existing.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => existing = parent,
+            _ => {
+                existing = Path::new(".");
+                break;
+            }
+        }
     }
-    std::fs::create_dir_all(dir).map_err(|e| {
-        JobError::bad_input(format!(
-            "{}: cannot create the output folder: {e}",
-            dir.display()
-        ))
-    })?;
-    let probe = dir.join(format!(".mapmerge-write-check-{}", std::process::id()));
+    if !existing.is_dir() {
+        return Err(refused(if existing == dir {
+            "the output is a folder, and this is a file".to_owned()
+        } else {
+            format!(
+                "cannot make the output folder: {} is a file",
+                existing.display()
+            )
+        }));
+    }
+    let probe = existing.join(format!(".mapmerge-write-check-{}", std::process::id()));
     std::fs::File::create_new(&probe)
         .and_then(|_| std::fs::remove_file(&probe))
-        .map_err(|e| {
-            JobError::bad_input(format!(
-                "{}: cannot write the outputs here: {e}",
-                dir.display()
-            ))
-        })
+        .map_err(|e| refused(format!("cannot write the outputs there: {e}")))
 }
 
 /// Checks, before any work, that the output file `file` can be written: it is no folder, and
-/// its folder can take it ([`check_output_dir`]). An existing file is left as it is until the
-/// command writes it.
+/// its folder can take it ([`check_output_dir`]). Nothing is written; an existing file is
+/// left as it is until the command writes it.
 pub fn check_output_file(file: &Path) -> Result<(), JobError> {
     if file.is_dir() || file.as_os_str().is_empty() {
         return Err(JobError::bad_input(format!(
