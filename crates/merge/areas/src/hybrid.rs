@@ -116,21 +116,23 @@ impl HybridMap {
         let finite =
             |pose: &Se2| pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite();
         let areas = self.areas.len();
+        // Every id is its index.
+        let ids = |list: &str, ids: &mut dyn Iterator<Item = usize>| match ids
+            .enumerate()
+            .find(|(i, id)| i != id)
+        {
+            Some((i, id)) => bad(format!("{list}[{i}].id is {id}, not its index {i}")),
+            None => Ok(()),
+        };
+        ids("areas", &mut self.areas.iter().map(|a| a.id))?;
+        ids("link_points", &mut self.link_points.iter().map(|l| l.id))?;
+        ids("candidates", &mut self.candidates.iter().map(|c| c.id))?;
         for (i, area) in self.areas.iter().enumerate() {
-            if area.id != i {
-                return bad(format!("areas[{i}].id is {}, not its index {i}", area.id));
-            }
             if !finite(&area.first_from_area) {
                 return bad(format!("areas[{i}].first_from_area is not finite"));
             }
         }
         for (i, link) in self.link_points.iter().enumerate() {
-            if link.id != i {
-                return bad(format!(
-                    "link_points[{i}].id is {}, not its index {i}",
-                    link.id
-                ));
-            }
             if let Some(area) = link.areas.iter().find(|a| **a >= areas) {
                 return bad(format!(
                     "link_points[{i}].areas: no area {area} (there are {areas})"
@@ -147,12 +149,6 @@ impl HybridMap {
             }
         }
         for (i, candidate) in self.candidates.iter().enumerate() {
-            if candidate.id != i {
-                return bad(format!(
-                    "candidates[{i}].id is {}, not its index {i}",
-                    candidate.id
-                ));
-            }
             if candidate.area >= areas {
                 return bad(format!(
                     "candidates[{i}].area: no area {} (there are {areas})",
