@@ -94,6 +94,7 @@ fn input_logs(args: &AreasArgs) -> anyhow::Result<Vec<(String, LaserLog)>> {
 
 /// Runs `mapmerge areas`.
 pub fn run(args: &AreasArgs) -> anyhow::Result<std::process::ExitCode> {
+    crate::check_output_dir(&args.output)?;
     crate::check_resolution(args.resolution)?;
     let options = AreasOptions {
         params: crate::read_config::<ManagerParams>(args.config.as_deref())?,

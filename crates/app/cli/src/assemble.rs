@@ -92,6 +92,7 @@ struct AssembleReport<'a> {
 }
 
 pub fn run(args: &AssembleArgs) -> anyhow::Result<()> {
+    crate::check_output_dir(&args.output)?;
     check_resolution(args.resolution)?;
     let started = Instant::now();
     let loaded = load_segments(&args.segments, &args.topics, args.trajectory, !args.json)?;

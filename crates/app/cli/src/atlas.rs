@@ -141,6 +141,7 @@ struct Report<'a> {
 
 /// Runs `mapmerge atlas`.
 pub fn run(args: &AtlasArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_dir(&args.output)?;
     let mut params: EngineParams = crate::read_config(args.config.as_deref())?;
     if args.no_prune {
         params.atlas.maintenance.prune = false;

@@ -32,6 +32,7 @@ pub struct ConvertArgs {
 
 /// Runs `mapmerge convert`.
 pub fn run(args: &ConvertArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_file(&args.output)?;
     let report =
         mapmerge_jobs::convert(&args.log, &args.output, &args.topics.choice(), args.period)
             .map_err(job_error)?;

@@ -65,6 +65,7 @@ struct GridReport<'a> {
 
 /// Runs `mapmerge grid`.
 pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_file(&args.output)?;
     check_resolution(args.resolution)?;
     let posed = load_posed_log(&args.log, args.poses.as_deref(), &args.topics)?;
     let mut params = InsertParams::default();

@@ -43,6 +43,7 @@ pub struct GridMergeArgs {
 
 /// Runs `mapmerge grid-merge`.
 pub fn run(args: &GridMergeArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_file(&args.output)?;
     let params: GridMatchParams = crate::read_config(args.config.as_deref())?;
     let done = grid_merge(
         &args.a,

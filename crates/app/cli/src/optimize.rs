@@ -52,6 +52,7 @@ pub struct OptimizeArgs {
 
 /// Runs `mapmerge optimize`.
 pub fn run(args: &OptimizeArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_file(&args.output)?;
     let options = OptimizeOptions {
         robust: args.robust,
         kernel_width: args.kernel_width,

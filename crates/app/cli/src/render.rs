@@ -61,6 +61,7 @@ struct RenderReport<'a> {
 
 /// Runs `mapmerge render`.
 pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_file(&args.output)?;
     check_resolution(args.resolution)?;
     if !(1..=64).contains(&args.scale) {
         return Err(bad_input(format!(

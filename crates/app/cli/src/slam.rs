@@ -69,6 +69,7 @@ struct SlamReport<'a> {
 
 /// Runs `mapmerge slam`.
 pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
+    crate::check_output_dir(&args.output)?;
     check_resolution(args.resolution)?;
     let mut log = crate::read_log(&args.log, &args.topics)?;
     if log.scans.is_empty() {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Subcommand};
-use mapmerge_jobs::{open_store, ProtrusionAction};
+use mapmerge_jobs::{open_store, open_store_read_only, ProtrusionAction};
 use mapmerge_store::Store;
 use serde::Serialize;
 
@@ -94,8 +94,9 @@ pub struct RollbackArgs {
     pub to: i64,
 }
 
+/// Opens the store for reading only.
 fn open(site: &SiteArgs) -> anyhow::Result<Store> {
-    open_store(&site.site).map_err(job_error)
+    open_store_read_only(&site.site).map_err(job_error)
 }
 
 /// Store errors are the user's file: bad input.
@@ -164,7 +165,7 @@ pub fn run(args: &StoreArgs) -> anyhow::Result<ExitCode> {
             }
         }
         StoreCommand::Rollback(rollback) => {
-            let mut store = open(&rollback.site)?;
+            let mut store = open_store(&rollback.site.site).map_err(job_error)?;
             let deleted = store.rollback_to(rollback.to).map_err(refused)?;
             if rollback.site.json {
                 #[derive(Serialize)]
@@ -237,6 +238,7 @@ fn protrusions(args: &ProtrusionArgs) -> anyhow::Result<()> {
 
 /// Runs `mapmerge store export` (see [`StoreCommand::Export`]).
 fn export(args: &ExportArgs) -> anyhow::Result<()> {
+    crate::check_output_dir(&args.output)?;
     let report =
         mapmerge_jobs::export_version(&args.site.site, args.version, args.resolution, &args.output)
             .map_err(job_error)?;

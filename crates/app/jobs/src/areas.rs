@@ -164,7 +164,7 @@ pub fn manage_areas(
     // The store first: a refused store stops the run before any mapping.
     let mut store = match &options.store {
         // Without sessions to add, the run only reads: a missing store is an error.
-        Some(path) if logs.is_empty() => Some(crate::open_store(path)?),
+        Some(path) if logs.is_empty() => Some(crate::open_store_read_only(path)?),
         Some(path) => Some(crate::open_or_create_store(path)?),
         None => None,
     };
@@ -522,9 +522,13 @@ fn overview(
 /// Reads the hybrid map of a folder written by `mapmerge areas` (its hybrid.json).
 pub fn load_hybrid_map(dir: &Path) -> Result<HybridMap, JobError> {
     let file = dir.join("hybrid.json");
-    let text = std::fs::read_to_string(&file)
+    let text = mapmerge_io::read_document(&file).map_err(|e| JobError::bad_file(&e))?;
+    let hybrid: HybridMap = serde_json::from_str(&text)
         .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
-    serde_json::from_str(&text).map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))
+    hybrid
+        .validate()
+        .map_err(|e| JobError::bad_input(format!("{}: {e}", file.display())))?;
+    Ok(hybrid)
 }
 
 /// `AREA:x,y`: a position in that area's frame (m).

@@ -37,7 +37,7 @@ pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
         return Ok(T::default());
     };
     let bad = |e: &dyn std::fmt::Display| bad_input(format!("{}: {e}", path.display()));
-    let text = std::fs::read_to_string(path).map_err(|e| bad(&e))?;
+    let text = mapmerge_io::read_document(path).map_err(bad_file)?;
     let given: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&e))?;
     let mut merged = serde_json::to_value(T::default()).map_err(|e| bad(&e))?;
     overlay(&mut merged, given);
@@ -180,6 +180,16 @@ pub fn load_graph_with(
 /// Rejects a `--resolution` that is not a positive, finite number of metres (exit code 2).
 pub fn check_resolution(resolution_m: f64) -> anyhow::Result<()> {
     crate::check_resolution(resolution_m).map_err(job_error)
+}
+
+/// [`crate::check_output_dir`] for the command line (exit code 2).
+pub fn check_output_dir(dir: &std::path::Path) -> anyhow::Result<()> {
+    crate::check_output_dir(dir).map_err(job_error)
+}
+
+/// [`crate::check_output_file`] for the command line (exit code 2).
+pub fn check_output_file(file: &std::path::Path) -> anyhow::Result<()> {
+    crate::check_output_file(file).map_err(job_error)
 }
 
 /// A job's error as the binary's: bad input keeps exit code 2 ([`BadInput`]), anything else

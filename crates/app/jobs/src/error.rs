@@ -12,8 +12,7 @@ pub enum JobError {
     /// Unreadable or malformed input, bad arguments (exit code 2).
     #[error("{0}")]
     BadInput(String),
-    /// Any other failure (exit code 1): a file that cannot be written, an initialisation or
-    /// a solver that gave up.
+    /// Any other failure (exit code 1): an initialisation or a solver that gave up.
     #[error("{0}")]
     Failed(String),
 }
@@ -41,9 +40,10 @@ impl JobError {
         Self::Failed(format!("{context}: {}", error_chain(err)))
     }
 
-    /// A failure to write `path` (or create it, for a folder), with the cause chain of `err`.
+    /// A failure to write `path` (or create it, for a folder), with the cause chain of `err`:
+    /// the user's output path, so bad input (exit code 2).
     pub fn writing(path: &std::path::Path, err: &dyn Error) -> Self {
-        Self::context(format!("writing {}", path.display()), err)
+        Self::BadInput(format!("writing {}: {}", path.display(), error_chain(err)))
     }
 
     /// The CLI's exit code: 2 for bad input, 1 otherwise.

@@ -67,11 +67,11 @@ pub use optimize::{
     OptimizeReport, Optimized, RejectedEdge, RobustChoice,
 };
 pub use session::{
-    build_grid, check_resolution, log_file_stem, read_log_or_bag, read_session_log,
-    read_session_log_with, slam_log, write_slam_outputs, SlamSummary, DEFAULT_RESOLUTION_M,
-    TUM_CLOCK_PERIOD_S,
+    build_grid, check_output_dir, check_output_file, check_resolution, log_file_stem,
+    read_log_or_bag, read_session_log, read_session_log_with, slam_log, write_slam_outputs,
+    SlamSummary, DEFAULT_RESOLUTION_M, TUM_CLOCK_PERIOD_S,
 };
 pub use store::{
-    export_version, open_or_create_store, open_store, store_protrusions, ExportReport, ExportedMap,
-    ProtrusionAction, ProtrusionReport, RegionReport,
+    export_version, open_or_create_store, open_store, open_store_read_only, store_protrusions,
+    ExportReport, ExportedMap, ProtrusionAction, ProtrusionReport, RegionReport,
 };

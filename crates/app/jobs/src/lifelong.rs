@@ -447,6 +447,8 @@ pub struct AtlasJob {
     options: AtlasOptions,
     engine: Engine,
     store: Option<Store>,
+    /// Whether `open` created the store's file (removed again when `run` refuses its input).
+    created_store: bool,
     reference_of_node: BTreeMap<NodeId, Se2>,
     resumed_from: Option<i64>,
     open_secs: f64,
@@ -455,9 +457,15 @@ pub struct AtlasJob {
 
 impl AtlasJob {
     /// Opens the store (continuing its newest atlas) and the engine. A store that cannot be
-    /// opened or loaded and parameters the engine refuses are bad input.
+    /// opened or loaded, no version to keep and parameters the engine refuses are bad input.
     pub fn open(options: AtlasOptions) -> Result<Self, JobError> {
         let started = Instant::now();
+        if options.store.is_some() && options.keep_versions == 0 {
+            return Err(JobError::bad_input(
+                "--keep-versions must be at least 1: the newest version keeps its atlas",
+            ));
+        }
+        let created_store = options.store.as_ref().is_some_and(|path| !path.exists());
         let store = match &options.store {
             Some(path) => {
                 let mut store = open_or_create_store(path)?;
@@ -491,6 +499,7 @@ impl AtlasJob {
             options,
             engine,
             store,
+            created_store,
             reference_of_node,
             resumed_from,
             open_secs: started.elapsed().as_secs_f64(),
@@ -511,6 +520,23 @@ impl AtlasJob {
         sessions: &[AtlasSession],
         mut progress: impl FnMut(AtlasProgress<'_>),
     ) -> Result<AtlasRun, JobError> {
+        // A session without scans would commit an empty version: refused before anything is
+        // fed or written, and a store this job created is removed again.
+        if let Some(empty) = sessions.iter().find(|s| s.log.scans.is_empty()) {
+            if let (Some(store), true) = (self.store.take(), self.created_store) {
+                let path = store.path().to_path_buf();
+                drop(store);
+                for suffix in ["", "-wal", "-shm"] {
+                    let mut name = path.clone().into_os_string();
+                    name.push(suffix);
+                    let _ = std::fs::remove_file(PathBuf::from(name));
+                }
+            }
+            return Err(JobError::bad_input(format!(
+                "{}: no scans; nothing is mapped or committed",
+                empty.name
+            )));
+        }
         let output = self.options.output.clone();
         let pictures_dir = output.join("pictures");
         std::fs::create_dir_all(&pictures_dir)

@@ -369,7 +369,8 @@ pub fn optimize_loaded(
     let optimize_seconds = optimize_start.elapsed().as_secs_f64();
     let rejected_edges = rejected_report(&graph, &outcome.rejected);
     if let Some(output) = output {
-        write_graph(output, &graph, format).map_err(|e| JobError::failed(&e))?;
+        // The output path is the user's: bad input (issue 67).
+        write_graph(output, &graph, format).map_err(|e| JobError::bad_file(&e))?;
     }
     let info = outcome.info;
     let report = OptimizeReport {

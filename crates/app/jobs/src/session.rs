@@ -58,6 +58,56 @@ pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
     }
 }
 
+/// Checks, before any work, that `dir` can take a command's outputs, and writes nothing
+/// there: it is a folder, or can be made one in its nearest existing ancestor, and a file can
+/// be written where it would be. Bad input otherwise, naming the folder.
+pub fn check_output_dir(dir: &Path) -> Result<(), JobError> {
+    check_output_place(dir, dir)
+}
+
+/// Checks, before any work, that the output file `file` can be written: it is no folder, and
+/// its folder can take it (as [`check_output_dir`]). Nothing is written; an existing file is
+/// left as it is until the command writes it.
+pub fn check_output_file(file: &Path) -> Result<(), JobError> {
+    if file.is_dir() || file.as_os_str().is_empty() {
+        return Err(JobError::bad_input(format!(
+            "{}: the output is a file, and this is a folder",
+            file.display()
+        )));
+    }
+    match file.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => check_output_place(file, parent),
+        _ => check_output_place(file, Path::new(".")),
+    }
+}
+
+/// `folder` (that of `output`, or `output` itself) exists as a folder or can be made in its
+/// nearest existing ancestor, which takes a probe file (removed at once).
+fn check_output_place(output: &Path, folder: &Path) -> Result<(), JobError> {
+    let refused = |reason: String| JobError::bad_input(format!("{}: {reason}", output.display()));
+    let mut existing = folder;
+    while !existing.exists() {
+        match existing.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => existing = parent,
+            _ => {
+                existing = Path::new(".");
+                break;
+            }
+        }
+    }
+    if !existing.is_dir() {
+        return Err(refused(if existing == output {
+            "the output is a folder, and this is a file".to_owned()
+        } else {
+            format!("cannot make its folder: {} is a file", existing.display())
+        }));
+    }
+    let probe = existing.join(format!(".mapmerge-write-check-{}", std::process::id()));
+    std::fs::File::create_new(&probe)
+        .and_then(|_| std::fs::remove_file(&probe))
+        .map_err(|e| refused(format!("cannot write there: {e}")))
+}
+
 /// A log file's stem: its file name without `.xz` / `.gz`, then `.log`
 /// (`…/intel_03.log.xz` → `intel_03`); a bag's without `.mcap` / `.db3` (a bag directory's
 /// name is its stem).

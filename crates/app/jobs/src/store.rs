@@ -21,15 +21,27 @@ fn refused(error: StoreError) -> JobError {
     JobError::bad_file(&error)
 }
 
-/// Opens the store at `path`; bad input when there is none.
+/// Opens the store at `path` for writing, checked first; bad input when there is none.
 pub fn open_store(path: &Path) -> Result<Store, JobError> {
-    if !path.is_file() {
-        return Err(JobError::bad_input(format!(
+    require_file(path)?;
+    Store::open_existing(path).map_err(refused)
+}
+
+/// Opens the store at `path` for reading only; bad input when there is none.
+pub fn open_store_read_only(path: &Path) -> Result<Store, JobError> {
+    require_file(path)?;
+    Store::open_read_only(path).map_err(refused)
+}
+
+fn require_file(path: &Path) -> Result<(), JobError> {
+    if path.is_file() {
+        Ok(())
+    } else {
+        Err(JobError::bad_input(format!(
             "{}: no such store",
             path.display()
-        )));
+        )))
     }
-    Store::open_existing(path).map_err(refused)
 }
 
 /// Opens the store at `path`, creating it when there is no file (`atlas --store`).
@@ -83,7 +95,10 @@ pub fn store_protrusions(
     version: Option<i64>,
     action: ProtrusionAction,
 ) -> Result<ProtrusionReport, JobError> {
-    let mut store = open_store(site)?;
+    let mut store = match action {
+        ProtrusionAction::Report => open_store_read_only(site)?,
+        ProtrusionAction::Remove | ProtrusionAction::Rollback => open_store(site)?,
+    };
     let Some(child) = store.load(version).map_err(refused)? else {
         return Err(JobError::bad_input(format!(
             "{}: the store has no version yet",
@@ -204,7 +219,7 @@ pub fn export_version(
     output: &Path,
 ) -> Result<ExportReport, JobError> {
     crate::check_resolution(resolution_m)?;
-    let store = open_store(site)?;
+    let store = open_store_read_only(site)?;
     let Some(stored) = store.load(version).map_err(refused)? else {
         return Err(JobError::bad_input(format!(
             "{}: the store has no version yet",

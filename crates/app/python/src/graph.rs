@@ -232,8 +232,9 @@ pub fn write_graph(
         }
     };
     let any = &graph.loaded.graph;
+    // The output path is the user's: bad input, as the CLI has it (issue 67).
     py.detach(|| mapmerge_io::write_graph(&path, any, format))
-        .map_err(|e| job_error(py, mapmerge_jobs::JobError::failed(&e)))
+        .map_err(|e| job_error(py, mapmerge_jobs::JobError::bad_file(&e)))
 }
 
 /// Initialises and optimises a graph (a `Graph`, or a file path read as by `read_graph`);

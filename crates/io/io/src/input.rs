@@ -8,7 +8,7 @@ use crate::reader::parse_error;
 use crate::IoError;
 
 /// The magic bytes that start an xz stream.
-const XZ_MAGIC: &[u8] = &[0xFD, b'7', b'z', b'X', b'Z', 0x00];
+pub(crate) const XZ_MAGIC: &[u8] = &[0xFD, b'7', b'z', b'X', b'Z', 0x00];
 
 /// Expected xz compression ratio of our inputs (text about 5:1); only sizes the first buffer.
 const XZ_RATIO_GUESS: usize = 6;

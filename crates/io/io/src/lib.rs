@@ -42,6 +42,7 @@
 //! ```
 
 mod carmen;
+mod document;
 mod error;
 mod g2o;
 mod graph_file;
@@ -58,6 +59,7 @@ pub use carmen::{
     format_carmen, old_laser_increment_rad, old_laser_max_range_m, parse_carmen, read_carmen,
     write_carmen, FRONT_LASER_MAX_PARAM, REAR_LASER_MAX_PARAM,
 };
+pub use document::{check_document, read_document, MAX_DOCUMENT_BYTES, MAX_DOCUMENT_DEPTH};
 pub use error::IoError;
 pub use graph_file::{
     format_graph, parse_graph, parse_graph_with, read_graph, read_graph_with, write_graph,

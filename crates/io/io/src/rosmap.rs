@@ -10,7 +10,8 @@ use mapmerge_grid::{
 };
 use serde_yaml_ng::{Mapping, Value};
 
-use crate::input::{read_bytes, read_text};
+use crate::document::{check_document, read_document};
+use crate::input::read_bytes;
 use crate::pgm::{format_pgm, parse_pgm};
 use crate::reader::{parse_error, quoted};
 use crate::writer::{save, save_bytes, write_f64};
@@ -211,7 +212,7 @@ impl RosMap {
 /// either may be xz-compressed, recognised by the magic bytes).
 pub fn read_ros_map(yaml_path: &Path) -> Result<RosMap, IoError> {
     let file = yaml_path.display().to_string();
-    let text = read_text(yaml_path)?;
+    let text = read_document(yaml_path)?;
     let mut map = parse_ros_map_yaml(&text, &file)?;
     let folder = yaml_path.parent().unwrap_or_else(|| Path::new(""));
     let image = folder.join(&map.image);
@@ -324,9 +325,11 @@ impl Descriptor<'_> {
 /// Required keys: `image`, `resolution` (> 0), `origin` (`[x, y, yaw]`), `negate` (0/1 or a
 /// boolean), `occupied_thresh` and `free_thresh` (in [0, 1], free ≤ occupied); optional
 /// `mode` (`trinary`, `scale`, `raw`). Other keys are ignored. Numbers may be quoted.
-/// YAML syntax errors and bad values are [`IoError::Parse`] at their line; missing keys and a
-/// document that is not a mapping are [`IoError::Invalid`].
+/// YAML syntax errors, bad values and nesting beyond [`crate::MAX_DOCUMENT_DEPTH`] are
+/// [`IoError::Parse`] at their line; missing keys, a document that is not a mapping and one
+/// beyond [`crate::MAX_DOCUMENT_BYTES`] are [`IoError::Invalid`].
 pub fn parse_ros_map_yaml(text: &str, source: &str) -> Result<RosMap, IoError> {
+    check_document(text, source)?;
     let document: Value = serde_yaml_ng::from_str(text).map_err(|err| {
         let line = err.location().map_or(1, |l| l.line());
         parse_error(source, line, format!("invalid YAML: {err}"))
@@ -616,5 +619,14 @@ mod tests {
         assert_eq!(key_line(text, "origin"), 4);
         assert_eq!(key_line(text, "negate"), 5);
         assert_eq!(key_line(text, "mode"), 1);
+    }
+
+    /// Issue 67: a descriptor nesting flow lists deeply is refused before the YAML parser
+    /// sees it (which once took 37 s on one), at its line.
+    #[test]
+    fn a_deeply_nested_descriptor_is_refused_at_its_line() {
+        let text = format!("{YAML}extra: {}\n", "[".repeat(200_000));
+        let error = parse_ros_map_yaml(&text, "m.yaml").map(|_| ()).unwrap_err();
+        assert!(error.to_string().contains("nested deeper than"), "{error}");
     }
 }

@@ -428,7 +428,7 @@ struct BagfileInformation {
 /// The files of a bag directory, in the order `metadata.yaml` gives.
 fn bag_directory_files(directory: &Path) -> Result<Vec<(Storage, PathBuf)>, IoError> {
     let metadata_path = directory.join("metadata.yaml");
-    let text = std::fs::read_to_string(&metadata_path).map_err(|e| io_error(&metadata_path, e))?;
+    let text = mapmerge_io::read_document(&metadata_path)?;
     let metadata: Metadata = serde_yaml_ng::from_str(&text)
         .map_err(|e| invalid(&metadata_path, format!("not rosbag2 metadata: {e}")))?;
     let info = metadata.rosbag2_bagfile_information;

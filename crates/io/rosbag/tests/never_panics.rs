@@ -120,3 +120,23 @@ fn a_short_attachment_is_skipped() {
     let bytes = include_bytes!("data/short_attachment.mcap");
     let _ = parse_mcap_session(bytes, &TopicChoice::default());
 }
+
+/// Issue 67: a bag directory whose metadata.yaml nests flow lists deeply is refused at once,
+/// naming the file and line (the YAML parser once took minutes on 300 KB of it).
+#[test]
+fn deeply_nested_bag_metadata_is_refused_before_parsing() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    let nested = format!(
+        "rosbag2_bagfile_information:\n  relative_file_paths: {}\n",
+        "[".repeat(100_000)
+    );
+    std::fs::write(bag.join("metadata.yaml"), nested).unwrap();
+    let error = mapmerge_rosbag::read_log(&bag, &TopicChoice::default()).unwrap_err();
+    let text = error.to_string();
+    assert!(
+        text.contains("metadata.yaml:2: nested deeper than"),
+        "{text}"
+    );
+}

@@ -401,25 +401,22 @@ fn regions_of(
                 }
                 wrong as f64 / sampled.max(1) as f64
             };
-        let cases = std::iter::once(("correct".to_owned(), Some(child.atlas.clone()))).chain(
+        // The child as mapped (no slip), then its slipped copies (`Some(slip)`).
+        let cases = std::iter::once((None, Some(child.atlas.clone()))).chain(
             (0..args.slips)
-                .map(|slip| {
-                    (
-                        format!("slip{slip}"),
-                        slipped(&child.atlas, child.first, &mut rng),
-                    )
-                })
+                .map(|slip| (Some(slip), slipped(&child.atlas, child.first, &mut rng)))
                 .collect::<Vec<_>>(),
         );
         let mut any = false;
-        for (case, atlas) in cases {
+        for (slip, atlas) in cases {
             let Some(atlas) = atlas else { continue };
             let Some((map, regions)) = new_regions(&parent.atlas, &atlas, &params) else {
                 continue;
             };
             any = true;
+            let case = slip.map_or_else(|| "correct".to_owned(), |slip| format!("slip{slip}"));
             for region in &regions {
-                let wrong_fraction = label(&map, region, case != "correct");
+                let wrong_fraction = label(&map, region, slip.is_some());
                 labelled.push((
                     LabelledRegion {
                         source: format!("{world}/{seed}/{}/{case}", k + 1),
@@ -472,11 +469,13 @@ pub fn run(args: &ProtrusionEvalArgs) -> anyhow::Result<()> {
             None => skipped.push(format!("{world}/{seed}")),
             Some(regions) => {
                 for (region, wrong_fraction) in regions {
-                    dump.push(RegionLine {
-                        held_out: *is_test,
-                        wrong_fraction,
-                        region: region.clone(),
-                    });
+                    if args.write_regions.is_some() {
+                        dump.push(RegionLine {
+                            held_out: *is_test,
+                            wrong_fraction,
+                            region: region.clone(),
+                        });
+                    }
                     if *is_test {
                         test.push(((*world).clone(), region));
                     } else {

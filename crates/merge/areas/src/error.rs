@@ -24,4 +24,7 @@ pub enum AreasError {
     /// An area could not be mapped, or its map does not fit its scans.
     #[error("mapping: {0}")]
     Mapping(String),
+    /// A hybrid map (read from a file) breaks its own rules.
+    #[error("hybrid map: {0}")]
+    Hybrid(String),
 }

@@ -12,6 +12,7 @@ use petgraph::graph::{NodeIndex, UnGraph};
 use serde::{Deserialize, Serialize};
 
 use crate::environment::Environment;
+use crate::error::AreasError;
 
 /// One map of the hybrid map: a room, corridor or hall.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -105,6 +106,84 @@ pub struct Route {
 }
 
 impl HybridMap {
+    /// `Ok` when the map keeps its rules, which a file read from disk may break: every id is
+    /// its index, every link point, candidate and edge names areas that exist, an edge joins
+    /// two link points of its area, poses are finite and lengths finite and non-negative (a
+    /// negative length is a negative cycle for the shortest-path search, every edge going
+    /// both ways). The error names the first broken rule's item and field.
+    pub fn validate(&self) -> Result<(), AreasError> {
+        let bad = |what: String| Err(AreasError::Hybrid(what));
+        let finite =
+            |pose: &Se2| pose.x_m.is_finite() && pose.y_m.is_finite() && pose.theta_rad.is_finite();
+        let areas = self.areas.len();
+        // Every id is its index.
+        let ids = |list: &str, ids: &mut dyn Iterator<Item = usize>| match ids
+            .enumerate()
+            .find(|(i, id)| i != id)
+        {
+            Some((i, id)) => bad(format!("{list}[{i}].id is {id}, not its index {i}")),
+            None => Ok(()),
+        };
+        ids("areas", &mut self.areas.iter().map(|a| a.id))?;
+        ids("link_points", &mut self.link_points.iter().map(|l| l.id))?;
+        ids("candidates", &mut self.candidates.iter().map(|c| c.id))?;
+        for (i, area) in self.areas.iter().enumerate() {
+            if !finite(&area.first_from_area) {
+                return bad(format!("areas[{i}].first_from_area is not finite"));
+            }
+        }
+        for (i, link) in self.link_points.iter().enumerate() {
+            if let Some(area) = link.areas.iter().find(|a| **a >= areas) {
+                return bad(format!(
+                    "link_points[{i}].areas: no area {area} (there are {areas})"
+                ));
+            }
+            if link.areas[0] == link.areas[1] {
+                return bad(format!(
+                    "link_points[{i}].areas: joins area {} to itself",
+                    link.areas[0]
+                ));
+            }
+            if !link.poses.iter().all(finite) {
+                return bad(format!("link_points[{i}].poses: not finite"));
+            }
+        }
+        for (i, candidate) in self.candidates.iter().enumerate() {
+            if candidate.area >= areas {
+                return bad(format!(
+                    "candidates[{i}].area: no area {} (there are {areas})",
+                    candidate.area
+                ));
+            }
+            if !finite(&candidate.pose) {
+                return bad(format!("candidates[{i}].pose: not finite"));
+            }
+        }
+        for (i, edge) in self.edges.iter().enumerate() {
+            for end in [edge.from, edge.to] {
+                let Some(link) = self.link_points.get(end) else {
+                    return bad(format!(
+                        "edges[{i}]: no link point {end} (there are {})",
+                        self.link_points.len()
+                    ));
+                };
+                if !link.areas.contains(&edge.area) {
+                    return bad(format!(
+                        "edges[{i}]: link point {end} is not in area {}",
+                        edge.area
+                    ));
+                }
+            }
+            if !(edge.length_m.is_finite() && edge.length_m >= 0.0) {
+                return bad(format!(
+                    "edges[{i}].length_m is {}, not a finite length ≥ 0",
+                    edge.length_m
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Rebuilds E from L: every two link points that share a map are joined by their
     /// distance in it.
     pub fn connect(&mut self) {
@@ -127,8 +206,8 @@ impl HybridMap {
     }
 
     /// The shortest route (Dijkstra over E) from `start` in map `start_area` to `goal` in map
-    /// `goal_area` (positions in those maps' frames); `None` when a map is unknown or no
-    /// chain of link points joins them.
+    /// `goal_area` (positions in those maps' frames); `None` when a map is unknown, the hybrid
+    /// map breaks its rules ([`HybridMap::validate`]) or no chain of link points joins them.
     pub fn route(
         &self,
         start_area: usize,
@@ -136,10 +215,11 @@ impl HybridMap {
         goal_area: usize,
         goal: Point2,
     ) -> Option<Route> {
-        // A link point's id is its index (a map read from a file may break that: no route).
+        // A map read from a file may break the rules the search relies on (a negative length
+        // would never let it end): no route.
         if start_area >= self.areas.len()
             || goal_area >= self.areas.len()
-            || self.link_points.iter().enumerate().any(|(i, l)| l.id != i)
+            || self.validate().is_err()
         {
             return None;
         }
@@ -278,11 +358,43 @@ mod tests {
         assert!(map.route(0, start, 7, goal).is_none(), "an unknown map");
     }
 
+    /// Issue 67: a hybrid map read from a file that breaks a rule is refused by name, and
+    /// has no route (a negative edge once made the search run out of memory).
     #[test]
-    fn a_map_whose_link_ids_are_not_their_indices_has_no_route() {
-        let (mut map, _) = build(2, &[(0, 1, 1.0, 0.0)]);
-        map.link_points[0].id = 7;
-        assert!(map.route(0, Point2::zeros(), 1, Point2::zeros()).is_none());
+    fn a_map_that_breaks_its_rules_is_refused_and_has_no_route() {
+        let (good, _) = build(3, &[(0, 1, 1.0, 0.0), (1, 2, 2.0, 0.0), (0, 2, 0.0, 10.0)]);
+        good.validate().unwrap();
+        type Break = fn(&mut HybridMap);
+        let cases: [(Break, &str); 9] = [
+            (|m| m.link_points[0].id = 7, "link_points[0].id"),
+            (|m| m.link_points[1].id = 0, "link_points[1].id"),
+            (|m| m.areas[2].id = 1, "areas[2].id"),
+            (
+                |m| m.link_points[0].areas[1] = 9,
+                "link_points[0].areas: no area 9",
+            ),
+            (
+                |m| m.link_points[0].areas = [1, 1],
+                "link_points[0].areas: joins",
+            ),
+            (
+                |m| m.link_points[2].poses[0].x_m = f64::NAN,
+                "link_points[2].poses",
+            ),
+            (|m| m.edges[0].length_m = -1.0, "edges[0].length_m"),
+            (|m| m.edges[1].to = 5, "edges[1]: no link point 5"),
+            (|m| m.edges[0].area = 2, "is not in area 2"),
+        ];
+        for (breaks, named) in cases {
+            let mut map = good.clone();
+            breaks(&mut map);
+            let error = map.validate().unwrap_err().to_string();
+            assert!(error.contains(named), "{error} should name {named}");
+            assert!(
+                map.route(0, Point2::zeros(), 2, Point2::zeros()).is_none(),
+                "{named}"
+            );
+        }
     }
 
     #[test]

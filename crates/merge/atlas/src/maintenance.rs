@@ -216,8 +216,13 @@ impl<B: BackupStore> Atlas<B> {
         }
         if params.prune {
             (report.maps_dropped, report.vertices_dropped) = self.drop_stale_maps(params);
-            report.views_pruned = self.prune_views(params);
-            let (pruned, fraction) = self.prune_local_maps(params);
+            // One rendering per graph serves both: pruning views changes no local map.
+            let rendered: Vec<Option<RenderedMap>> = self
+                .graphs()
+                .map(|graph| RenderedMap::render(graph, &self.local_maps, params.resolution_m))
+                .collect();
+            report.views_pruned = self.prune_views(params, &rendered);
+            let (pruned, fraction) = self.prune_local_maps(params, rendered);
             report.local_maps_pruned = pruned;
             report.class_change_fraction = fraction;
             report.vertices_marginalized = self.marginalize_bare_vertices()?;
@@ -268,7 +273,12 @@ impl<B: BackupStore> Atlas<B> {
         (stale.len(), vertices)
     }
 
-    /// The active graph and every inactive one.
+    /// The active graph and every inactive one, in map order.
+    fn graphs(&self) -> impl Iterator<Item = &PoseGraph2> + '_ {
+        std::iter::once(&self.active).chain(self.inactive.values())
+    }
+
+    /// The active graph and every inactive one, in the order of [`Atlas::graphs`].
     fn graphs_mut(&mut self) -> impl Iterator<Item = &mut PoseGraph2> + '_ {
         std::iter::once(&mut self.active).chain(self.inactive.values_mut())
     }
@@ -354,10 +364,15 @@ impl<B: BackupStore> Atlas<B> {
     /// equals) stays, while it is at least `view_spacing_m` away and the graph holds fewer
     /// than `max_views_per_m2` views per m² it maps. Deletes the others' keyframes; returns
     /// how many.
-    fn prune_views(&mut self, params: &MaintenanceParams) -> usize {
+    /// `rendered`: each graph's rendered local maps, in the order of [`Atlas::graphs`].
+    fn prune_views(
+        &mut self,
+        params: &MaintenanceParams,
+        rendered: &[Option<RenderedMap>],
+    ) -> usize {
         let session = self.sessions;
         let mut deleted = Vec::new();
-        for graph in std::iter::once(&self.active).chain(self.inactive.values()) {
+        for (graph, rendered) in self.graphs().zip(rendered) {
             // (in recent use, kept before this session, anchors a local map, utility, node,
             // pose)
             let mut ranked: Vec<Rank> = graph
@@ -402,13 +417,10 @@ impl<B: BackupStore> Atlas<B> {
                 }
             }
             // 2. The net, farthest first, within the budget.
-            let budget = RenderedMap::render(graph, &self.local_maps, params.resolution_m).map_or(
-                usize::MAX,
-                |rendered| {
-                    let area = rendered.known_area_m2(&ClassThresholds::default());
-                    ((params.max_views_per_m2.max(0.0) * area).floor() as usize).max(1)
-                },
-            );
+            let budget = rendered.as_ref().map_or(usize::MAX, |rendered| {
+                let area = rendered.known_area_m2(&ClassThresholds::default());
+                ((params.max_views_per_m2.max(0.0) * area).floor() as usize).max(1)
+            });
             let distance = |a: &Se2, b: &Se2| {
                 if wrap_angle_rad(a.theta_rad - b.theta_rad).abs() > params.view_heading_rad {
                     f64::INFINITY
@@ -496,17 +508,16 @@ impl<B: BackupStore> Atlas<B> {
     /// Sec. 4.3, Eq. 9, greedily: per graph, most redundant local map first, one goes when
     /// the rendered map without it (and without those gone before) still has at most
     /// `local_map_tolerance` of its known cells in another class. Returns how many went and
-    /// the largest fraction reached in a graph.
-    fn prune_local_maps(&mut self, params: &MaintenanceParams) -> (usize, f64) {
+    /// the largest fraction reached in a graph. `rendered`: as for [`Atlas::prune_views`].
+    fn prune_local_maps(
+        &mut self,
+        params: &MaintenanceParams,
+        rendered: Vec<Option<RenderedMap>>,
+    ) -> (usize, f64) {
         let thresholds = ClassThresholds::default();
         let mut pruned = Vec::new();
         let mut worst = 0.0f64;
-        for graph in std::iter::once(&self.active).chain(self.inactive.values()) {
-            let Some(mut rendered) =
-                RenderedMap::render(graph, &self.local_maps, params.resolution_m)
-            else {
-                continue;
-            };
+        for mut rendered in rendered.into_iter().flatten() {
             let reference = rendered.classes(&thresholds);
             let known = reference
                 .iter()

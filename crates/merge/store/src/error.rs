@@ -21,6 +21,16 @@ pub enum StoreError {
         /// The newest this build knows.
         supported: i64,
     },
+    /// The store was written by an older mapmerge and a read-only command cannot upgrade it.
+    #[error("{path}: schema version {found} is older than this build's {supported}; a command that writes to the store (atlas --store, areas --store, store rollback) upgrades it")]
+    OlderSchema {
+        /// The store.
+        path: PathBuf,
+        /// Its schema version.
+        found: i64,
+        /// The newest this build knows.
+        supported: i64,
+    },
     /// The file is not a mapmerge store (another SQLite database, or not SQLite at all).
     #[error("{path}: not a mapmerge store ({reason})")]
     NotAStore {

@@ -6,7 +6,9 @@
 //! what SQL cannot do (re-encoding blobs whose type grew). Every migration runs in the
 //! transaction that opens the store, so an upgrade is all or nothing.
 
-use rusqlite::Transaction;
+use std::collections::BTreeSet;
+
+use rusqlite::{Connection, Transaction};
 
 /// One migration: SQL, then an optional step in Rust.
 pub(crate) struct Migration {
@@ -142,3 +144,28 @@ pub(crate) const VERSIONED_TABLES: [&str; 6] = [
     "area_sessions",
     "area_maps",
 ];
+
+/// The tables and indexes of `connection`'s schema, as `"table events"`, `"index …"`.
+pub(crate) fn schema_objects(connection: &Connection) -> rusqlite::Result<BTreeSet<String>> {
+    let mut statement = connection.prepare(
+        "SELECT type || ' ' || name FROM sqlite_schema
+         WHERE type IN ('table', 'index') AND name NOT LIKE 'sqlite_%'",
+    )?;
+    let names = statement.query_map([], |row| row.get(0))?;
+    names.collect()
+}
+
+/// The tables and indexes a store of schema `version` has: the first `version` migrations
+/// applied to an empty database in memory.
+pub(crate) fn expected_objects(version: i64) -> rusqlite::Result<BTreeSet<String>> {
+    let mut connection = Connection::open_in_memory()?;
+    let transaction = connection.transaction()?;
+    let count = usize::try_from(version).unwrap_or(0);
+    for migration in MIGRATIONS.iter().take(count) {
+        transaction.execute_batch(migration.sql)?;
+        if let Some(step) = migration.then {
+            step(&transaction)?;
+        }
+    }
+    schema_objects(&transaction)
+}

@@ -2,11 +2,14 @@
 
 use std::path::{Path, PathBuf};
 
+use rusqlite::ffi::{SQLITE_CANTOPEN, SQLITE_READONLY_DIRECTORY};
 use rusqlite::{Connection, ErrorCode, OpenFlags, OptionalExtension, TransactionBehavior};
 use serde::{Deserialize, Serialize};
 
 use crate::error::StoreError;
-use crate::schema::{APPLICATION_ID, MIGRATIONS, SCHEMA_VERSION, VERSIONED_TABLES};
+use crate::schema::{
+    expected_objects, schema_objects, APPLICATION_ID, MIGRATIONS, SCHEMA_VERSION, VERSIONED_TABLES,
+};
 
 /// One map version (a committed session), as `mapmerge store versions --json` prints it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -75,8 +78,10 @@ pub struct StoreInfo {
 /// Versions whose atlas a store keeps by default (older ones keep their row in `versions`).
 pub const DEFAULT_KEEP_VERSIONS: usize = 10;
 
-/// Free pages are reclaimed once they are this fraction of the file ([`Store::reclaim`]).
-pub const RECLAIM_FROM_FRACTION: f64 = 0.25;
+/// Space holding no data (free pages and the unused bytes of pages in use) is reclaimed once
+/// it is this fraction of the file ([`Store::reclaim`]). A freshly rewritten store has about
+/// 2 % of it (B-tree pages are not full), so the file stays within about 8 % of its data.
+pub const RECLAIM_FROM_FRACTION: f64 = 0.1;
 
 /// An open store, held by this process until dropped.
 pub struct Store {
@@ -93,46 +98,93 @@ impl std::fmt::Debug for Store {
     }
 }
 
+/// How a store is opened.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Access {
+    /// For writing; a missing file becomes a new store.
+    Create,
+    /// For writing; the store must exist.
+    Existing,
+    /// For reading only: nothing is ever written, not even an upgrade.
+    ReadOnly,
+}
+
 impl Store {
-    /// Opens the store at `path`, creating it when there is no file, and upgrades an older
-    /// schema. Refused stores (locked, newer, not a store, corrupt) are not modified.
+    /// Opens the store at `path` for writing, creating it when there is no file, and upgrades
+    /// an older schema. A store is checked ([`Store::check`]) before anything is written to
+    /// it; refused stores (locked, newer, not a store, corrupt) are not modified.
     pub fn open(path: &Path) -> Result<Self, StoreError> {
-        Self::open_with(path, true)
+        Self::open_with(path, Access::Create)
     }
 
-    /// Opens an existing store (an error when there is no file).
+    /// Opens an existing store for writing, as [`Store::open`]; a missing or empty file is an
+    /// error.
     pub fn open_existing(path: &Path) -> Result<Self, StoreError> {
-        Self::open_with(path, false)
+        Self::open_with(path, Access::Existing)
     }
 
-    fn open_with(path: &Path, create: bool) -> Result<Self, StoreError> {
-        let mut flags = OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_NO_MUTEX;
-        if create {
-            flags |= OpenFlags::SQLITE_OPEN_CREATE;
-        }
+    /// Opens an existing store for reading only (its file may be read-only): every write
+    /// fails, and a store of an older schema is refused rather than upgraded.
+    pub fn open_read_only(path: &Path) -> Result<Self, StoreError> {
+        Self::open_with(path, Access::ReadOnly)
+    }
+
+    fn open_with(path: &Path, access: Access) -> Result<Self, StoreError> {
+        let mut flags = OpenFlags::SQLITE_OPEN_NO_MUTEX;
+        flags |= match access {
+            Access::Create => OpenFlags::SQLITE_OPEN_READ_WRITE | OpenFlags::SQLITE_OPEN_CREATE,
+            Access::Existing => OpenFlags::SQLITE_OPEN_READ_WRITE,
+            Access::ReadOnly => OpenFlags::SQLITE_OPEN_READ_ONLY,
+        };
         let classify = |e: rusqlite::Error| classify(path, e);
         let mut connection = Connection::open_with_flags(path, flags).map_err(classify)?;
-        // One process at a time: the first access takes the file's lock and keeps it until
-        // the connection closes (no waiting for a busy store).
+        // One writer at a time: its first access takes the file's lock and keeps it until
+        // the connection closes (no waiting for a busy store). A reader is refused while a
+        // writer holds it.
         connection
             .busy_timeout(std::time::Duration::ZERO)
             .map_err(classify)?;
-        connection
-            .pragma_update(None, "locking_mode", "EXCLUSIVE")
-            .map_err(classify)?;
+        if access != Access::ReadOnly {
+            connection
+                .pragma_update(None, "locking_mode", "EXCLUSIVE")
+                .map_err(classify)?;
+        }
+        let behavior = match access {
+            Access::ReadOnly => TransactionBehavior::Deferred,
+            Access::Create | Access::Existing => TransactionBehavior::Exclusive,
+        };
+        let header = match read_header(&mut connection, behavior) {
+            // A reader that cannot create the write-ahead log's files beside the store (a
+            // directory it may not write) reads the file as it is on disk: nothing can be
+            // coordinated with a writer there.
+            Err(e)
+                if access == Access::ReadOnly
+                    && matches!(
+                        e.sqlite_error().map(|e| e.extended_code),
+                        Some(SQLITE_READONLY_DIRECTORY | SQLITE_CANTOPEN)
+                    ) =>
+            {
+                drop(connection);
+                connection = Connection::open_with_flags(
+                    immutable_uri(path),
+                    flags | OpenFlags::SQLITE_OPEN_URI,
+                )
+                .map_err(classify)?;
+                read_header(&mut connection, behavior)
+            }
+            other => other,
+        };
+        let (application_id, schema_version, tables) = header.map_err(classify)?;
         let transaction = connection
-            .transaction_with_behavior(TransactionBehavior::Exclusive)
-            .map_err(classify)?;
-        let application_id: i64 = transaction
-            .pragma_query_value(None, "application_id", |row| row.get(0))
-            .map_err(classify)?;
-        let schema_version: i64 = transaction
-            .pragma_query_value(None, "user_version", |row| row.get(0))
-            .map_err(classify)?;
-        let tables: i64 = transaction
-            .query_row("SELECT count(*) FROM sqlite_schema", [], |row| row.get(0))
+            .transaction_with_behavior(behavior)
             .map_err(classify)?;
         let fresh = application_id == 0 && schema_version == 0 && tables == 0;
+        if fresh && access != Access::Create {
+            return Err(StoreError::NotAStore {
+                path: path.to_path_buf(),
+                reason: "an empty file".into(),
+            });
+        }
         if !fresh && application_id != APPLICATION_ID {
             return Err(StoreError::NotAStore {
                 path: path.to_path_buf(),
@@ -152,18 +204,42 @@ impl Store {
                 supported: SCHEMA_VERSION,
             });
         }
+        if access == Access::ReadOnly && schema_version < SCHEMA_VERSION {
+            return Err(StoreError::OlderSchema {
+                path: path.to_path_buf(),
+                found: schema_version,
+                supported: SCHEMA_VERSION,
+            });
+        }
+        // An older store's file and schema are checked before its upgrade writes to it.
+        if !fresh && schema_version < SCHEMA_VERSION {
+            check_file(&transaction, path, schema_version)?;
+        }
         transaction.rollback().map_err(classify)?;
+        let store = Self {
+            path: path.to_path_buf(),
+            connection,
+            keep_versions: DEFAULT_KEEP_VERSIONS,
+        };
+        if access == Access::ReadOnly {
+            return Ok(store);
+        }
+        // A current store is checked whole before anything is written to it.
+        if !fresh && schema_version == SCHEMA_VERSION {
+            store.check()?;
+        }
         // Accepted: from here on the store may be written.
-        connection
+        store
+            .connection
             .pragma_update(None, "journal_mode", "WAL")
             .map_err(classify)?;
-        connection
+        store
+            .connection
             .pragma_update(None, "foreign_keys", true)
             .map_err(classify)?;
         if schema_version < SCHEMA_VERSION {
-            let transaction = connection
-                .transaction_with_behavior(TransactionBehavior::Exclusive)
-                .map_err(classify)?;
+            // The upgrade is committed only once the upgraded store passes the check.
+            let transaction = store.connection.unchecked_transaction().map_err(classify)?;
             let from = usize::try_from(schema_version).unwrap_or(0);
             for migration in MIGRATIONS.iter().skip(from) {
                 transaction.execute_batch(migration.sql).map_err(classify)?;
@@ -177,16 +253,16 @@ impl Store {
             transaction
                 .pragma_update(None, "user_version", SCHEMA_VERSION)
                 .map_err(classify)?;
+            if !fresh {
+                store.check()?;
+            }
             transaction.commit().map_err(classify)?;
         }
-        connection
+        store
+            .connection
             .pragma_update(None, "synchronous", "FULL")
             .map_err(classify)?;
-        Ok(Self {
-            path: path.to_path_buf(),
-            connection,
-            keep_versions: DEFAULT_KEEP_VERSIONS,
-        })
+        Ok(store)
     }
 
     /// The store's file.
@@ -327,27 +403,33 @@ impl Store {
             .map_err(|e| classify(&self.path, e))
     }
 
-    /// Reclaims free pages (SQLite's `VACUUM`) once they are at least
-    /// [`RECLAIM_FROM_FRACTION`] of the file: versions beyond [`Store::keep_versions`] and
-    /// pruned views leave pages free that SQLite reuses but never returns. Then the newest
-    /// version's recorded size is the file's again. Returns the bytes reclaimed.
+    /// Reclaims the space that holds no data (SQLite's `VACUUM`) once it is at least
+    /// [`RECLAIM_FROM_FRACTION`] of the file. Versions beyond [`Store::keep_versions`] and
+    /// pruned views leave pages free, and rows deleted from pages still in use leave them part
+    /// empty; SQLite reuses both but never returns them. Then the newest version's recorded
+    /// size is the file's again. Returns the bytes reclaimed.
     pub(crate) fn reclaim(&self) -> Result<i64, StoreError> {
         let classify = |e: rusqlite::Error| classify(&self.path, e);
-        let pages = |sql: &str| -> Result<i64, StoreError> {
+        let bytes = |sql: &str| -> Result<i64, StoreError> {
             self.connection
                 .query_row(sql, [], |row| row.get(0))
                 .map_err(classify)
         };
-        let total = pages("SELECT page_count FROM pragma_page_count")?;
-        let free = pages("SELECT freelist_count FROM pragma_freelist_count")?;
-        if total <= 0 || (free as f64) < RECLAIM_FROM_FRACTION * total as f64 {
+        let size = "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size";
+        let before = bytes(size)?;
+        // `dbstat` lists the pages in use, not the free ones. Every table and index keeps
+        // one page however little it holds, so a page each is not counted as reclaimable.
+        let kept = bytes(
+            "SELECT COALESCE(SUM(pgsize - unused), 0)
+                  + COUNT(DISTINCT name) * (SELECT page_size FROM pragma_page_size)
+             FROM dbstat",
+        )?;
+        if before <= 0 || ((before - kept) as f64) < RECLAIM_FROM_FRACTION * before as f64 {
             return Ok(0);
         }
-        let size = "SELECT page_count * page_size FROM pragma_page_count, pragma_page_size";
-        let before = pages(size)?;
         self.connection.execute_batch("VACUUM").map_err(classify)?;
         self.checkpoint()?;
-        let after = pages(size)?;
+        let after = bytes(size)?;
         self.connection
             .execute(
                 "UPDATE versions SET bytes = ?1 WHERE version = (SELECT MAX(version) FROM versions)",
@@ -359,31 +441,15 @@ impl Store {
     }
 
     /// `Ok` when the store is intact: SQLite's integrity and foreign-key checks pass, every
-    /// version's parent is the version before it, every retained version has its atlas,
+    /// table and index of the schema is there, every version's parent is the version before it, every retained version has its atlas,
     /// every stored graph, backup, keyframe and counter decodes, and the newest version's
     /// atlas is consistent.
     pub fn check(&self) -> Result<(), StoreError> {
-        let classify = |e: rusqlite::Error| classify(&self.path, e);
         let corrupt = |reason: String| StoreError::Corrupt {
             path: self.path.clone(),
             reason,
         };
-        let integrity: String = self
-            .connection
-            .pragma_query_value(None, "integrity_check", |row| row.get(0))
-            .map_err(classify)?;
-        if integrity != "ok" {
-            return Err(corrupt(integrity));
-        }
-        let dangling: i64 = self
-            .connection
-            .query_row("SELECT count(*) FROM pragma_foreign_key_check", [], |row| {
-                row.get(0)
-            })
-            .map_err(classify)?;
-        if dangling > 0 {
-            return Err(corrupt(format!("{dangling} rows refer to missing rows")));
-        }
+        check_file(&self.connection, &self.path, SCHEMA_VERSION)?;
         let mut expected_parent = None;
         let versions = self.versions()?;
         for v in &versions {
@@ -397,6 +463,70 @@ impl Store {
         }
         self.check_rows(&versions)
     }
+}
+
+/// The file half of [`Store::check`] on a store of schema `schema_version`: SQLite's
+/// integrity and foreign-key checks, and every table and index of that schema present.
+fn check_file(connection: &Connection, path: &Path, schema_version: i64) -> Result<(), StoreError> {
+    let classify = |e: rusqlite::Error| classify(path, e);
+    let corrupt = |reason: String| StoreError::Corrupt {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let integrity: String = connection
+        .pragma_query_value(None, "integrity_check", |row| row.get(0))
+        .map_err(classify)?;
+    if integrity != "ok" {
+        return Err(corrupt(integrity));
+    }
+    let dangling: i64 = connection
+        .query_row("SELECT count(*) FROM pragma_foreign_key_check", [], |row| {
+            row.get(0)
+        })
+        .map_err(classify)?;
+    if dangling > 0 {
+        return Err(corrupt(format!("{dangling} rows refer to missing rows")));
+    }
+    let present = schema_objects(connection).map_err(classify)?;
+    let expected = expected_objects(schema_version).map_err(classify)?;
+    // Tables before their indexes.
+    let mut missing: Vec<&String> = expected.difference(&present).collect();
+    missing.sort_by_key(|name| !name.starts_with("table"));
+    if let Some(missing) = missing.first() {
+        return Err(corrupt(format!("{missing} is missing")));
+    }
+    Ok(())
+}
+
+/// The store's application id, schema version and number of schema objects (the first
+/// access, which takes the lock).
+fn read_header(
+    connection: &mut Connection,
+    behavior: TransactionBehavior,
+) -> rusqlite::Result<(i64, i64, i64)> {
+    let transaction = connection.transaction_with_behavior(behavior)?;
+    let application_id =
+        transaction.pragma_query_value(None, "application_id", |row| row.get(0))?;
+    let schema_version = transaction.pragma_query_value(None, "user_version", |row| row.get(0))?;
+    let tables =
+        transaction.query_row("SELECT count(*) FROM sqlite_schema", [], |row| row.get(0))?;
+    transaction.rollback()?;
+    Ok((application_id, schema_version, tables))
+}
+
+/// `path` as an SQLite URI that opens it immutable (read as it is, no locks, no log files).
+fn immutable_uri(path: &Path) -> String {
+    let mut uri = String::from("file:");
+    for c in path.to_string_lossy().chars() {
+        match c {
+            '%' => uri.push_str("%25"),
+            '?' => uri.push_str("%3f"),
+            '#' => uri.push_str("%23"),
+            c => uri.push(c),
+        }
+    }
+    uri.push_str("?immutable=1");
+    uri
 }
 
 /// `Ok` when `version` is stored and keeps its atlas; else which of the two it is not.

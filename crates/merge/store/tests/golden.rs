@@ -143,3 +143,21 @@ fn a_schema_4_store_keeps_its_areas_through_an_atlas_session() {
     assert_eq!((kept.sessions, kept.map), (areas.sessions, areas.map));
     store.check().unwrap();
 }
+
+/// Issue 67: a read-only command does not upgrade an older store; it says what will.
+#[test]
+fn an_older_store_is_not_upgraded_by_a_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    for schema in 1..SCHEMA_VERSION {
+        let path = dir.path().join(format!("schema-{schema}.mapmerge"));
+        std::fs::copy(golden(schema), &path).unwrap();
+        let before = std::fs::read(&path).unwrap();
+        let error = Store::open_read_only(&path).unwrap_err();
+        assert!(
+            matches!(error, StoreError::OlderSchema { found, .. } if found == schema),
+            "{error}"
+        );
+        assert!(error.to_string().contains("upgrades it"), "{error}");
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+    }
+}

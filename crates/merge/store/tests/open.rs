@@ -380,3 +380,65 @@ fn one_flipped_bit_in_a_keyframe_is_found_by_the_check() {
 fn rusqlite_connection(path: &std::path::Path) -> rusqlite::Connection {
     rusqlite::Connection::open(path).unwrap()
 }
+
+/// Issue 67: an empty file is no store to read or to add to; only `open` makes one of it.
+#[test]
+fn an_empty_file_is_a_store_only_when_created() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("empty.mapmerge");
+    std::fs::write(&path, b"").unwrap();
+    for opened in [Store::open_read_only(&path), Store::open_existing(&path)] {
+        let error = opened.unwrap_err();
+        assert!(matches!(error, StoreError::NotAStore { .. }), "{error}");
+        assert!(error.to_string().contains("empty"), "{error}");
+    }
+    assert_eq!(std::fs::metadata(&path).unwrap().len(), 0);
+    Store::open(&path).unwrap().check().unwrap();
+}
+
+/// Issue 67: a store missing a table fails its check by name, and no command may write to
+/// it; a read-only store reads but takes no write, and is left as it was.
+#[test]
+fn a_store_is_checked_before_a_write_and_read_only_takes_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("site.mapmerge");
+    let mut robot = Robot::new();
+    {
+        let mut store = Store::open(&path).unwrap();
+        let (atlas, reference) = robot.session(5, 100);
+        commit(&mut store, "session 0", &atlas, &reference);
+    }
+    let before = std::fs::read(&path).unwrap();
+    {
+        let mut store = Store::open_read_only(&path).unwrap();
+        assert_eq!(store.versions().unwrap().len(), 1);
+        store.check().unwrap();
+        let (atlas, reference) = robot.session(5, 100);
+        let refused = store.commit_session(&SessionCommit {
+            session: "session 1",
+            atlas: &atlas,
+            events: &[],
+            reference_poses: &reference,
+        });
+        assert!(refused.is_err(), "a read-only store took a commit");
+        assert!(store.rollback_to(0).is_err());
+    }
+    assert_eq!(std::fs::read(&path).unwrap(), before);
+    rusqlite::Connection::open(&path)
+        .unwrap()
+        .execute_batch("DROP TABLE events")
+        .unwrap();
+    let dropped = std::fs::read(&path).unwrap();
+    let store = Store::open_read_only(&path).unwrap();
+    let error = store.check().unwrap_err();
+    assert!(
+        error.to_string().contains("table events is missing"),
+        "{error}"
+    );
+    drop(store);
+    for opened in [Store::open(&path), Store::open_existing(&path)] {
+        let error = opened.unwrap_err();
+        assert!(matches!(error, StoreError::Corrupt { .. }), "{error}");
+    }
+    assert_eq!(std::fs::read(&path).unwrap(), dropped);
+}

@@ -81,6 +81,64 @@ fn areas_splits_a_session_at_its_doors_and_routes_between_them() {
     );
 }
 
+/// Issue 67: a hybrid.json that breaks its rules exits 2 at once, naming the file and the
+/// field; a negative edge length once made `route` search until memory ran out.
+#[test]
+fn route_refuses_a_hybrid_map_that_breaks_its_rules() {
+    let dir = scratch("route-hostile");
+    let area = |id: usize| {
+        format!(
+            r#"{{"id": {id}, "environment": "indoor", "first_from_area": {{"x_m": 0, "y_m": 0, "theta_rad": 0}}}}"#
+        )
+    };
+    let pose = r#"{"x_m": 1, "y_m": 0, "theta_rad": 0}"#;
+    let link = |id: usize| {
+        format!(
+            r#"{{"id": {id}, "areas": [{id}, {}], "poses": [{pose}, {pose}]}}"#,
+            id + 1
+        )
+    };
+    let edge = |to: usize, length_m: f64| {
+        format!(r#"{{"from": 0, "to": {to}, "area": 1, "length_m": {length_m}}}"#)
+    };
+    let write = |links: &[String], edges: &[String]| {
+        let text = format!(
+            r#"{{"areas": [{}, {}, {}], "link_points": [{}], "edges": [{}]}}"#,
+            area(0),
+            area(1),
+            area(2),
+            links.join(","),
+            edges.join(",")
+        );
+        std::fs::write(dir.join("hybrid.json"), text).unwrap();
+    };
+    let route = || run(&["route", p(&dir), "--from", "0:0,0", "--to", "2:0,0"]);
+    write(&[link(0), link(1)], &[edge(1, 2.0)]);
+    assert!(route().status.success(), "the valid map routes");
+    for (links, edges, named) in [
+        (
+            vec![link(0), link(1)],
+            vec![edge(1, -1.0)],
+            "edges[0].length_m",
+        ),
+        (
+            vec![link(0), link(1)],
+            vec![edge(4, 2.0)],
+            "no link point 4",
+        ),
+        (vec![link(0), link(0)], vec![], "link_points[1].id"),
+    ] {
+        write(&links, &edges);
+        let output = route();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{named}: {stderr}");
+        assert!(
+            stderr.contains("hybrid.json") && stderr.contains(named),
+            "{stderr}"
+        );
+    }
+}
+
 /// Session `index` of the simulated office, added to the store at `site`; areas written to
 /// `out`.
 fn add_session(site: &std::path::Path, index: &str, out: &std::path::Path) -> serde_json::Value {

@@ -86,3 +86,33 @@ fn slam_refuses_bad_input_with_exit_code_2() {
     let out = run(&["slam", p(&log), "-o", p(&dir), "--odometry-noise", "gentle"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// Issue 67: an output the command cannot write is refused before any work, with exit code 2
+/// and the path: a file where a folder goes, a folder where a file goes, a folder under a file.
+#[test]
+fn outputs_that_cannot_be_written_are_refused_before_the_work() {
+    let dir = scratch("outputs-bad");
+    let file = dir.join("a-file");
+    std::fs::write(&file, "not a folder").unwrap();
+    let log = testdata("sim/office-aliased/session_0.log.xz");
+    let graph = testdata("sim_manhattan_500.g2o");
+    let under_file = file.join("out");
+    for args in [
+        vec!["slam", p(&log), "-o", p(&file)],
+        vec!["slam", p(&log), "-o", p(&under_file)],
+        vec!["atlas", p(&log), "-o", p(&file), "--no-pictures"],
+        vec!["optimize", p(&graph), "-o", p(&dir)],
+        vec!["optimize", p(&graph), "-o", p(&under_file)],
+    ] {
+        let out = run(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains("a-file") || stderr.contains("outputs-bad"),
+            "{stderr}"
+        );
+        // Refused at once: no graph, map or trajectory was written anywhere.
+        assert!(!dir.join("graph.g2o").exists() && !dir.join("trajectory.tum").exists());
+    }
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "not a folder");
+}

@@ -4,7 +4,7 @@
 
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-use crate::common::{ok_json, p, run, scratch};
+use crate::common::{ok_json, p, run, scratch, testdata};
 use mapmerge_store::Store;
 
 /// One simulated session of the office, continued from and committed to `site`.
@@ -195,4 +195,70 @@ fn store_commands_refuse_what_is_not_a_store() {
         );
     }
     assert_eq!(std::fs::read(&text).unwrap(), before);
+}
+
+/// Issue 67: what a store command cannot use exits 2, says why, and writes nothing: an empty
+/// file, a damaged store (checked before `rollback` writes), no version to keep, a session
+/// without scans (no store is left behind).
+#[test]
+fn store_writers_refuse_what_they_cannot_use_and_write_nothing() {
+    let dir = scratch("store-hostile");
+    let refused = |args: &[&str], says: &str| {
+        let out = run(args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(says), "{args:?}: {stderr}");
+    };
+    let empty = dir.join("empty.mapmerge");
+    std::fs::write(&empty, b"").unwrap();
+    refused(&["store", "info", p(&empty)], "an empty file");
+    refused(
+        &["store", "rollback", p(&empty), "--to", "1"],
+        "an empty file",
+    );
+    assert_eq!(std::fs::metadata(&empty).unwrap().len(), 0);
+
+    let site = dir.join("site.mapmerge");
+    let golden = testdata(&format!(
+        "stores/schema-{}.mapmerge",
+        mapmerge_store::SCHEMA_VERSION
+    ));
+    std::fs::copy(golden, &site).unwrap();
+    rusqlite::Connection::open(&site)
+        .unwrap()
+        .execute_batch("DROP TABLE events")
+        .unwrap();
+    let damaged = std::fs::read(&site).unwrap();
+    refused(&["store", "check", p(&site)], "table events is missing");
+    refused(
+        &["store", "rollback", p(&site), "--to", "1"],
+        "table events is missing",
+    );
+    assert_eq!(std::fs::read(&site).unwrap(), damaged);
+
+    let fresh = dir.join("fresh.mapmerge");
+    let session = [
+        "atlas",
+        "--sim",
+        "office",
+        "--duration",
+        "10",
+        "--no-pictures",
+    ];
+    let out = dir.join("out");
+    refused(
+        &[
+            &session[..],
+            &["--store", p(&fresh), "--keep-versions", "0", "-o", p(&out)],
+        ]
+        .concat(),
+        "--keep-versions must be at least 1",
+    );
+    let log = dir.join("empty.log");
+    std::fs::write(&log, b"").unwrap();
+    refused(
+        &["atlas", p(&log), "--store", p(&fresh), "-o", p(&out)],
+        "no scans",
+    );
+    assert!(!fresh.exists(), "a store was left behind");
 }
