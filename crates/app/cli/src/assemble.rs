@@ -119,27 +119,28 @@ pub fn run(args: &AssembleArgs) -> anyhow::Result<()> {
     })
     .map_err(crate::job_error)?;
     let out = &args.output;
-    std::fs::create_dir_all(out.join("poses"))
-        .with_context(|| format!("creating {}", out.display()))?;
+    let poses_dir = out.join("poses");
+    std::fs::create_dir_all(&poses_dir).map_err(crate::writing(&poses_dir))?;
     // groups.json and loops.jsonl.
     let group_lines: Vec<GroupLine> = assembled
         .groups
         .iter()
         .map(|g| GroupLine { segments: g })
         .collect();
+    let groups_path = out.join("groups.json");
     std::fs::write(
-        out.join("groups.json"),
+        &groups_path,
         serde_json::to_string_pretty(&group_lines)? + "\n",
     )
-    .with_context(|| format!("writing {}", out.join("groups.json").display()))?;
+    .map_err(crate::writing(&groups_path))?;
     let loop_lines = assembled.loop_lines();
     let mut loops_text = String::new();
     for line in &loop_lines {
         loops_text.push_str(&serde_json::to_string(line)?);
         loops_text.push('\n');
     }
-    std::fs::write(out.join("loops.jsonl"), loops_text)
-        .with_context(|| format!("writing {}", out.join("loops.jsonl").display()))?;
+    let loops_path = out.join("loops.jsonl");
+    std::fs::write(&loops_path, loops_text).map_err(crate::writing(&loops_path))?;
     // Poses and pictures per group.
     let assembler = &assembled.assembler;
     let mut reports = Vec::with_capacity(assembled.solutions.len());
@@ -154,10 +155,8 @@ pub fn run(args: &AssembleArgs) -> anyhow::Result<()> {
                 .copied()
                 .zip(poses.iter().copied())
                 .collect();
-            mapmerge_io::write_tum_planar(
-                &out.join("poses").join(format!("{name}.tum")),
-                &stamped,
-            )?;
+            let path = poses_dir.join(format!("{name}.tum"));
+            mapmerge_io::write_tum_planar(&path, &stamped).map_err(crate::writing(&path))?;
         }
         let picture = if args.no_pictures {
             None
@@ -233,6 +232,6 @@ fn draw_group(
     for (k, poses) in solution.scan_poses.values().enumerate() {
         picture.draw_trajectory(poses, session_color(k as u64), 1.0);
     }
-    picture.save_png(path)?;
+    picture.save_png(path).map_err(crate::writing(path))?;
     Ok(())
 }

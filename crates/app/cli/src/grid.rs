@@ -4,7 +4,6 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::Context;
 use clap::Args;
 use mapmerge_grid::{CellClass, ClassThresholds, InsertParams};
 use mapmerge_io::{MapMode, RosMap};
@@ -66,6 +65,9 @@ struct GridReport<'a> {
 /// Runs `mapmerge grid`.
 pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
     crate::check_output_file(&args.output)?;
+    if let Some(png) = &args.png {
+        crate::check_output_file(png)?;
+    }
     check_resolution(args.resolution)?;
     let posed = load_posed_log(&args.log, args.poses.as_deref(), &args.topics)?;
     let mut params = InsertParams::default();
@@ -77,7 +79,7 @@ pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
     let build_secs = started.elapsed().as_secs_f64();
     let thresholds = ClassThresholds::default();
     let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
-    mapmerge_io::write_ros_map(&args.output, &map).context("writing the map")?;
+    mapmerge_io::write_ros_map(&args.output, &map).map_err(crate::writing(&args.output))?;
     if let Some(png) = &args.png {
         let style = PictureStyle {
             pixels_per_cell: 1,
@@ -85,7 +87,7 @@ pub fn run(args: &GridArgs) -> anyhow::Result<ExitCode> {
         };
         let mut picture = Picture::of_grid(&grid, &style);
         picture.draw_trajectory(&posed.poses, Rgb::RED, 1.0);
-        picture.save_png(png)?;
+        picture.save_png(png).map_err(crate::writing(png))?;
     }
     let count = |class| {
         grid.log_odds()

@@ -142,7 +142,9 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<ExitCode> {
     for (k, trajectory) in trajectories.iter().enumerate() {
         picture.draw_trajectory(trajectory, session_color(k as u64 + 3), 1.5);
     }
-    picture.save_png(&args.output)?;
+    picture
+        .save_png(&args.output)
+        .map_err(crate::writing(&args.output))?;
     let (width_px, height_px) = picture.size_px();
     let report = RenderReport {
         png: &args.output,

@@ -92,13 +92,14 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     let (stamps, tum_stamps_rewritten) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     if let Some(reference) = &reference {
-        std::fs::create_dir_all(&args.output)?;
+        std::fs::create_dir_all(&args.output).map_err(crate::writing(&args.output))?;
         let stamped: Vec<(f64, Se2)> = stamps
             .iter()
             .copied()
             .zip(reference.corrected.iter().copied())
             .collect();
-        mapmerge_io::write_tum_planar(&args.output.join("reference.tum"), &stamped)?;
+        let path = args.output.join("reference.tum");
+        mapmerge_io::write_tum_planar(&path, &stamped).map_err(crate::writing(&path))?;
     }
     let bar = crate::progress_bar(log.scans.len(), "scans", "grid", !args.json);
     write_slam_outputs(

@@ -147,8 +147,7 @@ fn window_classes(graph: &PoseGraph2, engine: &Engine) -> BTreeMap<NodeId, Vec<P
 
 /// Writes every graph of the atlas as g2o with a picture.
 pub fn write_atlas(engine: &Engine, dir: &Path) -> Result<(), JobError> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| JobError::context(format!("creating {}", dir.display()), &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| JobError::writing(dir, &e))?;
     let atlas = engine.atlas();
     let mut graphs: Vec<(String, &PoseGraph2)> =
         vec![(mapmerge_atlas::map_name(None), atlas.active())];

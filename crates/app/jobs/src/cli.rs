@@ -192,6 +192,14 @@ pub fn check_output_file(file: &std::path::Path) -> anyhow::Result<()> {
     crate::check_output_file(file).map_err(job_error)
 }
 
+/// The error of a failed write to the user's output `path`: bad input (exit code 2), naming
+/// it, as [`crate::JobError::writing`]. For `.map_err(writing(&path))`.
+pub fn writing<E: std::error::Error>(
+    path: &std::path::Path,
+) -> impl FnOnce(E) -> anyhow::Error + '_ {
+    move |e| job_error(crate::JobError::writing(path, &e))
+}
+
 /// A job's error as the binary's: bad input keeps exit code 2 ([`BadInput`]), anything else
 /// exit code 1; the text is the job's.
 pub fn job_error(err: crate::JobError) -> anyhow::Error {

@@ -249,8 +249,7 @@ pub fn grid_merge(
     if let Some(output) = output {
         let mut merged = RosMap::from_grid(&fused.merged, MapMode::Trinary, &thresholds);
         merged.origin_yaw_rad = map_a.origin_yaw_rad;
-        mapmerge_io::write_ros_map(output, &merged)
-            .map_err(|e| JobError::context("writing the merged map", &e))?;
+        mapmerge_io::write_ros_map(output, &merged).map_err(|e| JobError::writing(output, &e))?;
         report.merged = Some(output.to_path_buf());
     }
     report.accepted = true;

@@ -539,8 +539,7 @@ impl AtlasJob {
         }
         let output = self.options.output.clone();
         let pictures_dir = output.join("pictures");
-        std::fs::create_dir_all(&pictures_dir)
-            .map_err(|e| JobError::context(format!("creating {}", pictures_dir.display()), &e))?;
+        std::fs::create_dir_all(&pictures_dir).map_err(|e| JobError::writing(&pictures_dir, &e))?;
         let mut pictures = Pictures {
             dir: pictures_dir,
             drawn: 0,

@@ -204,8 +204,7 @@ pub fn write_slam_outputs(
     resolution_m: f64,
     progress: impl FnMut(),
 ) -> Result<OccupancyGrid, JobError> {
-    std::fs::create_dir_all(dir)
-        .map_err(|e| JobError::context(format!("creating {}", dir.display()), &e))?;
+    std::fs::create_dir_all(dir).map_err(|e| JobError::writing(dir, &e))?;
     let (stamps, _) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     let stamped: Vec<(f64, Se2)> = stamps.into_iter().zip(trajectory.iter().copied()).collect();
     let path = dir.join("trajectory.tum");
@@ -223,8 +222,8 @@ pub fn write_slam_outputs(
     )?;
     let thresholds = ClassThresholds::default();
     let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
-    mapmerge_io::write_ros_map(&dir.join("map.yaml"), &map)
-        .map_err(|e| JobError::context("writing the map", &e))?;
+    let path = dir.join("map.yaml");
+    mapmerge_io::write_ros_map(&path, &map).map_err(|e| JobError::writing(&path, &e))?;
     let style = PictureStyle {
         pixels_per_cell: 1,
         classes: Some(thresholds),

@@ -226,8 +226,7 @@ pub fn export_version(
             site.display()
         )));
     };
-    std::fs::create_dir_all(output)
-        .map_err(|e| JobError::context(format!("creating {}", output.display()), &e))?;
+    std::fs::create_dir_all(output).map_err(|e| JobError::writing(output, &e))?;
     let atlas = &stored.atlas;
     let graphs = std::iter::once(("active".to_owned(), &atlas.active)).chain(
         atlas
