@@ -547,10 +547,7 @@ fn a_conditional_bound_that_is_no_distance_is_refused() {
         assert!(
             matches!(
                 Engine::new(engine_params),
-                Err(mapmerge_engine::EngineError::Parameter {
-                    name: "decisions.conditional_max_m",
-                    ..
-                })
+                Err(mapmerge_engine::EngineError::Params(e)) if e.field == "decisions.conditional_max_m"
             ),
             "{bad}"
         );
@@ -566,10 +563,7 @@ fn a_disagreement_bound_of_no_edge_is_refused() {
     engine_params.decisions.undo_disagreeing_edges = Some(0);
     assert!(matches!(
         Engine::new(engine_params),
-        Err(mapmerge_engine::EngineError::Parameter {
-            name: "decisions.undo_disagreeing_edges",
-            ..
-        })
+        Err(mapmerge_engine::EngineError::Params(e)) if e.field == "decisions.undo_disagreeing_edges"
     ));
     for fine in [None, Some(1), Some(3)] {
         let mut engine_params = EngineParams::default();
