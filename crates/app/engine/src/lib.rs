@@ -91,7 +91,7 @@ pub enum EngineError {
     #[error("learned_model is for detector `learned`, but the detector is `{0}`")]
     ModelWithoutLearned(String),
     /// A parameter out of its range (its path in the engine's parameters).
-    #[error("invalid parameter: {0}")]
+    #[error(transparent)]
     Params(#[from] ParamError),
 }
 

@@ -44,9 +44,7 @@ where
     let mut merged = serde_json::to_value(T::default()).map_err(|e| bad(&e))?;
     overlay(&mut merged, given);
     let params: T = serde_json::from_value(merged).map_err(|e| bad(&e))?;
-    params
-        .validate()
-        .map_err(|e| bad(&format_args!("invalid parameter {e}")))?;
+    params.validate().map_err(|e| bad(&e))?;
     Ok(params)
 }
 

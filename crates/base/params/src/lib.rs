@@ -7,7 +7,7 @@ use std::fmt::Display;
 
 /// A parameter out of its range.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("`{field}` = {value}: {allowed}")]
+#[error("invalid parameter `{field}` = {value}: {allowed}")]
 pub struct ParamError {
     /// The field's path from the checked struct, e.g. `loops.matcher.icp.max_iterations`.
     pub field: String,
@@ -295,7 +295,7 @@ mod tests {
         assert_eq!(e.field, "inner.sigma_m");
         assert_eq!(
             e.to_string(),
-            "`inner.sigma_m` = -5: must be finite and > 0"
+            "invalid parameter `inner.sigma_m` = -5: must be finite and > 0"
         );
         let mut o = outer();
         o.extra = Some(Inner {
@@ -308,7 +308,10 @@ mod tests {
         let mut o = outer();
         o.gate.1 = f64::NAN;
         let e = o.validate().unwrap_err();
-        assert_eq!(e.to_string(), "`gate[1]` = NaN: must be in [0, 1]");
+        assert_eq!(
+            e.to_string(),
+            "invalid parameter `gate[1]` = NaN: must be in [0, 1]"
+        );
     }
 
     #[test]

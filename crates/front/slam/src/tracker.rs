@@ -43,7 +43,7 @@ pub enum TrackerError {
     #[error(transparent)]
     Matcher(#[from] ScanMatchError),
     /// A parameter is out of its range (the path from `TrackerParams`).
-    #[error("invalid parameter: {0}")]
+    #[error(transparent)]
     Params(#[from] ParamError),
 }
 

@@ -7,7 +7,7 @@ use thiserror::Error;
 #[derive(Debug, Error)]
 pub enum AreasError {
     /// A parameter is out of its range.
-    #[error("bad parameter {0}")]
+    #[error(transparent)]
     Params(#[from] ParamError),
     /// A preset's file could not be read.
     #[error("preset {name}: {reason}")]

@@ -13,7 +13,7 @@ pub enum AssembleError {
         reason: String,
     },
     /// A parameter is out of its range (its path, value and allowed range).
-    #[error("invalid parameter {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
     /// The association of a pair (or the grouping, or a group's graph) failed.
     #[error("{pair}: {reason}")]

@@ -395,12 +395,8 @@ impl Validate for RecognitionParams {
             .nested("place", &self.place)
             .real("min_confidence", self.min_confidence, Real::fraction())
             .size("every_keyframes", self.every_keyframes, 1, 1_000_000)
-            .size(
-                "min_epoch_keyframes",
-                self.min_epoch_keyframes,
-                0,
-                1_000_000,
-            )
+            // A threshold, not a size: a huge one never searches.
+            .size("min_epoch_keyframes", self.min_epoch_keyframes, 0, u64::MAX)
             .real(
                 "session_start_search_m",
                 self.session_start_search_m,

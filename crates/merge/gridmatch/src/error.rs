@@ -57,7 +57,7 @@ pub enum GridMatchError {
         max_cells: usize,
     },
     /// A parameter is out of its range.
-    #[error("invalid parameter: {0}")]
+    #[error(transparent)]
     Params(#[from] ParamError),
     /// Resampling a grid failed.
     #[error("resampling failed: {0}")]

@@ -23,7 +23,7 @@ pub enum HypothesisError {
         what: &'static str,
     },
     /// A parameter is out of range.
-    #[error("invalid parameter: {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
     /// The EKF produced a non-finite or indefinite state (inputs of absurd magnitude).
     #[error("numerical failure in {what}")]

@@ -36,7 +36,7 @@ pub enum AssociationError {
         expected: usize,
     },
     /// A parameter outside its valid range.
-    #[error("invalid parameter {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
 }
 

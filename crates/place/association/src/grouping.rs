@@ -114,7 +114,7 @@ pub enum GroupingError {
     #[error("weights ({row}, {col}) and ({col}, {row}) differ")]
     Asymmetric { row: usize, col: usize },
     /// A parameter is outside its range.
-    #[error("invalid grouping parameter {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
     /// The symmetric eigen-decomposition did not converge.
     #[error("eigen-decomposition of a {size}-segment component did not converge")]

@@ -148,7 +148,7 @@ pub enum ZoneError {
         what: &'static str,
     },
     /// A parameter is outside its range.
-    #[error("invalid zone parameter {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
     /// k-means refused the zone features (cannot happen after the checks above).
     #[error("zone clustering failed: {0}")]

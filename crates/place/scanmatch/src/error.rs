@@ -18,6 +18,6 @@ pub enum ScanMatchError {
         max_cells: u64,
     },
     /// A parameter is out of its range.
-    #[error("invalid parameter: {0}")]
+    #[error(transparent)]
     InvalidParams(#[from] mapmerge_params::ParamError),
 }

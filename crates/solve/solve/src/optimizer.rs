@@ -67,7 +67,7 @@ impl Default for OptimizerParams {
 impl OptimizerParams {
     /// Checks every parameter's range.
     pub fn validate(&self) -> Result<(), SolveError> {
-        Validate::validate(self).map_err(|e| SolveError::InvalidParameter(e.to_string()))
+        Ok(Validate::validate(self)?)
     }
 }
 

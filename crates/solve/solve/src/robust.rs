@@ -77,11 +77,6 @@ impl RobustKernel {
             }
         }
     }
-
-    /// Rejects kernel parameters that are not positive and finite.
-    pub fn validate(&self) -> Result<(), String> {
-        Validate::validate(self).map_err(|e| e.to_string())
-    }
 }
 
 impl Validate for RobustKernel {
