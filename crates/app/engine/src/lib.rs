@@ -181,7 +181,7 @@ impl Validate for EngineParams {
             )
             .rule(
                 "learned_model",
-                &self.detector,
+                format_args!("a model with detector `{}`", self.detector),
                 self.learned_model.is_none() || self.detector == "learned",
                 "is for detector `learned` only",
             )

@@ -352,7 +352,8 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
     });
     assert!(matches!(
         misplaced,
-        Err(mapmerge_engine::EngineError::ModelWithoutLearned(ref d)) if d == "combined"
+        Err(mapmerge_engine::EngineError::Params(ref e)) if e.field == "learned_model"
+            && e.value.contains("combined")
     ));
     let mut engine = Engine::new(EngineParams {
         detector: "learned".into(),
@@ -583,7 +584,7 @@ fn a_tracking_failure_bound_out_of_range_is_refused() {
     let message = Engine::new(engine_params).err().map(|e| e.to_string());
     assert_eq!(
         message.as_deref(),
-        Some("parameter tracker.lost.off_to_lose: 0 would lose track on every scan")
+        Some("invalid parameter `tracker.lost.off_to_lose` = 0: must be in [1, 100000]")
     );
     let mut engine_params = EngineParams::default();
     engine_params.tracker.lost = None;
