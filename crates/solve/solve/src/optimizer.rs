@@ -75,7 +75,8 @@ impl Validate for OptimizerParams {
     fn check(&self, check: &mut Checker) {
         check
             .nested("robust", &self.robust)
-            .size("max_iterations", self.max_iterations, 1, 100_000)
+            // 0 scores the initial estimate without a step.
+            .size("max_iterations", self.max_iterations, 0, 100_000)
             .real(
                 "relative_decrease_tolerance",
                 self.relative_decrease_tolerance,
