@@ -122,10 +122,10 @@ mod tests {
     use super::*;
 
     /// `read_config` of `text` (written to a scratch file).
-    fn config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
-        name: &str,
-        text: &str,
-    ) -> anyhow::Result<T> {
+    fn config<T>(name: &str, text: &str) -> anyhow::Result<T>
+    where
+        T: serde::de::DeserializeOwned + serde::Serialize + Default + mapmerge_params::Validate,
+    {
         let path = std::env::temp_dir().join(format!(
             "mapmerge-config-{}-{name}.json",
             std::process::id()
@@ -140,7 +140,10 @@ mod tests {
     /// default survives being written as JSON and read back.
     #[test]
     fn an_empty_config_is_every_types_default() {
-        fn same<T: serde::de::DeserializeOwned + serde::Serialize + Default>(name: &str) {
+        fn same<T>(name: &str)
+        where
+            T: serde::de::DeserializeOwned + serde::Serialize + Default + mapmerge_params::Validate,
+        {
             let read: T = config(name, "{}").unwrap();
             assert_eq!(
                 serde_json::to_value(read).unwrap(),
@@ -200,6 +203,80 @@ mod tests {
         assert_eq!(
             params.atlas.loops.optimizer.robust,
             RobustKernel::Dcs { phi: 3.0 }
+        );
+    }
+
+    /// Issue 67's hostile configs: each refused as bad input naming the file, the field's
+    /// path and the allowed range, before any work.
+    #[test]
+    fn out_of_range_values_are_refused_by_their_path() {
+        fn refused<T>(text: &str, field: &str)
+        where
+            T: serde::de::DeserializeOwned + serde::Serialize + Default + mapmerge_params::Validate,
+        {
+            let error = config::<T>("range", text)
+                .err()
+                .unwrap_or_else(|| panic!("{text}"));
+            assert!(error.is::<BadInput>(), "{text}: {error}");
+            let message = error.to_string();
+            assert!(message.contains("mapmerge-config-"), "{message}");
+            assert!(message.contains(&format!("`{field}`")), "{text}: {message}");
+            assert!(message.contains("must be"), "{message}");
+        }
+        use mapmerge_engine::EngineParams as E;
+        let cases = [
+            (
+                r#"{"tracker": {"matcher": {"correlative": {"max_grid_cells": 18446744073709551615, "resolution_m": 0.001}}}}"#,
+                "tracker.matcher.correlative.max_grid_cells",
+            ),
+            (
+                r#"{"atlas": {"loops": {"matcher": {"icp": {"max_iterations": 4294967295}}}}}"#,
+                "atlas.loops.matcher.icp.max_iterations",
+            ),
+            (
+                r#"{"atlas": {"loops": {"place_gate": [-1, 0.1, 0.1, 0.001]}}}"#,
+                "atlas.loops.place_gate[0]",
+            ),
+            (
+                r#"{"tracker": {"keyframes": {"min_translation_m": -0.25}}}"#,
+                "tracker.keyframes.min_translation_m",
+            ),
+            (
+                r#"{"tracker": {"max_match_range_m": -20}}"#,
+                "tracker.max_match_range_m",
+            ),
+            (
+                r#"{"tracker": {"min_edge_sigma": [-0.01, 0.003]}}"#,
+                "tracker.min_edge_sigma[0]",
+            ),
+            (
+                r#"{"atlas": {"optimizer": {"robust": {"kind": "dcs", "phi": -1}}}}"#,
+                "atlas.optimizer.robust.phi",
+            ),
+            (
+                r#"{"atlas": {"loops": {"optimize_every_keyframes": 0}}}"#,
+                "atlas.loops.optimize_every_keyframes",
+            ),
+            (
+                r#"{"decisions": {"probation_m": -5}}"#,
+                "decisions.probation_m",
+            ),
+            (
+                r#"{"decisions": {"filter": {"max_hypotheses": 0}}}"#,
+                "decisions.filter.max_hypotheses",
+            ),
+            (r#"{"detector": "nonesuch"}"#, "detector"),
+        ];
+        for (text, field) in cases {
+            refused::<E>(text, field);
+        }
+        refused::<mapmerge_areas::ManagerParams>(
+            r#"{"tracking": {"base_radius_m": -1}}"#,
+            "tracking.base_radius_m",
+        );
+        refused::<mapmerge_gridmatch::GridMatchParams>(
+            r#"{"max_cells": 18446744073709551615}"#,
+            "max_cells",
         );
     }
 }

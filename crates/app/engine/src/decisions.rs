@@ -18,6 +18,7 @@ use mapmerge_geometry::Se2;
 use mapmerge_hypothesis::{
     AmbiguityParams, FilterEvent, HypothesisCounts, HypothesisFilterParams, HypothesisId,
 };
+use mapmerge_params::{Checker, Real, Validate, NOISE_PER_UNIT, SIGMA_M, SIGMA_RAD};
 use mapmerge_place::SelfSimilarityParams;
 use mapmerge_posegraph::{NodeId, PoseGraph2};
 use nalgebra::{Matrix3, Vector3};
@@ -43,7 +44,7 @@ pub struct DecisionParams {
     /// merge edges' floor): a scan matcher's covariance is over-confident across sessions.
     pub observation_min_sigma_m_rad: (f64, f64),
     /// A conditional merge is dropped when the detector's invalidity on G' exceeds this
-    /// (default: 0.5).
+    /// (default: 0.5; above 1: never).
     pub conditional_reject_threshold: f64,
     /// Accepted recovery hypotheses add their loop edges to the graph (default: true).
     pub recover: bool,
@@ -131,6 +132,65 @@ pub struct DecisionParams {
     /// Undoing them left 5 more segments merged and 8 fewer misplaced. Default 3: one
     /// stray edge is noise; no other tuning epoch had one. `null` turns it off.
     pub undo_disagreeing_edges: Option<usize>,
+}
+
+impl Validate for DecisionParams {
+    fn check(&self, check: &mut Checker) {
+        let (a, b, c, e, f) = self.motion_noise;
+        let (sigma_m, sigma_rad) = self.observation_min_sigma_m_rad;
+        check
+            .nested("filter", &self.filter)
+            .nested("ambiguity", &self.ambiguity)
+            .reals(
+                "motion_noise",
+                &[
+                    (a, SIGMA_M),
+                    (b, NOISE_PER_UNIT),
+                    (c, SIGMA_RAD),
+                    (e, NOISE_PER_UNIT),
+                    (f, NOISE_PER_UNIT),
+                ],
+            )
+            .reals(
+                "observation_min_sigma_m_rad",
+                &[(sigma_m, SIGMA_M), (sigma_rad, SIGMA_RAD)],
+            )
+            .real(
+                "conditional_reject_threshold",
+                self.conditional_reject_threshold,
+                Real::non_negative(),
+            )
+            .real("probation_m", self.probation_m, Real::non_negative())
+            .size(
+                "confirm_every_keyframes",
+                self.confirm_every_keyframes,
+                1,
+                1_000_000,
+            )
+            .size_opt(
+                "track_every_keyframes",
+                self.track_every_keyframes,
+                1,
+                1_000_000,
+            )
+            .nested_opt("self_similarity", self.self_similarity.as_ref())
+            .real(
+                "self_similar_from_score",
+                self.self_similar_from_score,
+                Real::fraction(),
+            )
+            .real_opt(
+                "conditional_max_m",
+                self.conditional_max_m,
+                Real::positive(),
+            )
+            .size_opt(
+                "undo_disagreeing_edges",
+                self.undo_disagreeing_edges,
+                1,
+                1_000_000,
+            );
+    }
 }
 
 impl Default for DecisionParams {

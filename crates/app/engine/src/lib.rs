@@ -39,6 +39,7 @@ use mapmerge_hypothesis::{
     AmbiguityTracker, FilterEvent, Hypothesis, HypothesisError, HypothesisFilter, HypothesisId,
     HypothesisState, Observation, RejectReason, Target,
 };
+use mapmerge_params::{Checker, ParamError, Real, Validate};
 use mapmerge_place::{ScanMatchVerifier, SelfSimilarity};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use mapmerge_scan::{LaserLog, LaserScan, Point2};
@@ -89,14 +90,9 @@ pub enum EngineError {
     /// A `learned_model` was given for another detector.
     #[error("learned_model is for detector `learned`, but the detector is `{0}`")]
     ModelWithoutLearned(String),
-    /// A parameter out of its range.
-    #[error("parameter {name}: {reason}")]
-    Parameter {
-        /// The parameter's path in the engine's parameters.
-        name: &'static str,
-        /// What is wrong with it.
-        reason: String,
-    },
+    /// A parameter out of its range (its path in the engine's parameters).
+    #[error(transparent)]
+    Params(#[from] ParamError),
 }
 
 /// [`EngineParams::detector`] for no verification.
@@ -143,7 +139,7 @@ pub struct EngineParams {
     /// 0.15}}}`); only the chosen `detector`'s are used.
     pub detector_params: DetectorParams,
     /// Undo all merges when its invalidity exceeds this (default: 0.5; for `learned`, a
-    /// merge more likely invalid than valid).
+    /// merge more likely invalid than valid; above 1: never).
     pub unmerge_threshold: f64,
     /// A merge that was undone is not made again: proposals for the same inactive graph
     /// within this of its transform (m, rad) are refused for the rest of the epoch
@@ -163,6 +159,49 @@ impl Default for EngineParams {
             unmerge_threshold: 0.5,
             refused_within: (1.0, 10f64.to_radians()),
         }
+    }
+}
+
+impl Validate for EngineParams {
+    fn check(&self, check: &mut Checker) {
+        let known = self.detector == NO_DETECTOR
+            || mapmerge_verify::DETECTOR_NAMES.contains(&self.detector.as_str());
+        check
+            .nested("tracker", &self.tracker)
+            .nested("atlas", &self.atlas)
+            .nested("decisions", &self.decisions)
+            .rule(
+                "detector",
+                &self.detector,
+                known,
+                &format!(
+                    "must be one of {}, {NO_DETECTOR}",
+                    mapmerge_verify::DETECTOR_NAMES.join(", ")
+                ),
+            )
+            .rule(
+                "learned_model",
+                format_args!("a model with detector `{}`", self.detector),
+                self.learned_model.is_none() || self.detector == "learned",
+                "is for detector `learned` only",
+            )
+            .nested_opt("learned_model", self.learned_model.as_ref())
+            .nested("detector_params", &self.detector_params)
+            .real(
+                "unmerge_threshold",
+                self.unmerge_threshold,
+                Real::fraction(),
+            )
+            .reals(
+                "refused_within",
+                &[
+                    (self.refused_within.0, Real::non_negative()),
+                    (
+                        self.refused_within.1,
+                        Real::within(0.0, std::f64::consts::PI),
+                    ),
+                ],
+            );
     }
 }
 
@@ -264,20 +303,7 @@ const RIVAL_SPACING_M: f64 = 2.0;
 impl Engine {
     /// A new engine: epoch 0 starts.
     pub fn new(params: EngineParams) -> Result<Self, EngineError> {
-        if let Some(max_m) = params.decisions.conditional_max_m {
-            if !(max_m.is_finite() && max_m > 0.0) {
-                return Err(EngineError::Parameter {
-                    name: "decisions.conditional_max_m",
-                    reason: format!("{max_m} is not a positive distance (m); null turns it off"),
-                });
-            }
-        }
-        if params.decisions.undo_disagreeing_edges == Some(0) {
-            return Err(EngineError::Parameter {
-                name: "decisions.undo_disagreeing_edges",
-                reason: "0 would undo every merge; null turns the check off".into(),
-            });
-        }
+        params.validate()?;
         let detector: Option<Box<dyn InvalidMergeDetector>> =
             match (params.detector.as_str(), &params.learned_model) {
                 ("learned", Some(model)) => Some(Box::new(LearnedDetector::new(model.clone()))),

@@ -352,7 +352,8 @@ fn a_learned_model_in_the_parameters_is_the_engines_decision_and_its_components_
     });
     assert!(matches!(
         misplaced,
-        Err(mapmerge_engine::EngineError::ModelWithoutLearned(ref d)) if d == "combined"
+        Err(mapmerge_engine::EngineError::Params(ref e)) if e.field == "learned_model"
+            && e.value.contains("combined")
     ));
     let mut engine = Engine::new(EngineParams {
         detector: "learned".into(),
@@ -547,10 +548,7 @@ fn a_conditional_bound_that_is_no_distance_is_refused() {
         assert!(
             matches!(
                 Engine::new(engine_params),
-                Err(mapmerge_engine::EngineError::Parameter {
-                    name: "decisions.conditional_max_m",
-                    ..
-                })
+                Err(mapmerge_engine::EngineError::Params(e)) if e.field == "decisions.conditional_max_m"
             ),
             "{bad}"
         );
@@ -566,10 +564,7 @@ fn a_disagreement_bound_of_no_edge_is_refused() {
     engine_params.decisions.undo_disagreeing_edges = Some(0);
     assert!(matches!(
         Engine::new(engine_params),
-        Err(mapmerge_engine::EngineError::Parameter {
-            name: "decisions.undo_disagreeing_edges",
-            ..
-        })
+        Err(mapmerge_engine::EngineError::Params(e)) if e.field == "decisions.undo_disagreeing_edges"
     ));
     for fine in [None, Some(1), Some(3)] {
         let mut engine_params = EngineParams::default();
@@ -589,7 +584,7 @@ fn a_tracking_failure_bound_out_of_range_is_refused() {
     let message = Engine::new(engine_params).err().map(|e| e.to_string());
     assert_eq!(
         message.as_deref(),
-        Some("parameter tracker.lost.off_to_lose: 0 would lose track on every scan")
+        Some("invalid parameter `tracker.lost.off_to_lose` = 0: must be in [1, 100000]")
     );
     let mut engine_params = EngineParams::default();
     engine_params.tracker.lost = None;

@@ -29,10 +29,12 @@ impl std::error::Error for BadInput {}
 /// leaves out keeps the value `T`'s default has there, also inside a nested object (a
 /// nested struct's own default can differ: the atlas's `recognition.place` is not
 /// `PlaceParams::default()`). Unknown fields are still refused where the types deny them. A
-/// file that cannot be read or parsed is bad input (exit code 2).
-pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
-    path: Option<&std::path::Path>,
-) -> anyhow::Result<T> {
+/// file that cannot be read or parsed, or a value out of its range (checked by
+/// [`mapmerge_params::Validate`], the field named by its path), is bad input (exit code 2).
+pub fn read_config<T>(path: Option<&std::path::Path>) -> anyhow::Result<T>
+where
+    T: serde::de::DeserializeOwned + serde::Serialize + Default + mapmerge_params::Validate,
+{
     let Some(path) = path else {
         return Ok(T::default());
     };
@@ -41,7 +43,9 @@ pub fn read_config<T: serde::de::DeserializeOwned + serde::Serialize + Default>(
     let given: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad(&e))?;
     let mut merged = serde_json::to_value(T::default()).map_err(|e| bad(&e))?;
     overlay(&mut merged, given);
-    serde_json::from_value(merged).map_err(|e| bad(&e))
+    let params: T = serde_json::from_value(merged).map_err(|e| bad(&e))?;
+    params.validate().map_err(|e| bad(&e))?;
+    Ok(params)
 }
 
 /// `given` laid over `base`: objects field by field, recursively; anything else replaces,

@@ -460,7 +460,8 @@ impl AtlasJob {
     /// opened or loaded, no version to keep and parameters the engine refuses are bad input.
     pub fn open(options: AtlasOptions) -> Result<Self, JobError> {
         let started = Instant::now();
-        if options.store.is_some() && options.keep_versions == 0 {
+        let keep_versions = std::num::NonZeroUsize::new(options.keep_versions);
+        if options.store.is_some() && keep_versions.is_none() {
             return Err(JobError::bad_input(
                 "--keep-versions must be at least 1: the newest version keeps its atlas",
             ));
@@ -469,7 +470,9 @@ impl AtlasJob {
         let store = match &options.store {
             Some(path) => {
                 let mut store = open_or_create_store(path)?;
-                store.keep_versions(options.keep_versions);
+                if let Some(keep) = keep_versions {
+                    store.keep_versions(keep);
+                }
                 Some(store)
             }
             None => None,
@@ -526,10 +529,8 @@ impl AtlasJob {
             if let (Some(store), true) = (self.store.take(), self.created_store) {
                 let path = store.path().to_path_buf();
                 drop(store);
-                for suffix in ["", "-wal", "-shm"] {
-                    let mut name = path.clone().into_os_string();
-                    name.push(suffix);
-                    let _ = std::fs::remove_file(PathBuf::from(name));
+                for file in mapmerge_store::store_files(&path) {
+                    let _ = std::fs::remove_file(file);
                 }
             }
             return Err(JobError::bad_input(format!(

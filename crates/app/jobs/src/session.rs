@@ -47,13 +47,17 @@ pub fn read_session_log_with(path: &Path, topics: &TopicChoice) -> Result<LaserL
     Ok(log)
 }
 
-/// Rejects a resolution that is not a positive, finite number of metres.
+/// The grid resolutions a command takes (m): 1 cm, finer than any laser's noise, keeps a
+/// 100 m site within a grid's cell limit.
+pub const RESOLUTION_RANGE_M: mapmerge_params::Real = mapmerge_params::Real::within(0.01, 100.0);
+
+/// Rejects a resolution outside [`RESOLUTION_RANGE_M`].
 pub fn check_resolution(resolution_m: f64) -> Result<(), JobError> {
-    if resolution_m.is_finite() && resolution_m > 0.0 {
+    if RESOLUTION_RANGE_M.contains(resolution_m) {
         Ok(())
     } else {
         Err(JobError::bad_input(format!(
-            "--resolution must be a positive number of metres, got {resolution_m}"
+            "--resolution must be a number of metres in [0.01, 100], got {resolution_m}"
         )))
     }
 }
@@ -269,7 +273,7 @@ mod tests {
         assert!(check_resolution(0.05).is_ok());
         assert_eq!(
             check_resolution(0.0).unwrap_err().to_string(),
-            "--resolution must be a positive number of metres, got 0"
+            "--resolution must be a number of metres in [0.01, 100], got 0"
         );
     }
 

@@ -81,7 +81,7 @@ def test_slam_errors_are_the_clis(tmp_path):
     assert cli_error("slam", empty, "-o", tmp_path / "out") == (2, str(raised.value))
     with pytest.raises(mapmerge.BadInputError) as raised:
         mapmerge.slam(SESSION, resolution=0.0)
-    assert str(raised.value) == "--resolution must be a positive number of metres, got 0"
+    assert str(raised.value) == "--resolution must be a number of metres in [0.01, 100], got 0"
     assert cli_error("slam", SESSION, "-o", tmp_path / "out", "--resolution", "0") == (
         2, str(raised.value))
 

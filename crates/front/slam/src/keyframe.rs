@@ -1,6 +1,7 @@
 //! When a scan becomes a keyframe (a pose-graph node with its own local map).
 
 use mapmerge_geometry::Se2;
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 /// A scan becomes a keyframe when the robot moved or turned enough since the last keyframe, or
@@ -24,6 +25,23 @@ impl Default for KeyframePolicy {
             min_rotation_rad: 10f64.to_radians(),
             max_scans_between: 50,
         }
+    }
+}
+
+impl Validate for KeyframePolicy {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "min_translation_m",
+                self.min_translation_m,
+                Real::non_negative(),
+            )
+            .real(
+                "min_rotation_rad",
+                self.min_rotation_rad,
+                Real::non_negative(),
+            )
+            .size("max_scans_between", self.max_scans_between, 1, 1_000_000);
     }
 }
 

@@ -15,6 +15,7 @@
 //! A kidnapped robot's first scans no longer fit its map, yet once they are inserted the next
 //! scans fit *them*: holding the map still while in doubt is what lets the failure persist.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::tracker::TrackingReading;
@@ -75,75 +76,41 @@ impl Default for LostParams {
     }
 }
 
-impl LostParams {
-    /// Checks every field's range: the field's name and why, when one is out.
-    pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !positive(self.jump_sigma) {
-            return Err((
-                "jump_sigma",
-                format!("{} is not a positive number", self.jump_sigma),
-            ));
-        }
-        if !(positive(self.recover_sigma) && self.recover_sigma <= self.jump_sigma) {
-            return Err((
+impl Validate for LostParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("jump_sigma", self.jump_sigma, Real::positive_up_to(1e6))
+            .real(
                 "recover_sigma",
-                format!(
-                    "{} must be a positive number no larger than jump_sigma ({})",
-                    self.recover_sigma, self.jump_sigma
-                ),
-            ));
-        }
-        if !(positive(self.lost_jump_sigma) && self.lost_jump_sigma >= self.jump_sigma) {
-            return Err((
+                self.recover_sigma,
+                Real::positive_up_to(self.jump_sigma),
+            )
+            .real(
                 "lost_jump_sigma",
-                format!(
-                    "{} must be a number no smaller than jump_sigma ({})",
-                    self.lost_jump_sigma, self.jump_sigma
-                ),
-            ));
-        }
-        if !(0.0..=1.0).contains(&self.seen_through_min) {
-            return Err((
-                "seen_through_min",
-                format!("{} is not a share in [0, 1]", self.seen_through_min),
-            ));
-        }
+                self.lost_jump_sigma,
+                Real::within(self.jump_sigma, 1e6),
+            )
+            .real("seen_through_min", self.seen_through_min, Real::fraction());
         if let Some((linear_m, angular_rad)) = self.relocalize_window {
-            if !(positive(linear_m) && linear_m <= 20.0 && positive(angular_rad)) {
-                return Err((
-                    "relocalize_window",
-                    format!("({linear_m}, {angular_rad}) is not a window of (0, 20] m and a positive angle (rad)"),
-                ));
-            }
+            check.reals(
+                "relocalize_window",
+                &[
+                    (linear_m, Real::positive_up_to(20.0)),
+                    (angular_rad, Real::positive_up_to(std::f64::consts::PI)),
+                ],
+            );
         }
-        if !(0.0..=1.0).contains(&self.relocalize_min_score) {
-            return Err((
+        check
+            .real(
                 "relocalize_min_score",
-                format!("{} is not a score in [0, 1]", self.relocalize_min_score),
-            ));
-        }
-        if let Some(gap) = self.doubt_gap_s {
-            if !positive(gap) {
-                return Err(("doubt_gap_s", format!("{gap} is not a positive time (s)")));
-            }
-        }
-        if self.off_to_lose == 0 {
-            return Err(("off_to_lose", "0 would lose track on every scan".into()));
-        }
-        if self.good_to_recover == 0 {
-            return Err((
-                "good_to_recover",
-                "0 would never hold a scan in doubt".into(),
-            ));
-        }
-        if self.max_doubt_scans == 0 {
-            return Err((
-                "max_doubt_scans",
-                "0 would never hold a scan in doubt".into(),
-            ));
-        }
-        Ok(())
+                self.relocalize_min_score,
+                Real::fraction(),
+            )
+            .real_opt("doubt_gap_s", self.doubt_gap_s, Real::positive())
+            .size("off_to_lose", self.off_to_lose, 1, 100_000)
+            .size("good_to_recover", self.good_to_recover, 1, 100_000)
+            .size("max_doubt_scans", self.max_doubt_scans, 1, 100_000)
+            .size("warm_up_scans", self.warm_up_scans, 0, 100_000);
     }
 }
 
@@ -556,24 +523,45 @@ mod tests {
         let bad = |f: fn(&mut LostParams)| {
             let mut p = LostParams::default();
             f(&mut p);
-            p.validate().err().map(|e| e.0)
+            p.validate().err().map(|e| e.field)
         };
-        assert_eq!(bad(|p| p.jump_sigma = f64::NAN), Some("jump_sigma"));
-        assert_eq!(bad(|p| p.recover_sigma = 11.0), Some("recover_sigma"));
-        assert_eq!(bad(|p| p.lost_jump_sigma = 5.0), Some("lost_jump_sigma"));
-        assert_eq!(bad(|p| p.seen_through_min = 1.5), Some("seen_through_min"));
+        assert_eq!(
+            bad(|p| p.jump_sigma = f64::NAN),
+            Some("jump_sigma".to_owned())
+        );
+        assert_eq!(
+            bad(|p| p.recover_sigma = 11.0),
+            Some("recover_sigma".to_owned())
+        );
+        assert_eq!(
+            bad(|p| p.lost_jump_sigma = 5.0),
+            Some("lost_jump_sigma".to_owned())
+        );
+        assert_eq!(
+            bad(|p| p.seen_through_min = 1.5),
+            Some("seen_through_min".to_owned())
+        );
         assert_eq!(
             bad(|p| p.relocalize_window = Some((0.0, 0.5))),
-            Some("relocalize_window")
+            Some("relocalize_window[0]".to_owned())
         );
         assert_eq!(
             bad(|p| p.relocalize_min_score = 2.0),
-            Some("relocalize_min_score")
+            Some("relocalize_min_score".to_owned())
         );
-        assert_eq!(bad(|p| p.doubt_gap_s = Some(-1.0)), Some("doubt_gap_s"));
-        assert_eq!(bad(|p| p.off_to_lose = 0), Some("off_to_lose"));
-        assert_eq!(bad(|p| p.good_to_recover = 0), Some("good_to_recover"));
-        assert_eq!(bad(|p| p.max_doubt_scans = 0), Some("max_doubt_scans"));
+        assert_eq!(
+            bad(|p| p.doubt_gap_s = Some(-1.0)),
+            Some("doubt_gap_s".to_owned())
+        );
+        assert_eq!(bad(|p| p.off_to_lose = 0), Some("off_to_lose".to_owned()));
+        assert_eq!(
+            bad(|p| p.good_to_recover = 0),
+            Some("good_to_recover".to_owned())
+        );
+        assert_eq!(
+            bad(|p| p.max_doubt_scans = 0),
+            Some("max_doubt_scans".to_owned())
+        );
         assert_eq!(bad(|_| {}), None);
     }
 }

@@ -18,6 +18,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, ParamError, Real, Validate, NOISE_PER_UNIT, SIGMA_M, SIGMA_RAD};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId};
 use mapmerge_scan::{BeamFilter, LaserScan, Point2};
 use mapmerge_scanmatch::{ScanMatchError, ScanMatchParams, ScanMatcher, SearchWindow};
@@ -41,14 +42,9 @@ pub enum TrackerError {
     /// The matcher's parameters are invalid, or a submap outgrew the matcher's grid limit.
     #[error(transparent)]
     Matcher(#[from] ScanMatchError),
-    /// A bound of the tracking-failure detector is out of range.
-    #[error("parameter tracker.lost.{field}: {reason}")]
-    Parameter {
-        /// The field.
-        field: &'static str,
-        /// Why.
-        reason: String,
-    },
+    /// A parameter is out of its range (the path from `TrackerParams`).
+    #[error(transparent)]
+    Params(#[from] ParamError),
 }
 
 /// Parameters of the tracker, one default for every log (no per-log tuning).
@@ -127,6 +123,64 @@ impl Default for RefineFirst {
             min_score: 0.6,
             max_correction: (0.15, 3f64.to_radians()),
         }
+    }
+}
+
+impl Validate for TrackerParams {
+    fn check(&self, check: &mut Checker) {
+        let (a, b, c, e, f) = self.odometry_prior;
+        check
+            .nested("keyframes", &self.keyframes)
+            .nested("matcher", &self.matcher)
+            .nested("odometry_window", &self.odometry_window)
+            .nested("refine_first", &self.refine_first)
+            .size("submap_keyframes", self.submap_keyframes, 1, 100_000)
+            .real("submap_travel_m", self.submap_travel_m, Real::positive())
+            .real(
+                "max_match_range_m",
+                f64::from(self.max_match_range_m),
+                Real::positive_up_to(1000.0),
+            )
+            .reals(
+                "min_edge_sigma",
+                &[
+                    (self.min_edge_sigma.0, SIGMA_M),
+                    (self.min_edge_sigma.1, SIGMA_RAD),
+                ],
+            )
+            .reals(
+                "odometry_prior",
+                &[
+                    (a, SIGMA_M),
+                    (b, NOISE_PER_UNIT),
+                    (c, SIGMA_RAD),
+                    (e, NOISE_PER_UNIT),
+                    (f, NOISE_PER_UNIT),
+                ],
+            )
+            .nested_opt("lost", self.lost.as_ref());
+    }
+}
+
+impl Validate for RefineFirst {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "min_inlier_fraction",
+                self.min_inlier_fraction,
+                Real::fraction(),
+            )
+            .real("min_score", self.min_score, Real::fraction())
+            .reals(
+                "max_correction",
+                &[
+                    (self.max_correction.0, Real::non_negative()),
+                    (
+                        self.max_correction.1,
+                        Real::within(0.0, std::f64::consts::PI),
+                    ),
+                ],
+            );
     }
 }
 
@@ -301,10 +355,7 @@ pub struct LocalTracker {
 impl LocalTracker {
     /// A tracker with no scans yet.
     pub fn new(params: TrackerParams) -> Result<Self, TrackerError> {
-        if let Some(lost) = &params.lost {
-            lost.validate()
-                .map_err(|(field, reason)| TrackerError::Parameter { field, reason })?;
-        }
+        params.validate()?;
         Ok(Self {
             detector: params.lost.clone().map(LostDetector::new),
             matcher: ScanMatcher::new(params.matcher)?,

@@ -37,6 +37,9 @@ pub struct LidarParams {
     pub robot_from_sensor: Se2,
 }
 
+/// Most beams a simulated scan has.
+pub const MAX_BEAMS: usize = 100_000;
+
 impl Default for LidarParams {
     fn default() -> Self {
         Self {
@@ -72,8 +75,8 @@ impl LidarParams {
                 reason: reason.to_owned(),
             })
         };
-        if self.beam_count == 0 {
-            return bad("lidar.beam_count", "must be at least 1");
+        if !(1..=MAX_BEAMS).contains(&self.beam_count) {
+            return bad("lidar.beam_count", "must be in [1, 100000]");
         }
         if !(self.field_of_view_rad > 0.0 && self.field_of_view_rad <= std::f64::consts::TAU + 1e-9)
         {

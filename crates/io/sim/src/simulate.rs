@@ -67,6 +67,15 @@ pub struct SimParams {
     pub changes: ChangeParams,
 }
 
+/// Most sessions one simulation makes.
+pub const MAX_SESSIONS: usize = 1000;
+/// Longest simulated session (s): a day.
+pub const MAX_DURATION_SECS: f64 = 86_400.0;
+/// Fastest scan and odometry rate (Hz).
+pub const MAX_RATE_HZ: f64 = 1000.0;
+/// Most laser ranges a session holds (about 0.4 GB of `f32`).
+pub const MAX_SESSION_RANGES: f64 = 1e8;
+
 impl Default for SimParams {
     fn default() -> Self {
         Self {
@@ -127,17 +136,26 @@ impl SimParams {
                 reason: reason.to_owned(),
             })
         };
-        if self.sessions == 0 {
-            return bad("sessions", "must be at least 1");
+        if !(1..=MAX_SESSIONS).contains(&self.sessions) {
+            return bad("sessions", "must be in [1, 1000]");
         }
-        if !(self.duration_secs.is_finite() && self.duration_secs > 0.0) {
-            return bad("duration_secs", "must be positive and finite");
+        if !(self.duration_secs.is_finite()
+            && self.duration_secs > 0.0
+            && self.duration_secs <= MAX_DURATION_SECS)
+        {
+            return bad("duration_secs", "must be in (0, 86400] s");
         }
-        if !(self.odometry_rate_hz.is_finite() && self.odometry_rate_hz > 0.0) {
-            return bad("odometry_rate_hz", "must be positive and finite");
+        if !(self.odometry_rate_hz.is_finite()
+            && self.odometry_rate_hz > 0.0
+            && self.odometry_rate_hz <= MAX_RATE_HZ)
+        {
+            return bad("odometry_rate_hz", "must be in (0, 1000] Hz");
         }
-        if !(self.scan_rate_hz.is_finite() && self.scan_rate_hz > 0.0) {
-            return bad("scan_rate_hz", "must be positive and finite");
+        if !(self.scan_rate_hz.is_finite()
+            && self.scan_rate_hz > 0.0
+            && self.scan_rate_hz <= MAX_RATE_HZ)
+        {
+            return bad("scan_rate_hz", "must be in (0, 1000] Hz");
         }
         if !(self.first_stamp_secs.is_finite()
             && self.session_spacing_secs.is_finite()
@@ -150,6 +168,13 @@ impl SimParams {
         }
         self.robot.validate()?;
         self.lidar.validate()?;
+        let ranges = self.duration_secs * self.scan_rate_hz * self.lidar.beam_count as f64;
+        if ranges > MAX_SESSION_RANGES {
+            return bad(
+                "duration_secs",
+                "duration × scan rate × beams must stay within 10⁸ ranges a session",
+            );
+        }
         self.odometry.validate()?;
         if !matches!(self.odometry.slip_schedule, SlipSchedule::ByTime { .. }) {
             return bad(
@@ -575,5 +600,24 @@ mod tests {
         assert!(params.validate().is_ok());
         assert!(SimParams::default().with_sessions(0).validate().is_err());
         assert!(SimParams::default().with_preset_name("moon").is_err());
+        // Sizes are bounded before anything is allocated (issue 67).
+        let field = |p: SimParams| match p.validate() {
+            Err(SimError::InvalidParams { field, .. }) => field,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            field(SimParams::default().with_sessions(100_000_000)),
+            "sessions"
+        );
+        assert_eq!(
+            field(SimParams::default().with_duration_secs(1e12)),
+            "duration_secs"
+        );
+        let mut many_beams = SimParams::default();
+        many_beams.lidar.beam_count = u32::MAX as usize;
+        assert_eq!(field(many_beams), "lidar.beam_count");
+        let mut dense = SimParams::default().with_duration_secs(86_400.0);
+        dense.lidar.beam_count = 100_000;
+        assert_eq!(field(dense), "duration_secs");
     }
 }

@@ -1,6 +1,7 @@
 //! The log-odds occupancy grid (Moravec & Elfes 1985; Thrun et al., *Probabilistic Robotics*,
 //! Table 9.1): every cell holds `l = log(p / (1 − p))`, 0 meaning unknown.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::{Cell, GridError, GridGeometry, Point2};
@@ -49,6 +50,21 @@ impl Default for ClassThresholds {
             occupied_min: 0.65,
             free_max: 0.35,
         }
+    }
+}
+
+impl Validate for ClassThresholds {
+    /// Both probabilities in [0, 1], `free_max` below `occupied_min`.
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("occupied_min", self.occupied_min, Real::fraction())
+            .real("free_max", self.free_max, Real::fraction())
+            .rule(
+                "free_max",
+                self.free_max,
+                self.free_max < self.occupied_min,
+                "must be below occupied_min",
+            );
     }
 }
 
@@ -393,5 +409,24 @@ mod tests {
                 prop_assert_eq!(classify(l), thresholds.classify(l), "log-odds {}", l);
             }
         }
+    }
+
+    #[test]
+    fn class_thresholds_are_probabilities_free_below_occupied() {
+        assert_eq!(ClassThresholds::default().validate(), Ok(()));
+        let field = |t: ClassThresholds| t.validate().map_err(|e| e.field);
+        let occupied = |occupied_min| ClassThresholds {
+            occupied_min,
+            ..ClassThresholds::default()
+        };
+        assert_eq!(field(occupied(1.5)), Err("occupied_min".into()));
+        assert_eq!(field(occupied(f64::NAN)), Err("occupied_min".into()));
+        let free = |free_max| ClassThresholds {
+            free_max,
+            ..ClassThresholds::default()
+        };
+        assert_eq!(field(free(-0.1)), Err("free_max".into()));
+        assert_eq!(field(free(0.65)), Err("free_max".into()));
+        assert_eq!(field(free(0.0)), Ok(()));
     }
 }

@@ -17,8 +17,10 @@
 //! 360°) never sees (2); it then needs (1) and (3).
 
 use std::collections::VecDeque;
+use std::f64::consts::PI;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::{LaserScan, Point2};
 use serde::{Deserialize, Serialize};
 
@@ -86,47 +88,52 @@ impl Default for DoorParams {
     }
 }
 
+impl Validate for DoorParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("jump_m", self.jump_m, Real::positive())
+            .real("min_width_m", self.min_width_m, Real::positive())
+            .real("max_width_m", self.max_width_m, Real::positive())
+            .rule(
+                "max_width_m",
+                self.max_width_m,
+                self.max_width_m >= self.min_width_m,
+                "must be at least min_width_m",
+            )
+            .real("max_post_range_m", self.max_post_range_m, Real::positive())
+            .real(
+                "sector_half_angle_rad",
+                self.sector_half_angle_rad,
+                Real::positive_up_to(PI),
+            )
+            .real("min_wall_m", self.min_wall_m, Real::non_negative())
+            .real(
+                "max_wall_angle_rad",
+                self.max_wall_angle_rad,
+                Real::positive_up_to(PI),
+            )
+            .real("match_m", self.match_m, Real::positive())
+            .real(
+                "crossing_margin_m",
+                self.crossing_margin_m,
+                Real::non_negative(),
+            )
+            .real("after_crossing_m", self.after_crossing_m, Real::positive())
+            .real("forget_after_m", self.forget_after_m, Real::positive())
+            .size(
+                "candidate_min_sightings",
+                self.candidate_min_sightings,
+                0,
+                100_000,
+            )
+            .nested("environment", &self.environment);
+    }
+}
+
 impl DoorParams {
-    /// Checks every parameter.
+    /// Checks every parameter ([`Validate`]).
     pub fn validate(&self) -> Result<(), AreasError> {
-        let positive = |name, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(AreasError::Param {
-                    name,
-                    reason: "must be positive and finite",
-                })
-            }
-        };
-        positive("jump_m", self.jump_m)?;
-        positive("min_width_m", self.min_width_m)?;
-        positive("max_width_m", self.max_width_m)?;
-        positive("max_post_range_m", self.max_post_range_m)?;
-        positive("sector_half_angle_rad", self.sector_half_angle_rad)?;
-        positive("match_m", self.match_m)?;
-        positive("after_crossing_m", self.after_crossing_m)?;
-        positive("forget_after_m", self.forget_after_m)?;
-        positive("max_wall_angle_rad", self.max_wall_angle_rad)?;
-        if !(self.min_wall_m.is_finite() && self.min_wall_m >= 0.0) {
-            return Err(AreasError::Param {
-                name: "min_wall_m",
-                reason: "must be finite and not negative",
-            });
-        }
-        if !(self.crossing_margin_m.is_finite() && self.crossing_margin_m >= 0.0) {
-            return Err(AreasError::Param {
-                name: "crossing_margin_m",
-                reason: "must be finite and not negative",
-            });
-        }
-        if self.max_width_m < self.min_width_m {
-            return Err(AreasError::Param {
-                name: "max_width_m",
-                reason: "must be at least min_width_m",
-            });
-        }
-        self.environment.validate()
+        Ok(Validate::validate(self)?)
     }
 }
 
@@ -783,15 +790,33 @@ pub(crate) mod tests {
 
     #[test]
     fn bad_parameters_are_refused() {
+        assert!(DoorParams::default().validate().is_ok());
+        let refused = |params: DoorParams| match DoorDetector::new(params) {
+            Err(AreasError::Params(e)) => e.field,
+            other => panic!("{other:?}"),
+        };
         let bad = DoorParams {
             max_width_m: 0.5,
             ..DoorParams::default()
         };
-        assert!(DoorDetector::new(bad).is_err());
+        assert_eq!(refused(bad), "max_width_m");
         let nan = DoorParams {
             jump_m: f64::NAN,
             ..DoorParams::default()
         };
-        assert!(DoorDetector::new(nan).is_err());
+        assert_eq!(refused(nan), "jump_m");
+        let negative = DoorParams {
+            crossing_margin_m: -0.1,
+            ..DoorParams::default()
+        };
+        assert_eq!(refused(negative), "crossing_margin_m");
+        let sightings = DoorParams {
+            candidate_min_sightings: usize::MAX,
+            ..DoorParams::default()
+        };
+        assert_eq!(refused(sightings), "candidate_min_sightings");
+        let mut environment = DoorParams::default();
+        environment.environment.low_pass = 0.0;
+        assert_eq!(refused(environment), "environment.low_pass");
     }
 }

@@ -7,6 +7,7 @@
 use std::collections::VecDeque;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::{LaserScan, Point2};
 use mapmerge_slam::TrackerParams;
 use serde::{Deserialize, Serialize};
@@ -56,35 +57,30 @@ impl Default for EnvironmentParams {
     }
 }
 
+impl Validate for EnvironmentParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("smoothing_beams", self.smoothing_beams, 1, 10_000)
+            .real("far_m", self.far_m, Real::positive())
+            .real("quantile", self.quantile, Real::within(0.0, 0.5))
+            .rule(
+                "quantile",
+                self.quantile,
+                self.quantile < 0.5,
+                "must be in [0, 0.5)",
+            )
+            .real("low_pass", self.low_pass, Real::positive_up_to(1.0))
+            .real("change_travel_m", self.change_travel_m, Real::positive())
+            .real("change_m", self.change_m, Real::positive())
+            .real("large_extent_m", self.large_extent_m, Real::positive())
+            .size("large_sides", self.large_sides, 1, 4);
+    }
+}
+
 impl EnvironmentParams {
-    /// Checks every parameter.
+    /// Checks every parameter ([`Validate`]).
     pub fn validate(&self) -> Result<(), AreasError> {
-        let bad = |name, reason| Err(AreasError::Param { name, reason });
-        if self.smoothing_beams == 0 {
-            return bad("smoothing_beams", "must be at least 1");
-        }
-        if !(self.far_m.is_finite() && self.far_m > 0.0) {
-            return bad("far_m", "must be positive and finite");
-        }
-        if !(0.0..0.5).contains(&self.quantile) {
-            return bad("quantile", "must be in [0, 0.5)");
-        }
-        if !(self.low_pass > 0.0 && self.low_pass <= 1.0) {
-            return bad("low_pass", "must be in (0, 1]");
-        }
-        if !(self.change_travel_m.is_finite() && self.change_travel_m > 0.0) {
-            return bad("change_travel_m", "must be positive and finite");
-        }
-        if !(self.change_m.is_finite() && self.change_m > 0.0) {
-            return bad("change_m", "must be positive and finite");
-        }
-        if !(self.large_extent_m.is_finite() && self.large_extent_m > 0.0) {
-            return bad("large_extent_m", "must be positive and finite");
-        }
-        if !(1..=4).contains(&self.large_sides) {
-            return bad("large_sides", "must be 1 to 4");
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
     }
 }
 
@@ -125,6 +121,12 @@ pub struct Preset {
     pub name: String,
     /// The tracker's parameters.
     pub tracker: TrackerParams,
+}
+
+impl Validate for Preset {
+    fn check(&self, check: &mut Checker) {
+        check.nested("tracker", &self.tracker);
+    }
 }
 
 impl Preset {
@@ -330,5 +332,38 @@ mod tests {
         assert!(large.tracker.submap_travel_m > indoor.tracker.submap_travel_m);
         assert!(large.tracker.max_match_range_m > indoor.tracker.max_match_range_m);
         assert!(Preset::parse("bad", "{\"no_such_field\": 1}").is_err());
+    }
+
+    #[test]
+    fn the_defaults_and_the_presets_pass_their_checks_and_bad_values_do_not() {
+        assert!(EnvironmentParams::default().validate().is_ok());
+        for environment in [Environment::Indoor, Environment::Large] {
+            let preset = environment.preset().unwrap();
+            assert_eq!(Validate::validate(&preset), Ok(()), "{}", preset.name);
+        }
+        let field = |params: EnvironmentParams| match params.validate() {
+            Err(AreasError::Params(e)) => e.field,
+            other => panic!("{other:?}"),
+        };
+        let quantile = EnvironmentParams {
+            quantile: 0.5,
+            ..EnvironmentParams::default()
+        };
+        assert_eq!(field(quantile), "quantile");
+        let sides = EnvironmentParams {
+            large_sides: 5,
+            ..EnvironmentParams::default()
+        };
+        assert_eq!(field(sides), "large_sides");
+        let beams = EnvironmentParams {
+            smoothing_beams: usize::MAX,
+            ..EnvironmentParams::default()
+        };
+        assert_eq!(field(beams), "smoothing_beams");
+        let change = EnvironmentParams {
+            change_m: -1.5,
+            ..EnvironmentParams::default()
+        };
+        assert_eq!(field(change), "change_m");
     }
 }

@@ -1,18 +1,14 @@
 //! Errors of the map manager.
 
+use mapmerge_params::ParamError;
 use thiserror::Error;
 
 /// What can go wrong in the map manager.
 #[derive(Debug, Error)]
 pub enum AreasError {
     /// A parameter is out of its range.
-    #[error("bad parameter {name}: {reason}")]
-    Param {
-        /// The parameter.
-        name: &'static str,
-        /// Why.
-        reason: &'static str,
-    },
+    #[error(transparent)]
+    Params(#[from] ParamError),
     /// A preset's file could not be read.
     #[error("preset {name}: {reason}")]
     Preset {

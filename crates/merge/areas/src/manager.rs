@@ -11,6 +11,7 @@ use std::f64::consts::FRAC_PI_2;
 use std::ops::Range;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::{
     find_loop_candidates_with_poses, GeometricVerifier, Keyframe, KeyframeId, PlaceParams,
     Verification,
@@ -118,6 +119,56 @@ impl Default for TrackingParams {
     }
 }
 
+impl Validate for TrackingParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("base_radius_m", self.base_radius_m, Real::non_negative())
+            .real("variance_per_m", self.variance_per_m, Real::non_negative())
+            .real(
+                "heading_variance_per_m",
+                self.heading_variance_per_m,
+                Real::non_negative(),
+            )
+            .real("local_map_m", self.local_map_m, Real::positive())
+            .real("min_score", self.min_score, Real::fraction())
+            .real("same_door_m", self.same_door_m, Real::positive())
+            .size("max_candidates", self.max_candidates, 0, 1_000)
+            .real(
+                "placement_spacing_m",
+                self.placement_spacing_m,
+                Real::positive(),
+            )
+            .real(
+                "placement_min_score",
+                self.placement_min_score,
+                Real::fraction(),
+            )
+            .real("placement_margin", self.placement_margin, Real::fraction())
+            .size(
+                "placement_min_support",
+                self.placement_min_support,
+                1,
+                10_000,
+            )
+            .real(
+                "placement_track_m",
+                self.placement_track_m,
+                Real::non_negative(),
+            )
+            .real(
+                "placement_min_spread_m",
+                self.placement_min_spread_m,
+                Real::non_negative(),
+            )
+            .real(
+                "placement_rival_ratio",
+                self.placement_rival_ratio,
+                Real::non_negative(),
+            )
+            .size("placement_max_edges", self.placement_max_edges, 1, 1_000);
+    }
+}
+
 impl TrackingParams {
     /// Eq. 3 for the travel model: r = r_orig + 2·√(5.991·λ_max), λ_max the largest
     /// eigenvalue of the position covariance after `travel_m` of travel (5.991: χ² 95 % with
@@ -149,6 +200,22 @@ impl Default for ManagerParams {
     }
 }
 
+impl Validate for ManagerParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("doors", &self.doors)
+            .real("overlap_m", self.overlap_m, Real::non_negative())
+            .size("min_area_scans", self.min_area_scans, 0, 100_000)
+            .size(
+                "first_environment_scans",
+                self.first_environment_scans,
+                0,
+                100_000,
+            )
+            .nested("tracking", &self.tracking);
+    }
+}
+
 /// The scans of one area.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AreaSpan {
@@ -177,6 +244,7 @@ pub fn segment<'a>(
     scans: impl IntoIterator<Item = (Se2, &'a LaserScan)>,
     params: &ManagerParams,
 ) -> Result<Segmentation, AreasError> {
+    params.validate()?;
     let mut detector = DoorDetector::new(params.doors.clone())?;
     let mut first_environment = Extents::new(params.doors.environment.clone(), f64::INFINITY);
     let mut environment_of_first = None;
@@ -410,6 +478,7 @@ pub fn manage_sessions(
     params: &ManagerParams,
     verifier: &dyn GeometricVerifier,
 ) -> Result<ManagedMap, AreasError> {
+    params.validate()?;
     let mapping = |text: String| AreasError::Mapping(text);
     // Spans over all sessions, in order: (session, local index).
     let mut span_refs: Vec<(usize, usize)> = Vec::new();
@@ -1401,6 +1470,43 @@ mod tests {
     use mapmerge_sim::{simulate, SessionData, SimParams};
 
     use super::*;
+
+    #[test]
+    fn manager_parameters_out_of_range_are_refused_with_their_path() {
+        assert_eq!(Validate::validate(&ManagerParams::default()), Ok(()));
+        let field = |params: &ManagerParams| Validate::validate(params).map_err(|e| e.field);
+        let radius = ManagerParams {
+            tracking: TrackingParams {
+                base_radius_m: -1.0,
+                ..TrackingParams::default()
+            },
+            ..ManagerParams::default()
+        };
+        assert_eq!(field(&radius), Err("tracking.base_radius_m".into()));
+        // Segmenting refuses them too.
+        let scans = std::iter::empty::<(Se2, &LaserScan)>();
+        assert!(matches!(
+            segment(scans, &radius),
+            Err(AreasError::Params(ref e)) if e.field == "tracking.base_radius_m"
+        ));
+        let mut params = ManagerParams::default();
+        params.tracking.placement_max_edges = usize::MAX;
+        assert_eq!(field(&params), Err("tracking.placement_max_edges".into()));
+        let mut params = ManagerParams::default();
+        params.tracking.min_score = 1.5;
+        assert_eq!(field(&params), Err("tracking.min_score".into()));
+        let mut params = ManagerParams::default();
+        params.doors.match_m = -0.5;
+        assert_eq!(field(&params), Err("doors.match_m".into()));
+        let mut params = ManagerParams::default();
+        params.doors.environment.far_m = f64::INFINITY;
+        assert_eq!(field(&params), Err("doors.environment.far_m".into()));
+        let scans = ManagerParams {
+            min_area_scans: usize::MAX,
+            ..ManagerParams::default()
+        };
+        assert_eq!(field(&scans), Err("min_area_scans".into()));
+    }
 
     /// Each span mapped by the true poses, in a frame of its own (its first pose).
     fn true_trajectories(split: &Segmentation, session: &SessionData) -> Vec<Vec<Se2>> {

@@ -9,6 +9,7 @@ use std::time::Instant;
 
 use mapmerge_association::{DescriptorMatrix, GroupingParams, IncrementalGrouping};
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::ScanMatchVerifier;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -74,6 +75,43 @@ impl Default for AssembleParams {
     }
 }
 
+impl Validate for AssembleParams {
+    fn check(&self, check: &mut Checker) {
+        let degrees = Real::within(0.0, 180.0);
+        check
+            .nested("submaps", &self.submaps)
+            .nested("descriptor", &self.descriptor)
+            .nested("association", &self.association)
+            .nested("grouping", &self.grouping)
+            .nested("graph", &self.graph)
+            .reals(
+                "max_pair_residual",
+                &[
+                    (self.max_pair_residual.0, Real::non_negative()),
+                    (self.max_pair_residual.1, degrees),
+                ],
+            )
+            .real(
+                "max_odometry_excess",
+                self.max_odometry_excess,
+                Real::positive(),
+            )
+            .reals(
+                "max_triangle_error",
+                &[
+                    (self.max_triangle_error.0, Real::non_negative()),
+                    (self.max_triangle_error.1, degrees),
+                ],
+            )
+            .size(
+                "unconfirmed_min_loops",
+                self.unconfirmed_min_loops,
+                0,
+                10_000,
+            );
+    }
+}
+
 /// What one arrival did.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Arrival {
@@ -120,9 +158,9 @@ enum SegmentKind {
 }
 
 impl Assembler {
-    /// An empty assembly.
+    /// An empty assembly; fails on a parameter out of its range.
     pub fn new(params: AssembleParams) -> Result<Self, AssembleError> {
-        params.submaps.validate()?;
+        Validate::validate(&params)?;
         let verifier = pair_verifier(&params.association.verification)?;
         Ok(Self {
             descriptor: RingSpectrumDescriptor::new(&params.descriptor),

@@ -12,6 +12,7 @@ use mapmerge_association::{
     DescriptorMatrix, DifferenceMatrix, SequenceParams, SingleFrameParams, SubmapMatch, ZoneParams,
 };
 use mapmerge_geometry::{planar_information_from_covariance, wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, ParamError, Real, Validate};
 use mapmerge_place::{GeometricVerifier, Keyframe, ScanMatchVerifier};
 use mapmerge_scan::Point2;
 use nalgebra::Matrix3;
@@ -126,6 +127,56 @@ impl Default for VerificationParams {
     }
 }
 
+impl Validate for VerificationParams {
+    fn check(&self, check: &mut Checker) {
+        let degrees = Real::within(0.0, 180.0);
+        check
+            .real("window_m", self.window_m, Real::within(0.0, 100.0))
+            .real("window_deg", self.window_deg, degrees)
+            .real("min_score", self.min_score, Real::fraction())
+            .real(
+                "min_whole_map_score",
+                self.min_whole_map_score,
+                Real::fraction(),
+            )
+            .size("max_verifications", self.max_verifications, 1, 10_000)
+            .size("first_round", self.first_round, 0, 10_000)
+            .size("min_loops", self.min_loops, 1, 10_000)
+            .real("consistency_m", self.consistency_m, Real::non_negative())
+            .real("consistency_deg", self.consistency_deg, degrees)
+            .real("min_span_m", self.min_span_m, Real::non_negative())
+            .real(
+                "predicted_radius_m",
+                self.predicted_radius_m,
+                Real::non_negative(),
+            )
+            .real(
+                "predicted_rank_fraction",
+                self.predicted_rank_fraction,
+                Real::fraction(),
+            )
+            .real(
+                "min_predicted_agreement",
+                self.min_predicted_agreement,
+                Real::fraction(),
+            )
+            .reals(
+                "loop_min_sigma",
+                &[
+                    (self.loop_min_sigma.0, Real::within(1e-6, 1000.0)),
+                    (self.loop_min_sigma.1, Real::within(1e-6, 180.0)),
+                ],
+            )
+            // The matcher's `correlative.query_voxel_m`.
+            .real(
+                "search_voxel_m",
+                self.search_voxel_m,
+                Real::within(0.0, 10.0),
+            )
+            .nested("evidence", &self.evidence);
+    }
+}
+
 /// Parameters of one pair's association.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -152,6 +203,17 @@ impl Default for AssociationParams {
             verification: VerificationParams::default(),
             c_omega: 4.0,
         }
+    }
+}
+
+impl Validate for AssociationParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("sequence", &self.sequence)
+            .nested("single_frame", &self.single_frame)
+            .nested("zones", &self.zones)
+            .nested("verification", &self.verification)
+            .real("c_omega", self.c_omega, Real::non_negative());
     }
 }
 
@@ -234,11 +296,16 @@ pub fn pair_verifier(params: &VerificationParams) -> Result<ScanMatchVerifier, A
         mapmerge_scanmatch::SearchWindow::new(params.window_m, params.window_deg.to_radians());
     let mut matcher = mapmerge_scanmatch::ScanMatchParams::default();
     matcher.correlative.query_voxel_m = params.search_voxel_m;
-    let verifier =
-        ScanMatchVerifier::new(matcher, window).map_err(|e| AssembleError::InvalidParams {
-            field: "verification",
-            reason: e.to_string(),
-        })?;
+    let verifier = ScanMatchVerifier::new(matcher, window).map_err(|e| {
+        AssembleError::InvalidParams(ParamError {
+            field: "verification".into(),
+            value: format!(
+                "window {} m, {}°, search voxel {} m",
+                params.window_m, params.window_deg, params.search_voxel_m
+            ),
+            allowed: format!("refused by the scan matcher: {e}"),
+        })
+    })?;
     Ok(verifier.with_evidence(params.evidence))
 }
 

@@ -12,14 +12,9 @@ pub enum AssembleError {
         /// What is wrong.
         reason: String,
     },
-    /// A parameter is out of its range.
-    #[error("invalid parameter {field}: {reason}")]
-    InvalidParams {
-        /// The parameter (field name).
-        field: &'static str,
-        /// Why it is refused.
-        reason: String,
-    },
+    /// A parameter is out of its range (its path, value and allowed range).
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
     /// The association of a pair (or the grouping, or a group's graph) failed.
     #[error("{pair}: {reason}")]
     Association {

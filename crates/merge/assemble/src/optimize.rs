@@ -8,6 +8,7 @@
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2, Vertex};
 use mapmerge_solve::{optimize, OptimizerParams, RobustKernel, Termination};
 use nalgebra::Matrix3;
@@ -46,6 +47,34 @@ impl Default for GroupGraphParams {
             dcs_phi: 1.0,
             robust: true,
         }
+    }
+}
+
+impl Validate for GroupGraphParams {
+    fn check(&self, check: &mut Checker) {
+        // Floors ≥ 1e-6 keep the odometry information finite; Φ as `RobustKernel::Dcs`.
+        check
+            .real(
+                "odometry_sigma_per_m",
+                self.odometry_sigma_per_m,
+                Real::within(0.0, 10.0),
+            )
+            .real(
+                "odometry_sigma_floor_m",
+                self.odometry_sigma_floor_m,
+                Real::within(1e-6, 1000.0),
+            )
+            .real(
+                "odometry_sigma_deg_per_m",
+                self.odometry_sigma_deg_per_m,
+                Real::within(0.0, 180.0),
+            )
+            .real(
+                "odometry_sigma_floor_deg",
+                self.odometry_sigma_floor_deg,
+                Real::within(1e-6, 180.0),
+            )
+            .real("dcs_phi", self.dcs_phi, Real::positive_up_to(1e9));
     }
 }
 

@@ -12,6 +12,7 @@
 
 use std::sync::Arc;
 
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::FreeSpace;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -73,29 +74,18 @@ impl SubmapParams {
 
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), AssembleError> {
-        let positive = [("spacing_m", self.spacing_m), ("radius_m", self.radius_m)];
-        for (field, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return Err(AssembleError::InvalidParams {
-                    field,
-                    reason: format!("{value} must be finite and positive"),
-                });
-            }
-        }
-        let non_negative = [
-            ("window_m", self.window_m),
-            ("voxel_m", self.voxel_m),
-            ("free_space_m", self.free_space_m),
-        ];
-        for (field, value) in non_negative {
-            if !(value.is_finite() && value >= 0.0) {
-                return Err(AssembleError::InvalidParams {
-                    field,
-                    reason: format!("{value} must be finite and non-negative"),
-                });
-            }
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
+    }
+}
+
+impl Validate for SubmapParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("spacing_m", self.spacing_m, Real::within(0.01, 1000.0))
+            .real("radius_m", self.radius_m, Real::positive_up_to(1000.0))
+            .real("window_m", self.window_m, Real::within(0.0, 1000.0))
+            .real("voxel_m", self.voxel_m, Real::within(0.0, 10.0))
+            .real("free_space_m", self.free_space_m, Real::within(0.0, 10.0));
     }
 }
 

@@ -25,6 +25,7 @@ use std::path::{Path, PathBuf};
 
 use mapmerge_association::DescriptorMatrix;
 use mapmerge_geometry::{LieGroup, Se2, Se3};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::{LaserScan, Point2};
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
@@ -71,32 +72,30 @@ impl Default for GroundSlice {
 }
 
 impl GroundSlice {
-    /// Checks the band (finite, `min < max`) and the voxel (finite, non-negative).
+    /// Checks the band (within ±100 m, `min < max`) and the voxel (0 to 10 m).
     pub fn validate(&self) -> Result<(), AssembleError> {
-        if !(self.min_height_m.is_finite()
-            && self.max_height_m.is_finite()
-            && self.min_height_m < self.max_height_m)
-        {
-            return Err(AssembleError::InvalidParams {
-                field: "ground_slice",
-                reason: format!(
-                    "height band [{}, {}] m must be finite and non-empty",
-                    self.min_height_m, self.max_height_m
-                ),
-            });
-        }
-        if !(self.voxel_m.is_finite() && self.voxel_m >= 0.0) {
-            return Err(AssembleError::InvalidParams {
-                field: "ground_slice.voxel_m",
-                reason: format!("{} must be finite and non-negative", self.voxel_m),
-            });
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
     }
 
     /// True when a height relative to the sensor (m) lies in the band.
     fn contains(&self, height_m: f64) -> bool {
         height_m >= self.min_height_m && height_m <= self.max_height_m
+    }
+}
+
+impl Validate for GroundSlice {
+    fn check(&self, check: &mut Checker) {
+        let height = Real::within(-100.0, 100.0);
+        check
+            .real("min_height_m", self.min_height_m, height)
+            .real("max_height_m", self.max_height_m, height)
+            .rule(
+                "max_height_m",
+                self.max_height_m,
+                self.min_height_m < self.max_height_m,
+                "must be > min_height_m",
+            )
+            .real("voxel_m", self.voxel_m, Real::within(0.0, 10.0));
     }
 }
 
@@ -300,6 +299,16 @@ impl Default for KittiFolderOptions {
     }
 }
 
+impl Validate for KittiFolderOptions {
+    fn check(&self, check: &mut Checker) {
+        // No upper limit on the range: a huge one keeps every point.
+        check
+            .real("voxel_m", self.voxel_m, Real::within(0.0, 10.0))
+            .real("max_range_m", self.max_range_m, Real::positive())
+            .size("stride", self.stride, 0, 1_000_000);
+    }
+}
+
 /// Loads a KITTI-style folder as a [`Segment3`] named after the folder:
 /// - `velodyne/*.bin` (or `*.bin.xz`), sorted by file name: one cloud each, Velodyne frame
 ///   (x forward, y left, z up);
@@ -323,7 +332,7 @@ pub fn load_kitti_folder(
         segment: name.clone(),
         reason,
     };
-    options.check()?;
+    options.validate()?;
     let velodyne = dir.join("velodyne");
     let entries =
         std::fs::read_dir(&velodyne).map_err(|e| bad(format!("{}: {e}", velodyne.display())))?;
@@ -369,20 +378,9 @@ pub fn load_kitti_folder(
 }
 
 impl KittiFolderOptions {
-    fn check(&self) -> Result<(), AssembleError> {
-        if !(self.voxel_m.is_finite() && self.voxel_m >= 0.0) {
-            return Err(AssembleError::InvalidParams {
-                field: "voxel_m",
-                reason: format!("{} must be finite and non-negative", self.voxel_m),
-            });
-        }
-        if !(self.max_range_m.is_finite() && self.max_range_m > 0.0) {
-            return Err(AssembleError::InvalidParams {
-                field: "max_range_m",
-                reason: format!("{} must be finite and positive", self.max_range_m),
-            });
-        }
-        Ok(())
+    /// Checks every field's range.
+    fn validate(&self) -> Result<(), AssembleError> {
+        Ok(Validate::validate(self)?)
     }
 }
 
@@ -422,7 +420,7 @@ pub fn segment3_from_clouds(
     clouds: &[Vec<Point3>],
     options: &KittiFolderOptions,
 ) -> Result<Segment3, AssembleError> {
-    options.check()?;
+    options.validate()?;
     if clouds.len() != world_from_sensor.len() {
         return Err(AssembleError::InvalidSegment {
             segment: name,

@@ -5,6 +5,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Validate};
 use mapmerge_posegraph::{Edge, EdgeId, NodeId, PoseGraph2, Vertex};
 use mapmerge_scan::Point2;
 use mapmerge_slam::KeyframeInsertion;
@@ -599,4 +600,16 @@ pub(crate) fn optimize_holding(
         }
     }
     Ok(Some(result?))
+}
+
+impl Validate for AtlasParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("loops", &self.loops)
+            .nested("optimizer", &self.optimizer)
+            .nested("merge", &self.merge)
+            .nested("recognition", &self.recognition)
+            .nested("keyframes", &self.keyframes)
+            .nested("maintenance", &self.maintenance);
+    }
 }

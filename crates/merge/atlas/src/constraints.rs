@@ -20,6 +20,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate, SIGMA_M, SIGMA_RAD};
 use mapmerge_place::{
     seen_from_beside, verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe,
     KeyframeId, PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, ScanMatchVerifier,
@@ -1338,6 +1339,102 @@ pub(crate) struct PlaceQuery {
 
 /// A keyframe retrieval admitted: node, descriptor yaw (rad) and ordinal in the place index.
 type RetrievedNode = (NodeId, f64, usize);
+
+impl Validate for LoopClosureParams {
+    fn check(&self, check: &mut Checker) {
+        let (lin_min, lin_per_m, lin_max) = self.window_linear;
+        let (ang_min, ang_per_m, ang_max) = self.window_angular;
+        let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = self.place_gate;
+        check
+            .nested("matcher", &self.matcher)
+            .nested("refine_first", &self.refine_first)
+            .real("min_score", self.min_score, Real::fraction())
+            .real("max_distance_m", self.max_distance_m, Real::non_negative())
+            .size(
+                "max_submaps_per_keyframe",
+                self.max_submaps_per_keyframe,
+                1,
+                1000,
+            )
+            .reals(
+                "window_linear",
+                &[
+                    (lin_min, Real::non_negative()),
+                    (lin_per_m, Real::non_negative()),
+                    (lin_max, Real::within(lin_min, 1000.0)),
+                ],
+            )
+            .reals(
+                "window_angular",
+                &[
+                    (ang_min, Real::non_negative()),
+                    (ang_per_m, Real::non_negative()),
+                    (ang_max, Real::within(ang_min, 4.0)),
+                ],
+            )
+            .real(
+                "refine_below_drift_m",
+                self.refine_below_drift_m,
+                Real::non_negative(),
+            )
+            .real("place_after_m", self.place_after_m, Real::non_negative())
+            .real(
+                "long_loop_span_m",
+                self.long_loop_span_m,
+                Real::non_negative(),
+            )
+            .nested("place", &self.place)
+            .real(
+                "place_min_confidence",
+                self.place_min_confidence,
+                Real::fraction(),
+            )
+            .nested("place_window", &self.place_window)
+            .reals(
+                "place_gate",
+                &[
+                    (gate_m, Real::non_negative()),
+                    (gate_per_m, Real::non_negative()),
+                    (gate_rad, Real::non_negative()),
+                    (gate_rad_per_m, Real::non_negative()),
+                ],
+            )
+            .size(
+                "optimize_every_keyframes",
+                self.optimize_every_keyframes,
+                1,
+                1_000_000,
+            )
+            .nested("optimizer", &self.optimizer)
+            .reals(
+                "confirm_above",
+                &[
+                    (self.confirm_above.0, Real::non_negative()),
+                    (self.confirm_above.1, Real::non_negative()),
+                ],
+            )
+            .size(
+                "confirm_within_keyframes",
+                self.confirm_within_keyframes,
+                1,
+                100_000,
+            )
+            .reals(
+                "confirm_agreement",
+                &[
+                    (self.confirm_agreement.0, Real::non_negative()),
+                    (self.confirm_agreement.1, Real::non_negative()),
+                ],
+            )
+            .reals(
+                "min_edge_sigma",
+                &[
+                    (self.min_edge_sigma.0, SIGMA_M),
+                    (self.min_edge_sigma.1, SIGMA_RAD),
+                ],
+            );
+    }
+}
 
 #[cfg(test)]
 mod tests {

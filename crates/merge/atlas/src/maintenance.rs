@@ -29,6 +29,7 @@ use std::time::Instant;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_posegraph::{EdgeKind, NodeId, PoseGraph2};
 use serde::{Deserialize, Serialize};
 
@@ -624,5 +625,48 @@ impl<B: BackupStore> Atlas<B> {
             }
         }
         Ok(count)
+    }
+}
+
+impl Validate for MaintenanceParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("resolution_m", self.resolution_m, Real::within(0.01, 10.0))
+            .real("view_spacing_m", self.view_spacing_m, Real::non_negative())
+            .real(
+                "view_heading_rad",
+                self.view_heading_rad,
+                Real::within(0.0, std::f64::consts::PI),
+            )
+            .real(
+                "view_min_new_fraction",
+                self.view_min_new_fraction,
+                Real::non_negative(),
+            )
+            .real("view_cell_m", self.view_cell_m, Real::within(0.01, 10.0))
+            .real(
+                "view_structure_range_m",
+                self.view_structure_range_m,
+                Real::non_negative(),
+            )
+            .real("max_views_per_m2", self.max_views_per_m2, Real::positive())
+            .count("recent_sessions", self.recent_sessions, 0, 1_000_000)
+            .real(
+                "local_map_tolerance",
+                self.local_map_tolerance,
+                Real::fraction(),
+            )
+            .real(
+                "max_edges_per_vertex",
+                self.max_edges_per_vertex,
+                Real::at_least(1.0),
+            )
+            .count(
+                "stale_after_sessions",
+                self.stale_after_sessions,
+                0,
+                1_000_000,
+            )
+            .nested("rejoin", &self.rejoin);
     }
 }

@@ -4,6 +4,7 @@
 use std::collections::BTreeSet;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate, SIGMA_M, SIGMA_RAD};
 use mapmerge_place::GeometricVerifier;
 use mapmerge_posegraph::{Edge, EdgeKind, NodeId, PoseGraph2};
 use nalgebra::Matrix3;
@@ -706,6 +707,49 @@ impl<B: BackupStore> Atlas<B> {
         };
         self.events.push(AtlasEvent::Unmerged(event.clone()));
         Ok(Some(event))
+    }
+}
+
+impl Validate for MergeParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .reals(
+                "loop_min_sigma",
+                &[
+                    (self.loop_min_sigma.0, SIGMA_M),
+                    (self.loop_min_sigma.1, SIGMA_RAD),
+                ],
+            )
+            .reals(
+                "forced_edge_sigma",
+                &[
+                    (self.forced_edge_sigma.0, SIGMA_M),
+                    (self.forced_edge_sigma.1, SIGMA_RAD),
+                ],
+            )
+            .nested("overlap", &self.overlap);
+    }
+}
+
+impl Validate for OverlapParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("radius_m", self.radius_m, Real::non_negative())
+            .real(
+                "max_heading_rad",
+                self.max_heading_rad,
+                Real::within(0.0, std::f64::consts::PI),
+            )
+            .size("stride", self.stride, 1, 100_000)
+            .size("max_verifications", self.max_verifications, 0, 100_000)
+            .size("max_loops", self.max_loops, 0, 100_000)
+            .real("min_score", self.min_score, Real::fraction())
+            .real("gate_m", self.gate_m, Real::non_negative())
+            .real(
+                "gate_rad",
+                self.gate_rad,
+                Real::within(0.0, std::f64::consts::PI),
+            );
     }
 }
 

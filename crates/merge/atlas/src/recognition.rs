@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, FreeSpace};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::{
     GeometricVerifier, Keyframe, PlaceParams, PlaceVerifierParams, ScanMatchVerifier,
 };
@@ -370,6 +371,46 @@ impl<B: BackupStore> Atlas<B> {
             return Ok(None);
         };
         self.merge(best.into_request(), Some(verifier)).map(Some)
+    }
+}
+
+impl Validate for KeyframeParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("local_map_m", self.local_map_m, Real::within(0.0, 1000.0))
+            .real("voxel_m", self.voxel_m, Real::within(0.0, 10.0))
+            .real("free_space_m", self.free_space_m, Real::within(0.0, 10.0))
+            .rule(
+                "free_space_m",
+                self.free_space_m,
+                self.free_space_m == 0.0 || self.free_space_m >= 0.01,
+                "must be 0 (none) or at least 0.01",
+            );
+    }
+}
+
+impl Validate for RecognitionParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("place", &self.place)
+            .real("min_confidence", self.min_confidence, Real::fraction())
+            .size("every_keyframes", self.every_keyframes, 1, 1_000_000)
+            // A threshold, not a size: a huge one never searches.
+            .size("min_epoch_keyframes", self.min_epoch_keyframes, 0, u64::MAX)
+            .real(
+                "session_start_search_m",
+                self.session_start_search_m,
+                Real::non_negative(),
+            )
+            .nested("verifier", &self.verifier)
+            .size("lateral_offsets_m.len", self.lateral_offsets_m.len(), 0, 16);
+        for (k, offset_m) in self.lateral_offsets_m.iter().enumerate() {
+            check.real(
+                &format!("lateral_offsets_m[{k}]"),
+                *offset_m,
+                Real::within(-100.0, 100.0),
+            );
+        }
     }
 }
 

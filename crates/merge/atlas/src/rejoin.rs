@@ -10,6 +10,7 @@
 //! it is undone by rolling the store back to the version before the session.
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::GeometricVerifier;
 use mapmerge_posegraph::NodeId;
 use serde::{Deserialize, Serialize};
@@ -242,4 +243,18 @@ fn agreeing_matches(
     let seed = matches[best].site_from_fragment;
     let agreeing: Vec<FragmentMatch> = matches.into_iter().filter(|m| agree(&seed, m)).collect();
     (agreeing.len() >= params.min_agreeing.max(1)).then_some(agreeing)
+}
+
+impl Validate for RejoinParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("queries", self.queries, 0, 10_000)
+            .size("min_agreeing", self.min_agreeing, 1, 10_000)
+            .real("agree_m", self.agree_m, Real::non_negative())
+            .real(
+                "agree_rad",
+                self.agree_rad,
+                Real::within(0.0, std::f64::consts::PI),
+            );
+    }
 }

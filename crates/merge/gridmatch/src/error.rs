@@ -1,6 +1,7 @@
 //! The crate's error type.
 
 use mapmerge_grid::GridError;
+use mapmerge_params::ParamError;
 use mapmerge_scanmatch::ScanMatchError;
 
 /// Which of the two input maps an error is about.
@@ -55,14 +56,9 @@ pub enum GridMatchError {
         /// `GridMatchParams::max_cells`.
         max_cells: usize,
     },
-    /// A parameter is out of its domain.
-    #[error("parameter `{field}` is invalid: {reason}")]
-    InvalidParams {
-        /// The field's name.
-        field: &'static str,
-        /// What is wrong with it.
-        reason: &'static str,
-    },
+    /// A parameter is out of its range.
+    #[error(transparent)]
+    Params(#[from] ParamError),
     /// Resampling a grid failed.
     #[error("resampling failed: {0}")]
     Grid(#[from] GridError),

@@ -1,6 +1,9 @@
 //! Parameters of grid matching and of the acceptance rule.
 
+use std::f64::consts::PI;
+
 use mapmerge_grid::ClassThresholds;
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::error::GridMatchError;
@@ -110,7 +113,7 @@ pub struct GridMatchParams {
     pub distinct_cells: f64,
     /// … and this heading difference (rad) are one hypothesis (default: 1.5° = 0.0262).
     pub distinct_rad: f64,
-    /// Largest map accepted, in cells after resampling (default: 25 M).
+    /// Largest map accepted, in cells after resampling (default: 25 M; at most 2²⁸).
     pub max_cells: usize,
     /// The acceptance rule.
     pub acceptance: AcceptanceParams,
@@ -146,83 +149,173 @@ impl Default for GridMatchParams {
     }
 }
 
-impl GridMatchParams {
-    /// Checks every field's domain.
-    pub fn validate(&self) -> Result<(), GridMatchError> {
-        let invalid = |field, reason| Err(GridMatchError::InvalidParams { field, reason });
-        let positive = |v: f64| v.is_finite() && v > 0.0;
-        if !(4..=10_000).contains(&self.hough_angle_bins) {
-            return invalid("hough_angle_bins", "must be in 4..=10000");
-        }
-        if self.hough_rho_cells == 0 {
-            return invalid("hough_rho_cells", "must be at least 1");
-        }
-        if self.rotation_peaks == 0 || self.translation_peaks == 0 || self.refine_candidates == 0 {
-            return invalid(
-                "rotation_peaks",
-                "peak and candidate counts must be at least 1",
-            );
-        }
-        if !(1..=64).contains(&self.orientation_radius_cells) {
-            return invalid("orientation_radius_cells", "must be in 1..=64");
-        }
-        if !(self.rotation_merge_rad.is_finite() && self.rotation_merge_rad >= 0.0) {
-            return invalid("rotation_merge_rad", "must be finite, ≥ 0");
-        }
-        if self.coarse_max_cells < 8 {
-            return invalid("coarse_max_cells", "must be at least 8");
-        }
-        if !(positive(self.rank_occupied_weight) && positive(self.rank_disagree_weight)) {
-            return invalid(
+impl Validate for AcceptanceParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("min_acceptance", self.min_acceptance, Real::fraction())
+            .real(
+                "min_overlap_fraction",
+                self.min_overlap_fraction,
+                Real::fraction(),
+            )
+            .real("min_margin", self.min_margin, Real::fraction())
+            .real("max_dm_cells", self.max_dm_cells, Real::non_negative());
+    }
+}
+
+/// Largest `max_cells`: 2²⁸ cells after resampling (1 GiB a raster of `f32`).
+const MAX_CELLS_LIMIT: u64 = 1 << 28;
+
+impl Validate for GridMatchParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("thresholds", &self.thresholds)
+            .size("hough_angle_bins", self.hough_angle_bins, 4, 10_000)
+            .size("hough_rho_cells", self.hough_rho_cells, 1, 256)
+            .size("rotation_peaks", self.rotation_peaks, 1, 1_000)
+            .size("orientation_peaks", self.orientation_peaks, 0, 1_000)
+            .size(
+                "orientation_radius_cells",
+                self.orientation_radius_cells,
+                1,
+                64,
+            )
+            .real(
+                "rotation_merge_rad",
+                self.rotation_merge_rad,
+                Real::within(0.0, PI),
+            )
+            .size("translation_peaks", self.translation_peaks, 1, 1_000)
+            .size("coarse_max_cells", self.coarse_max_cells, 8, 4_096)
+            .real("occupied_weight", self.occupied_weight, Real::positive())
+            .real(
                 "rank_occupied_weight",
-                "ranking weights must be finite and positive",
-            );
+                self.rank_occupied_weight,
+                Real::positive(),
+            )
+            .real(
+                "rank_disagree_weight",
+                self.rank_disagree_weight,
+                Real::positive(),
+            )
+            .size("refine_candidates", self.refine_candidates, 1, 1_000)
+            .real(
+                "refine_angle_rad",
+                self.refine_angle_rad,
+                Real::positive_up_to(0.5),
+            )
+            .rule(
+                "rotation_merge_rad",
+                self.rotation_merge_rad,
+                self.rotation_merge_rad < self.refine_angle_rad,
+                "must be below refine_angle_rad",
+            )
+            .real(
+                "refine_margin_cells",
+                self.refine_margin_cells,
+                Real::within(0.0, 64.0),
+            )
+            .size("refine_max_points", self.refine_max_points, 1, 1_000_000)
+            .real(
+                "refine_min_score_ratio",
+                self.refine_min_score_ratio,
+                Real::fraction(),
+            )
+            .size("polish_candidates", self.polish_candidates, 0, 100)
+            .real(
+                "refine_kernel_sigma_cells",
+                self.refine_kernel_sigma_cells,
+                Real::positive(),
+            )
+            .real("distinct_cells", self.distinct_cells, Real::non_negative())
+            .real("distinct_rad", self.distinct_rad, Real::within(0.0, PI))
+            .size("max_cells", self.max_cells, 1, MAX_CELLS_LIMIT)
+            .nested("acceptance", &self.acceptance);
+    }
+}
+
+impl GridMatchParams {
+    /// Checks every field's domain ([`Validate`]).
+    pub fn validate(&self) -> Result<(), GridMatchError> {
+        Ok(Validate::validate(self)?)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn field(params: &GridMatchParams) -> Result<(), String> {
+        Validate::validate(params).map_err(|e| e.field)
+    }
+
+    #[test]
+    fn the_defaults_pass_and_values_out_of_range_name_their_field() {
+        assert_eq!(field(&GridMatchParams::default()), Ok(()));
+        assert_eq!(AcceptanceParams::default().validate(), Ok(()));
+        let cases: [(GridMatchParams, &str); 7] = [
+            (
+                GridMatchParams {
+                    max_cells: usize::MAX,
+                    ..Default::default()
+                },
+                "max_cells",
+            ),
+            (
+                GridMatchParams {
+                    hough_angle_bins: 0,
+                    ..Default::default()
+                },
+                "hough_angle_bins",
+            ),
+            (
+                GridMatchParams {
+                    refine_candidates: 1 << 40,
+                    ..Default::default()
+                },
+                "refine_candidates",
+            ),
+            (
+                GridMatchParams {
+                    distinct_rad: -0.1,
+                    ..Default::default()
+                },
+                "distinct_rad",
+            ),
+            (
+                GridMatchParams {
+                    rotation_merge_rad: 0.1,
+                    ..Default::default()
+                },
+                "rotation_merge_rad",
+            ),
+            (
+                GridMatchParams {
+                    thresholds: ClassThresholds {
+                        occupied_min: 0.3,
+                        free_max: 0.35,
+                    },
+                    ..Default::default()
+                },
+                "thresholds.free_max",
+            ),
+            (
+                GridMatchParams {
+                    acceptance: AcceptanceParams {
+                        min_acceptance: f64::NAN,
+                        ..Default::default()
+                    },
+                    ..Default::default()
+                },
+                "acceptance.min_acceptance",
+            ),
+        ];
+        for (params, expected) in cases {
+            assert_eq!(field(&params), Err(expected.to_owned()));
+            assert!(matches!(
+                params.validate(),
+                Err(GridMatchError::Params(ref e)) if e.field == expected
+            ));
         }
-        if !positive(self.occupied_weight) {
-            return invalid("occupied_weight", "must be finite and positive");
-        }
-        if !(positive(self.refine_angle_rad) && self.refine_angle_rad < 0.5) {
-            return invalid("refine_angle_rad", "must be in (0, 0.5)");
-        }
-        if !(self.refine_margin_cells.is_finite()
-            && (0.0..=64.0).contains(&self.refine_margin_cells))
-        {
-            return invalid("refine_margin_cells", "must be in [0, 64]");
-        }
-        if self.refine_max_points == 0 {
-            return invalid("refine_max_points", "must be at least 1");
-        }
-        if !(self.refine_min_score_ratio.is_finite()
-            && (0.0..=1.0).contains(&self.refine_min_score_ratio))
-        {
-            return invalid("refine_min_score_ratio", "must be in [0, 1]");
-        }
-        if !positive(self.refine_kernel_sigma_cells) {
-            return invalid("refine_kernel_sigma_cells", "must be finite and positive");
-        }
-        let non_negative = |v: f64| v.is_finite() && v >= 0.0;
-        if !(non_negative(self.distinct_cells) && non_negative(self.distinct_rad)) {
-            return invalid(
-                "distinct_cells",
-                "distinct_cells and distinct_rad must be finite, ≥ 0",
-            );
-        }
-        let a = &self.acceptance;
-        if !(a.min_acceptance.is_finite()
-            && a.min_overlap_fraction.is_finite()
-            && a.min_margin.is_finite()
-            && a.max_dm_cells.is_finite())
-        {
-            return invalid("acceptance", "thresholds must be finite");
-        }
-        if self
-            .thresholds
-            .free_max
-            .partial_cmp(&self.thresholds.occupied_min)
-            != Some(std::cmp::Ordering::Less)
-        {
-            return invalid("thresholds", "free_max must be below occupied_min");
-        }
-        Ok(())
     }
 }

@@ -197,6 +197,6 @@ fn refuses_bad_input_without_panicking() {
     };
     assert!(matches!(
         match_grids(&a, &a, &bad),
-        Err(GridMatchError::InvalidParams { .. })
+        Err(GridMatchError::Params(ref e)) if e.field == "hough_angle_bins"
     ));
 }

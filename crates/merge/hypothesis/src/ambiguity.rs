@@ -4,6 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::HypothesisError;
@@ -103,26 +104,25 @@ impl Default for AmbiguityParams {
 impl AmbiguityParams {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), HypothesisError> {
-        let non_negative = |value: f64, name| {
-            if value.is_finite() && value >= 0.0 {
-                Ok(())
-            } else {
-                Err(HypothesisError::InvalidParams {
-                    name,
-                    reason: "must be finite and >= 0",
-                })
-            }
-        };
-        non_negative(self.min_spread_m, "min_spread_m")?;
-        non_negative(self.rejected_window_m, "rejected_window_m")?;
-        non_negative(self.certainty_window_m, "certainty_window_m")?;
-        if self.min_rejected == 0 {
-            return Err(HypothesisError::InvalidParams {
-                name: "min_rejected",
-                reason: "must be >= 1",
-            });
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
+    }
+}
+
+impl Validate for AmbiguityParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("min_rejected", self.min_rejected, 1, 100_000)
+            .real("min_spread_m", self.min_spread_m, Real::non_negative())
+            .real(
+                "rejected_window_m",
+                self.rejected_window_m,
+                Real::non_negative(),
+            )
+            .real(
+                "certainty_window_m",
+                self.certainty_window_m,
+                Real::non_negative(),
+            );
     }
 }
 

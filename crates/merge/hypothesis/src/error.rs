@@ -23,13 +23,8 @@ pub enum HypothesisError {
         what: &'static str,
     },
     /// A parameter is out of range.
-    #[error("invalid parameter {name}: {reason}")]
-    InvalidParams {
-        /// The parameter's field name.
-        name: &'static str,
-        /// What it must be.
-        reason: &'static str,
-    },
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
     /// The EKF produced a non-finite or indefinite state (inputs of absurd magnitude).
     #[error("numerical failure in {what}")]
     Numerical {

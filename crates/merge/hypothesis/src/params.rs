@@ -1,5 +1,6 @@
 //! Parameters of the hypothesis filter (Banerjee et al., Sec. 3.2.1 and 5.2).
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Deserializer, Serialize};
 
 use crate::HypothesisError;
@@ -55,16 +56,18 @@ impl AcceptanceCriteria {
             min_view_spread_m: 5.0,
         }
     }
+}
 
-    fn validate(&self, name: &'static str) -> Result<(), HypothesisError> {
-        if self.min_view_spread_m.is_finite() && self.min_view_spread_m >= 0.0 {
-            Ok(())
-        } else {
-            Err(HypothesisError::InvalidParams {
-                name,
-                reason: "min_view_spread_m must be finite and >= 0",
-            })
-        }
+impl Validate for AcceptanceCriteria {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("min_observations", self.min_observations, 1, 1_000_000)
+            .size("min_distinct_views", self.min_distinct_views, 1, 1_000_000)
+            .real(
+                "min_view_spread_m",
+                self.min_view_spread_m,
+                Real::non_negative(),
+            );
     }
 }
 
@@ -158,27 +161,24 @@ impl Default for HypothesisFilterParams {
 impl HypothesisFilterParams {
     /// Checks every field's range.
     pub fn validate(&self) -> Result<(), HypothesisError> {
-        let invalid = |name, reason| Err(HypothesisError::InvalidParams { name, reason });
-        // False for NaN too.
-        let positive = |value: f64| value > 0.0;
-        self.conditional.validate("conditional")?;
-        self.full.validate("full")?;
-        self.recovery.validate("recovery")?;
-        if !positive(self.gate_mahalanobis_sq) {
-            return invalid("gate_mahalanobis_sq", "must be > 0");
-        }
-        if !positive(self.expire_after_m) {
-            return invalid("expire_after_m", "must be > 0");
-        }
-        if self.expire_after_s.is_some_and(|s| !positive(s)) {
-            return invalid("expire_after_s", "must be > 0");
-        }
-        if !(0.0..=1.0).contains(&self.ambiguous_weight) {
-            return invalid("ambiguous_weight", "must be in [0, 1]");
-        }
-        if self.max_hypotheses == 0 {
-            return invalid("max_hypotheses", "must be >= 1");
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
+    }
+}
+
+impl Validate for HypothesisFilterParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("conditional", &self.conditional)
+            .nested("full", &self.full)
+            .nested("recovery", &self.recovery)
+            .real(
+                "gate_mahalanobis_sq",
+                self.gate_mahalanobis_sq,
+                Real::positive(),
+            )
+            .real("expire_after_m", self.expire_after_m, Real::positive())
+            .real_opt("expire_after_s", self.expire_after_s, Real::positive())
+            .real("ambiguous_weight", self.ambiguous_weight, Real::fraction())
+            .size("max_hypotheses", self.max_hypotheses, 1, 100_000);
     }
 }

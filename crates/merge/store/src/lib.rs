@@ -20,4 +20,6 @@ pub use area_rows::{AreasCommit, StoredAreas};
 pub use atlas_rows::{SessionCommit, StoredAtlas};
 pub use error::StoreError;
 pub use schema::SCHEMA_VERSION;
-pub use store::{Store, StoreInfo, VersionInfo, DEFAULT_KEEP_VERSIONS, RECLAIM_FROM_FRACTION};
+pub use store::{
+    store_files, Store, StoreInfo, VersionInfo, DEFAULT_KEEP_VERSIONS, RECLAIM_FROM_FRACTION,
+};

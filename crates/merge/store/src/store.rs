@@ -109,6 +109,16 @@ enum Access {
     ReadOnly,
 }
 
+/// The files of the store at `path`: the database, its write-ahead log and the log's index
+/// (SQLite's `-wal` and `-shm`, present while it is open or after a crash).
+pub fn store_files(path: &Path) -> [PathBuf; 3] {
+    ["", "-wal", "-shm"].map(|suffix| {
+        let mut name = path.as_os_str().to_owned();
+        name.push(suffix);
+        PathBuf::from(name)
+    })
+}
+
 impl Store {
     /// Opens the store at `path` for writing, creating it when there is no file, and upgrades
     /// an older schema. A store is checked ([`Store::check`]) before anything is written to
@@ -317,13 +327,11 @@ impl Store {
     /// The store's schema version, versions and size.
     pub fn info(&self) -> Result<StoreInfo, StoreError> {
         let versions = self.versions()?;
-        let bytes = ["", "-wal"]
+        // The database and its write-ahead log (the log's index holds no data).
+        let [database, log, _] = store_files(&self.path);
+        let bytes = [database, log]
             .iter()
-            .filter_map(|suffix| {
-                let mut name = self.path.clone().into_os_string();
-                name.push(suffix);
-                std::fs::metadata(PathBuf::from(name)).ok()
-            })
+            .filter_map(|file| std::fs::metadata(file).ok())
             .map(|m| m.len())
             .sum();
         let newest = versions.last();
@@ -343,11 +351,11 @@ impl Store {
         })
     }
 
-    /// How many of the newest versions keep their atlas (at least 1). A commit forgets the
-    /// atlas of older versions: their rows in `versions` stay, rows no retained version sees
-    /// are deleted, and their events go with them. Default [`DEFAULT_KEEP_VERSIONS`].
-    pub fn keep_versions(&mut self, keep: usize) {
-        self.keep_versions = keep.max(1);
+    /// How many of the newest versions keep their atlas. A commit forgets the atlas of older
+    /// versions: their rows in `versions` stay, rows no retained version sees are deleted,
+    /// and their events go with them. Default [`DEFAULT_KEEP_VERSIONS`].
+    pub fn keep_versions(&mut self, keep: std::num::NonZeroUsize) {
+        self.keep_versions = keep.get();
     }
 
     /// Deletes every version after `version` (iRobot deletes bad versions) with the rows and

@@ -125,7 +125,7 @@ fn areas_are_versioned_beside_the_atlas_and_rolled_back_exactly() {
     store.check().unwrap();
 
     // Forgotten versions lose their areas with their atlas; the newest keeps both.
-    store.keep_versions(1);
+    store.keep_versions(std::num::NonZeroUsize::new(1).unwrap());
     commit(&mut store, &both, &both_map);
     assert!(matches!(
         store.load_areas(Some(2)),

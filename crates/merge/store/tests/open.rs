@@ -154,7 +154,7 @@ fn old_versions_forget_their_atlas_and_the_store_stays_bounded() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("site.mapmerge");
     let mut store = Store::open(&path).unwrap();
-    store.keep_versions(3);
+    store.keep_versions(std::num::NonZeroUsize::new(3).unwrap());
     let mut robot = Robot::new();
     let mut snapshots = Vec::new();
     let mut sizes = Vec::new();
@@ -194,7 +194,7 @@ fn pages_freed_by_forgotten_versions_are_reclaimed() {
     let size_after = |sessions: &[(usize, usize)], name: &str| {
         let path = dir.path().join(name);
         let mut store = Store::open(&path).unwrap();
-        store.keep_versions(1);
+        store.keep_versions(std::num::NonZeroUsize::new(1).unwrap());
         let mut robot = Robot::new();
         let mut last = None;
         for (k, (nodes, keep)) in sessions.iter().enumerate() {

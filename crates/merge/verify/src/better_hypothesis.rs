@@ -13,7 +13,10 @@
 //! agreement of the two local maps, and accepted from a score and a confidence (the gap to the
 //! best rival place), so look-alike rooms give no evidence.
 
+use std::f64::consts::PI;
+
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_place::{
     verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe, KeyframeId,
     PlaceCandidate, PlaceIndex, PlaceParams, PlaceSignature, PlaceVerifierParams,
@@ -104,6 +107,38 @@ impl Default for BetterHypothesisParams {
             better_by: 0.02,
             verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
         }
+    }
+}
+
+impl Validate for BetterHypothesisParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("keyframe_scans", self.keyframe_scans, 1, 1_000)
+            .real(
+                "keyframe_travel_m",
+                self.keyframe_travel_m,
+                Real::non_negative(),
+            )
+            .real("voxel_m", self.voxel_m, Real::non_negative())
+            .real("free_space_m", self.free_space_m, Real::non_negative())
+            .size("min_query_points", self.min_query_points, 0, 1_000_000)
+            .size("query_every", self.query_every, 1, 100_000)
+            .nested("place", &self.place)
+            .real("min_confidence", self.min_confidence, Real::fraction())
+            .real("disagreement_m", self.disagreement_m, Real::non_negative())
+            .real(
+                "disagreement_rad",
+                self.disagreement_rad,
+                Real::within(0.0, PI),
+            )
+            .real("prior_agreeing", self.prior_agreeing, Real::non_negative())
+            .real(
+                "current_placement_within_m",
+                self.current_placement_within_m,
+                Real::non_negative(),
+            )
+            .real("better_by", self.better_by, Real::fraction())
+            .nested("verifier", &self.verifier);
     }
 }
 

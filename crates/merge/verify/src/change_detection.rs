@@ -13,6 +13,7 @@
 use std::f64::consts::{PI, TAU};
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_posegraph::NodeId;
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
@@ -88,6 +89,59 @@ impl Default for ChangeDetectionParams {
             max_visibility_cells: 1 << 24,
             two_sided: true,
         }
+    }
+}
+
+impl Validate for ChangeDetectionParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("recent_scans", self.recent_scans, 1, 100_000)
+            .real(
+                "range_tolerance_m",
+                self.range_tolerance_m,
+                Real::non_negative(),
+            )
+            .real(
+                "angle_tolerance_rad",
+                self.angle_tolerance_rad,
+                Real::positive_up_to(PI),
+            )
+            .size("bins_per_tolerance", self.bins_per_tolerance, 1, 100)
+            .real(
+                "visibility_cell_m",
+                self.visibility_cell_m,
+                Real::positive(),
+            )
+            .real("min_overlap_m2", self.min_overlap_m2, Real::non_negative())
+            .size("max_pairs_per_scan", self.max_pairs_per_scan, 1, 100_000)
+            .real("max_range_m", self.max_range_m, Real::positive())
+            .size(
+                "min_classified_points",
+                self.min_classified_points,
+                0,
+                100_000_000,
+            )
+            .real(
+                "prior_agree_points",
+                self.prior_agree_points,
+                Real::non_negative(),
+            )
+            .real(
+                "cache_translation_m",
+                self.cache_translation_m,
+                Real::non_negative(),
+            )
+            .real(
+                "cache_rotation_rad",
+                self.cache_rotation_rad,
+                Real::within(0.0, PI),
+            )
+            .size(
+                "max_visibility_cells",
+                self.max_visibility_cells,
+                1,
+                1 << 28,
+            );
     }
 }
 

@@ -14,6 +14,7 @@
 //!   `1 − (1 − p_appearance)(1 − p_hypothesis)`: either kind alone can flag a merge, and
 //!   both together flag it more surely.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::common::{logistic, noisy_or, unit};
@@ -55,6 +56,30 @@ impl Default for CombinedParams {
             gridmap_threshold: 0.15,
             calibration_spread: 0.25,
         }
+    }
+}
+
+impl Validate for CombinedParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("change_detection", &self.change_detection)
+            .nested("gridmap", &self.gridmap)
+            .nested("better_hypothesis", &self.better_hypothesis)
+            .real(
+                "change_detection_threshold",
+                self.change_detection_threshold,
+                Real::positive_up_to(1.0),
+            )
+            .real(
+                "gridmap_threshold",
+                self.gridmap_threshold,
+                Real::positive_up_to(1.0),
+            )
+            .real(
+                "calibration_spread",
+                self.calibration_spread,
+                Real::positive(),
+            );
     }
 }
 

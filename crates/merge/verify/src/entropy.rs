@@ -20,6 +20,7 @@
 //! - neighbours come from a bucket grid of `r`-sized cells (exact for a fixed radius);
 //! - the ratio is monotone in `ΔH`, so ROC and AUC are those of `ΔH`.
 
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::{voxel_downsample, Point2};
 use serde::{Deserialize, Serialize};
 
@@ -66,6 +67,21 @@ impl Default for EntropyParams {
             min_paired_points: 50,
             max_range_m: 40.0,
         }
+    }
+}
+
+impl Validate for EntropyParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("radius_m", self.radius_m, Real::positive())
+            .size("recent_scans", self.recent_scans, 1, 100_000)
+            .real("margin_m", self.margin_m, Real::non_negative())
+            .real("voxel_m", self.voxel_m, Real::non_negative())
+            .size("min_neighbours", self.min_neighbours, 1, 10_000)
+            .real("noise_floor_m", self.noise_floor_m, Real::non_negative())
+            .real("logistic_scale", self.logistic_scale, Real::positive())
+            .size("min_paired_points", self.min_paired_points, 0, 100_000_000)
+            .real("max_range_m", self.max_range_m, Real::positive());
     }
 }
 

@@ -16,6 +16,7 @@
 //! `value[k]`. Children always follow their parent, so evaluation ends in at most as many
 //! steps as there are nodes, whatever a model file says.
 
+use mapmerge_params::{Checker, Real, Validate};
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -48,6 +49,19 @@ impl Default for ForestParams {
         }
     }
 }
+
+impl Validate for ForestParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("trees", self.trees, 1, MAX_TREES)
+            .size("min_leaf", self.min_leaf, 1, 1_000_000)
+            .size("max_depth", self.max_depth, 0, 64)
+            .size("features_per_split", self.features_per_split, 0, 4_096);
+    }
+}
+
+/// Most trees a forest grows or holds.
+const MAX_TREES: u64 = 10_000;
 
 /// One tree, stored flat (see the module documentation).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
@@ -97,6 +111,40 @@ pub struct RandomForest {
     pub params: ForestParams,
     /// Its trees.
     pub trees: Vec<Tree>,
+}
+
+impl Validate for Tree {
+    /// As many split features, values and children; finite values.
+    fn check(&self, check: &mut Checker) {
+        let nodes = self.feature.len();
+        check
+            .rule(
+                "value",
+                self.value.len(),
+                self.value.len() == nodes,
+                "must have one entry per node",
+            )
+            .rule(
+                "child",
+                self.child.len(),
+                self.child.len() == nodes,
+                "must have one entry per node",
+            );
+        if let Some((k, v)) = self.value.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+            check.real(&format!("value[{k}]"), *v, Real::finite());
+        }
+    }
+}
+
+impl Validate for RandomForest {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("params", &self.params)
+            .size("trees", self.trees.len(), 0, MAX_TREES);
+        for (t, tree) in self.trees.iter().enumerate() {
+            check.nested(&format!("trees[{t}]"), tree);
+        }
+    }
 }
 
 /// One training row: features and label (true = invalid).

@@ -27,8 +27,11 @@
 //! merged map has no structure) the overlap stays below `τ`: the ratio is 0 and the merge is
 //! *unsupported* ([`RatioSupport::Unsupported`]), not valid.
 
+use std::f64::consts::PI;
+
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{CellClass, ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_posegraph::NodeId;
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
@@ -64,7 +67,7 @@ pub struct GridmapParams {
     /// … or turned more than this (rad) (default: 0.5°).
     pub cache_rotation_rad: f64,
     /// Largest grid (cells); a larger extent gets coarser cells (default: 2²⁴, 100 × 160 m
-    /// at 2.5 cm; at most 2³⁰).
+    /// at 2.5 cm; at most 2²⁸).
     pub max_cells: usize,
 }
 
@@ -84,6 +87,29 @@ impl Default for GridmapParams {
             cache_rotation_rad: 0.5f64.to_radians(),
             max_cells: 1 << 24,
         }
+    }
+}
+
+impl Validate for GridmapParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("recent_scans", self.recent_scans, 1, 100_000)
+            .real("cell_m", self.cell_m, Real::positive())
+            .size("dilation_radius_cells", self.dilation_radius_cells, 0, 20)
+            .real("min_overlap_m2", self.min_overlap_m2, Real::non_negative())
+            .real("max_range_m", self.max_range_m, Real::positive())
+            .nested("other_thresholds", &self.other_thresholds)
+            .real(
+                "cache_translation_m",
+                self.cache_translation_m,
+                Real::non_negative(),
+            )
+            .real(
+                "cache_rotation_rad",
+                self.cache_rotation_rad,
+                Real::within(0.0, PI),
+            )
+            .size("max_cells", self.max_cells, 1, 1 << 28);
     }
 }
 

@@ -9,6 +9,7 @@
 
 use std::collections::HashMap;
 
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
@@ -38,6 +39,20 @@ impl Default for HistogramParams {
             other_support_radius_m: Some(1.0),
             min_points: 100,
         }
+    }
+}
+
+impl Validate for HistogramParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("cell_m", self.cell_m, Real::positive())
+            .size("recent_scans", self.recent_scans, 1, 100_000)
+            .real_opt(
+                "other_support_radius_m",
+                self.other_support_radius_m,
+                Real::non_negative(),
+            )
+            .size("min_points", self.min_points, 0, 100_000_000);
     }
 }
 

@@ -30,6 +30,7 @@
 //! [`crate::RandomForest`]); on the tuning logs with noisy odometry it ranked merges worse than
 //! the logistic model (mean AUC 0.988 against 0.993), so it is not the default.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 use smartcore::linalg::basic::arrays::Array;
 use smartcore::linalg::basic::matrix::DenseMatrix;
@@ -79,6 +80,44 @@ pub struct LearnedModel {
     /// What it was fitted on (provenance, free text).
     #[serde(default)]
     pub fitted_on: String,
+}
+
+/// Most components a model names.
+const MAX_METHODS: u64 = 64;
+
+impl Validate for LearnedModel {
+    /// Finite weights, one of each kind per method (none with a forest), a threshold in
+    /// [0, 1].
+    fn check(&self, check: &mut Checker) {
+        let m = self.methods.len();
+        let fits = |len: usize| len == m || (len == 0 && self.forest.is_some());
+        check
+            .size("methods", m, 0, MAX_METHODS)
+            .rule(
+                "ratio_weights",
+                self.ratio_weights.len(),
+                fits(self.ratio_weights.len()),
+                "must have one weight per method (or none with a forest)",
+            )
+            .rule(
+                "unsupported_weights",
+                self.unsupported_weights.len(),
+                fits(self.unsupported_weights.len()),
+                "must have one weight per method (or none with a forest)",
+            );
+        for (name, weights) in [
+            ("ratio_weights", &self.ratio_weights),
+            ("unsupported_weights", &self.unsupported_weights),
+        ] {
+            if let Some((k, w)) = weights.iter().enumerate().find(|(_, w)| !w.is_finite()) {
+                check.real(&format!("{name}[{k}]"), *w, Real::finite());
+            }
+        }
+        check
+            .real("intercept", self.intercept, Real::finite())
+            .nested_opt("forest", self.forest.as_ref())
+            .real("threshold", self.threshold, Real::fraction());
+    }
 }
 
 /// How a component's highest ratio enters the logistic regression.
@@ -528,6 +567,32 @@ impl InvalidMergeDetector for LearnedDetector {
 mod tests {
     use super::*;
 
+    #[test]
+    fn models_check_their_weights_and_threshold() {
+        assert_eq!(LearnedModel::calibrated().validate(), Ok(()));
+        assert_eq!(LearnedModel::uninformed().validate(), Ok(()));
+        let field = |model: &LearnedModel| model.validate().map_err(|e| e.field);
+        let two = LearnedModel {
+            methods: vec!["change_detection".into(), "gridmap".into()],
+            ratio_weights: vec![1.0, 2.0],
+            unsupported_weights: vec![0.5, 0.5],
+            ..LearnedModel::uninformed()
+        };
+        assert_eq!(field(&two), Ok(()));
+        let mut short = two.clone();
+        short.ratio_weights.pop();
+        assert_eq!(field(&short), Err("ratio_weights".into()));
+        let mut nan = two.clone();
+        nan.unsupported_weights[1] = f64::NAN;
+        assert_eq!(field(&nan), Err("unsupported_weights[1]".into()));
+        let mut threshold = two.clone();
+        threshold.threshold = -0.5;
+        assert_eq!(field(&threshold), Err("threshold".into()));
+        let mut intercept = two;
+        intercept.intercept = f64::INFINITY;
+        assert_eq!(field(&intercept), Err("intercept".into()));
+    }
+
     fn sample(cd: f64, gm: f64, unsupported: bool, invalid: bool) -> LearnedSample {
         LearnedSample {
             ratios: vec![cd, gm],
@@ -627,6 +692,23 @@ mod tests {
         let back: LearnedModel =
             serde_json::from_str(&serde_json::to_string(&model).unwrap()).unwrap();
         assert_eq!(back, model);
+        assert_eq!(model.validate(), Ok(()));
+        let mut broken = model.clone();
+        if let Some(tree) = broken.forest.as_mut().and_then(|f| f.trees.get_mut(3)) {
+            tree.value[0] = f64::NAN;
+        }
+        assert_eq!(
+            broken.validate().map_err(|e| e.field),
+            Err("forest.trees[3].value[0]".into())
+        );
+        let mut ragged = model.clone();
+        if let Some(tree) = ragged.forest.as_mut().and_then(|f| f.trees.get_mut(0)) {
+            tree.child.pop();
+        }
+        assert_eq!(
+            ragged.validate().map_err(|e| e.field),
+            Err("forest.trees[0].child".into())
+        );
         assert!(matches!(
             LearnedModel::fit_forest(&methods, &samples[..1], ForestParams::default(), "t"),
             Err(FitError::OneClass { .. })

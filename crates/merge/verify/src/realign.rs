@@ -15,8 +15,11 @@
 //! The search costs tens of ms, so it runs again only after the robot moved `every_m` (or
 //! turned `every_rad`), or the merged map moved; in between the last ratio stands.
 
+use std::f64::consts::PI;
+
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::OccupancyGrid;
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::Point2;
 use mapmerge_scanmatch::{
     match_scan, match_scan_above, CorrelativeParams, MatchTarget, SearchWindow,
@@ -84,6 +87,28 @@ impl Default for RealignParams {
             every_m: 1.0,
             every_rad: 30f64.to_radians(),
         }
+    }
+}
+
+impl Validate for RealignParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "window_travel_m",
+                self.window_travel_m,
+                Real::non_negative(),
+            )
+            .size("max_window_scans", self.max_window_scans, 1, 100_000)
+            .real("max_range_m", self.max_range_m, Real::positive())
+            .real("tolerance_m", self.tolerance_m, Real::non_negative())
+            .real("tolerance_rad", self.tolerance_rad, Real::within(0.0, PI))
+            .real("reach_m", self.reach_m, Real::positive())
+            .nested("correlative", &self.correlative)
+            .real("min_score", self.min_score, Real::fraction())
+            .real("coverage_cell_m", self.coverage_cell_m, Real::positive())
+            .size("min_query_points", self.min_query_points, 0, 1_000_000)
+            .real("every_m", self.every_m, Real::non_negative())
+            .real("every_rad", self.every_rad, Real::within(0.0, PI));
     }
 }
 

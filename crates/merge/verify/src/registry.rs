@@ -1,6 +1,7 @@
 //! The detectors by name, with default parameters (what the evaluation harness and the atlas
 //! instantiate).
 
+use mapmerge_params::{Checker, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::{
@@ -70,6 +71,21 @@ pub struct DetectorParams {
     pub combined: Option<CombinedParams>,
 }
 
+impl Validate for DetectorParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested_opt("change_detection", self.change_detection.as_ref())
+            .nested_opt("gridmap", self.gridmap.as_ref())
+            .nested_opt("entropy", self.entropy.as_ref())
+            .nested_opt("histogram", self.histogram.as_ref())
+            .nested_opt("sm", self.sm.as_ref())
+            .nested_opt("dm", self.dm.as_ref())
+            .nested_opt("better_hypothesis", self.better_hypothesis.as_ref())
+            .nested_opt("realign", self.realign.as_ref())
+            .nested_opt("combined", self.combined.as_ref());
+    }
+}
+
 impl DetectorParams {
     /// The detector called `name` with these parameters where given, the defaults otherwise
     /// ([`detector`]); `None` for an unknown name.
@@ -109,6 +125,77 @@ pub fn all_detectors() -> Vec<Box<dyn InvalidMergeDetector>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_defaults_pass_their_checks_and_values_out_of_range_name_their_path() {
+        let every = DetectorParams {
+            change_detection: Some(Default::default()),
+            gridmap: Some(Default::default()),
+            entropy: Some(Default::default()),
+            histogram: Some(Default::default()),
+            sm: Some(Default::default()),
+            dm: Some(Default::default()),
+            better_hypothesis: Some(Default::default()),
+            realign: Some(Default::default()),
+            combined: Some(Default::default()),
+        };
+        assert_eq!(DetectorParams::default().validate(), Ok(()));
+        assert_eq!(every.validate(), Ok(()));
+        let field = |params: DetectorParams| params.validate().map_err(|e| e.field);
+        let combined = DetectorParams {
+            combined: Some(CombinedParams {
+                change_detection_threshold: -1.0,
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        assert_eq!(
+            field(combined),
+            Err("combined.change_detection_threshold".into())
+        );
+        let parsed = |json: &str| field(serde_json::from_str(json).unwrap());
+        for (json, path) in [
+            (
+                r#"{"sm": {"max_cells": 18446744073709551615}}"#,
+                "sm.max_cells",
+            ),
+            (
+                r#"{"dm": {"thresholds": {"occupied_min": 0.65, "free_max": 0.9}}}"#,
+                "dm.thresholds.free_max",
+            ),
+            (r#"{"entropy": {"radius_m": -0.3}}"#, "entropy.radius_m"),
+            (
+                r#"{"histogram": {"other_support_radius_m": -1}}"#,
+                "histogram.other_support_radius_m",
+            ),
+            (
+                r#"{"change_detection": {"max_visibility_cells": 4294967296}}"#,
+                "change_detection.max_visibility_cells",
+            ),
+            (
+                r#"{"gridmap": {"recent_scans": 0}}"#,
+                "gridmap.recent_scans",
+            ),
+            (r#"{"realign": {"reach_m": -3}}"#, "realign.reach_m"),
+            (
+                r#"{"better_hypothesis": {"min_confidence": 1.5}}"#,
+                "better_hypothesis.min_confidence",
+            ),
+            (
+                r#"{"combined": {"gridmap": {"cell_m": 0}}}"#,
+                "combined.gridmap.cell_m",
+            ),
+        ] {
+            assert_eq!(parsed(json), Err(path.into()), "{json}");
+        }
+        // The place and scan-matching crates' parameters are checked in place.
+        let mut params = every.clone();
+        if let Some(realign) = params.realign.as_mut() {
+            realign.correlative.resolution_m = -0.1;
+        }
+        let path = field(params).unwrap_err();
+        assert!(path.starts_with("realign.correlative."), "{path}");
+    }
 
     #[test]
     fn every_name_makes_its_detector() {

@@ -10,6 +10,7 @@
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::{ClassThresholds, GridGeometry, InsertParams, OccupancyGrid};
 use mapmerge_gridmatch::{map_metrics, MapMetrics};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::Point2;
 use serde::{Deserialize, Serialize};
 
@@ -52,6 +53,19 @@ impl Default for SimilarityParams {
             max_range_m: 40.0,
             max_cells: 1 << 24,
         }
+    }
+}
+
+impl Validate for SimilarityParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("recent_scans", self.recent_scans, 1, 100_000)
+            .real("cell_m", self.cell_m, Real::positive())
+            .nested("thresholds", &self.thresholds)
+            .real("min_overlap_m2", self.min_overlap_m2, Real::non_negative())
+            .real("dm_scale_m", self.dm_scale_m, Real::positive())
+            .real("max_range_m", self.max_range_m, Real::positive())
+            .size("max_cells", self.max_cells, 1, 1 << 28);
     }
 }
 

@@ -36,8 +36,8 @@ pub enum AssociationError {
         expected: usize,
     },
     /// A parameter outside its valid range.
-    #[error("invalid parameter `{name}`: {reason}")]
-    InvalidParams { name: &'static str, reason: String },
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
 }
 
 /// Rows of the register tile of the micro-kernel.
@@ -142,12 +142,13 @@ impl DifferenceMatrix {
     /// Wraps `rows × cols` row-major values (e.g. a matrix computed elsewhere, or a test
     /// fixture). Errors when the length does not match or a value is NaN.
     pub fn from_vec(rows: usize, cols: usize, data: Vec<f32>) -> Result<Self, AssociationError> {
-        let expected = rows
-            .checked_mul(cols)
-            .ok_or(AssociationError::InvalidParams {
-                name: "rows × cols",
-                reason: "overflows usize".into(),
-            })?;
+        let expected = rows.checked_mul(cols).ok_or_else(|| {
+            AssociationError::InvalidParams(mapmerge_params::ParamError {
+                field: "rows × cols".into(),
+                value: format!("{rows} × {cols}"),
+                allowed: "the product must fit in usize".into(),
+            })
+        })?;
         if data.len() != expected {
             return Err(AssociationError::DimensionMismatch {
                 what: "difference matrix data length",

@@ -27,6 +27,7 @@
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::fmt::Debug;
 
+use mapmerge_params::{Checker, Real, Validate};
 use nalgebra::{DMatrix, SymmetricEigen};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -85,6 +86,20 @@ impl Default for GroupingParams {
     }
 }
 
+impl Validate for GroupingParams {
+    fn check(&self, check: &mut Checker) {
+        // Eigenvalues of a normalised Laplacian lie in [0, 2]; weights (Eq. 9) in [0, 1].
+        check
+            .real("theta", self.theta, Real::within(0.0, 2.0))
+            .real(
+                "connection_floor",
+                self.connection_floor,
+                Real::positive_up_to(1.0),
+            )
+            .nested("kmeans", &self.kmeans);
+    }
+}
+
 /// Why grouping refused its input.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -99,8 +114,8 @@ pub enum GroupingError {
     #[error("weights ({row}, {col}) and ({col}, {row}) differ")]
     Asymmetric { row: usize, col: usize },
     /// A parameter is outside its range.
-    #[error("invalid grouping parameter: {0}")]
-    InvalidParams(&'static str),
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
     /// The symmetric eigen-decomposition did not converge.
     #[error("eigen-decomposition of a {size}-segment component did not converge")]
     EigenFailed { size: usize },
@@ -120,14 +135,7 @@ pub fn spectral_groups(
     weights: &[f64],
     params: GroupingParams,
 ) -> Result<Vec<Vec<usize>>, GroupingError> {
-    if !(params.theta.is_finite() && params.theta >= 0.0) {
-        return Err(GroupingError::InvalidParams("theta must be finite and ≥ 0"));
-    }
-    if !(params.connection_floor.is_finite() && params.connection_floor > 0.0) {
-        return Err(GroupingError::InvalidParams(
-            "connection_floor must be finite and > 0",
-        ));
-    }
+    Validate::validate(&params)?;
     let n = weights.len().isqrt();
     if n * n != weights.len() {
         return Err(GroupingError::NotSquare { len: weights.len() });

@@ -12,6 +12,7 @@
 //! coincides with a centre), and a cluster that loses all its points during Lloyd is re-seeded
 //! with the point farthest from its centroid.
 
+use mapmerge_params::{Checker, Validate};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -41,6 +42,17 @@ impl Default for KMeansParams {
             max_iterations: 100,
             seed: 0,
         }
+    }
+}
+
+impl Validate for KMeansParams {
+    fn check(&self, check: &mut Checker) {
+        check.size("restarts", self.restarts, 0, 10_000).size(
+            "max_iterations",
+            self.max_iterations,
+            1,
+            10_000,
+        );
     }
 }
 

@@ -16,6 +16,7 @@
 
 use crate::difference::{AssociationError, DifferenceMatrix};
 use crate::SubmapMatch;
+use mapmerge_params::{Checker, Real, Validate};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -83,37 +84,7 @@ impl Default for SequenceParams {
 impl SequenceParams {
     /// Checks ranges; every public entry point calls it.
     pub fn validate(&self) -> Result<(), AssociationError> {
-        let invalid = |name, reason: &str| {
-            Err(AssociationError::InvalidParams {
-                name,
-                reason: reason.to_string(),
-            })
-        };
-        if self.sequence_length == 0 {
-            return invalid("sequence_length", "must be at least 1");
-        }
-        if !(self.velocity_min.is_finite() && self.velocity_min > 0.0) {
-            return invalid("velocity_min", "must be finite and positive");
-        }
-        if !(self.velocity_max.is_finite() && self.velocity_max >= self.velocity_min) {
-            return invalid("velocity_max", "must be finite and at least velocity_min");
-        }
-        if self.velocity_steps == 0 {
-            return invalid("velocity_steps", "must be at least 1");
-        }
-        if !(1..=16).contains(&self.velocity_phases) {
-            return invalid("velocity_phases", "must be in 1..=16");
-        }
-        if self.velocity_max * self.sequence_length as f32 > 1e6 {
-            return invalid("velocity_max", "line offsets would exceed 1e6 submaps");
-        }
-        if !self.max_score.is_finite() {
-            return invalid("max_score", "must be finite");
-        }
-        if !(self.max_uniqueness_ratio.is_finite() && self.max_uniqueness_ratio > 0.0) {
-            return invalid("max_uniqueness_ratio", "must be finite and positive");
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
     }
 
     /// The signed velocities searched: forward ones, then (if `reverse`) their negatives.
@@ -164,19 +135,79 @@ impl Default for SingleFrameParams {
 impl SingleFrameParams {
     /// Checks ranges.
     pub fn validate(&self) -> Result<(), AssociationError> {
-        if !self.max_distance.is_finite() {
-            return Err(AssociationError::InvalidParams {
-                name: "max_distance",
-                reason: "must be finite".into(),
-            });
-        }
-        if !(self.max_ratio.is_finite() && self.max_ratio > 0.0) {
-            return Err(AssociationError::InvalidParams {
-                name: "max_ratio",
-                reason: "must be finite and positive".into(),
-            });
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
+    }
+}
+
+/// Offsets of all searched lines of one query (`ds` per line), at most.
+const MAX_LINE_SAMPLES: usize = 1_000_000;
+
+/// Cosine differences lie in `[0, 2]`.
+const COSINE_DIFFERENCE: Real = Real::within(0.0, 2.0);
+
+impl Validate for SequenceParams {
+    fn check(&self, check: &mut Checker) {
+        // With |v| ≤ 100 and ds ≤ 10 000, line offsets stay within 1e6 submaps.
+        check
+            .size("sequence_length", self.sequence_length, 1, 10_000)
+            .real(
+                "velocity_min",
+                f64::from(self.velocity_min),
+                Real::positive_up_to(100.0),
+            )
+            .real(
+                "velocity_max",
+                f64::from(self.velocity_max),
+                Real::positive_up_to(100.0),
+            )
+            .rule(
+                "velocity_max",
+                self.velocity_max,
+                self.velocity_max >= self.velocity_min,
+                "must be ≥ velocity_min",
+            )
+            .size("velocity_steps", self.velocity_steps, 1, 1000)
+            .size("velocity_phases", self.velocity_phases, 1, 16)
+            .real("max_score", f64::from(self.max_score), COSINE_DIFFERENCE)
+            .real(
+                "max_uniqueness_ratio",
+                f64::from(self.max_uniqueness_ratio),
+                Real::positive_up_to(1.0),
+            )
+            .size("exclusion_radius", self.exclusion_radius, 0, 10_000)
+            .size("contrast_window", self.contrast_window, 0, 10_000);
+        // Each search thread holds `ds` offsets of every line.
+        let line_samples = [
+            self.velocity_steps,
+            self.velocity_phases,
+            if self.reverse { 2 } else { 1 },
+        ]
+        .iter()
+        .fold(self.sequence_length, |n, &f| n.saturating_mul(f));
+        check.rule(
+            "velocity_steps",
+            self.velocity_steps,
+            line_samples <= MAX_LINE_SAMPLES,
+            "sequence_length · velocity_steps · velocity_phases · (2 with reverse) must be \
+             ≤ 1 000 000",
+        );
+    }
+}
+
+impl Validate for SingleFrameParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "max_distance",
+                f64::from(self.max_distance),
+                COSINE_DIFFERENCE,
+            )
+            .real(
+                "max_ratio",
+                f64::from(self.max_ratio),
+                Real::positive_up_to(1.0),
+            )
+            .size("exclusion_radius", self.exclusion_radius, 0, 10_000);
     }
 }
 

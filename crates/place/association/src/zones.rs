@@ -28,6 +28,7 @@
 //! short edges would then need sub-metre agreement that submap spacing and descriptor
 //! tolerance cannot give, so the slack is `max((1 − β) max, edge_tolerance_m)`.
 
+use mapmerge_params::{Checker, Real, Validate};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -100,6 +101,34 @@ impl Default for ZoneParams {
     }
 }
 
+impl Validate for ZoneParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("zones", self.zones, 1, 10_000)
+            .real("beta", self.beta, Real::fraction())
+            .real(
+                "edge_tolerance_m",
+                self.edge_tolerance_m,
+                Real::non_negative(),
+            )
+            .size("sample_size", self.sample_size, 2, 100)
+            .size("iterations", self.iterations, 1, 100_000)
+            .size("min_inliers", self.min_inliers, 1, 10_000)
+            .rule(
+                "min_inliers",
+                self.min_inliers,
+                self.min_inliers >= self.sample_size,
+                "must be ≥ sample_size",
+            )
+            .real(
+                "min_cross_agreement",
+                self.min_cross_agreement,
+                Real::fraction(),
+            )
+            .size("kmeans_restarts", self.kmeans_restarts, 1, 10_000);
+    }
+}
+
 /// Why [`verify_zones`] refused its input.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -119,8 +148,8 @@ pub enum ZoneError {
         what: &'static str,
     },
     /// A parameter is outside its range.
-    #[error("invalid zone parameter: {0}")]
-    InvalidParams(&'static str),
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
     /// k-means refused the zone features (cannot happen after the checks above).
     #[error("zone clustering failed: {0}")]
     KMeans(#[from] KMeansError),
@@ -311,31 +340,7 @@ struct MatchEnds {
 }
 
 fn validate(params: &ZoneParams) -> Result<(), ZoneError> {
-    if !(0.0..=1.0).contains(&params.beta) {
-        return Err(ZoneError::InvalidParams("beta must lie in [0, 1]"));
-    }
-    if !(params.edge_tolerance_m >= 0.0 && params.edge_tolerance_m.is_finite()) {
-        return Err(ZoneError::InvalidParams(
-            "edge_tolerance_m must be finite and ≥ 0",
-        ));
-    }
-    if params.sample_size < 2 {
-        return Err(ZoneError::InvalidParams("sample_size must be at least 2"));
-    }
-    if params.min_inliers < params.sample_size {
-        return Err(ZoneError::InvalidParams(
-            "min_inliers must be at least sample_size",
-        ));
-    }
-    if params.zones == 0 {
-        return Err(ZoneError::InvalidParams("zones must be at least 1"));
-    }
-    if !(0.0..=1.0).contains(&params.min_cross_agreement) {
-        return Err(ZoneError::InvalidParams(
-            "min_cross_agreement must lie in [0, 1]",
-        ));
-    }
-    Ok(())
+    Ok(Validate::validate(params)?)
 }
 
 fn position(

@@ -32,6 +32,7 @@
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use mapmerge_geometry::{LieGroup, Se2};
 use mapmerge_grid::FreeSpace;
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::{estimate_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix2;
 use serde::{Deserialize, Serialize};
@@ -440,6 +441,50 @@ pub fn evidence(
     out.whole_map = free_spaces.is_some();
     out.score = out.score_with(params);
     out
+}
+
+impl Validate for EvidenceParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("voxel_m", self.voxel_m, Real::within(0.0, 10.0))
+            .real("inlier_m", self.inlier_m, Real::positive())
+            .real(
+                "free_space_margin_m",
+                self.free_space_margin_m,
+                Real::non_negative(),
+            )
+            .real(
+                "violation_clearance_m",
+                self.violation_clearance_m,
+                Real::non_negative(),
+            )
+            .real(
+                "violation_weight",
+                self.violation_weight,
+                Real::non_negative(),
+            )
+            .real("flip_weight", self.flip_weight, Real::non_negative())
+            .real("flip_tolerance", self.flip_tolerance, Real::non_negative())
+            .real(
+                "full_constraint_m",
+                self.full_constraint_m,
+                Real::non_negative(),
+            )
+            .real(
+                "min_overlap_fraction",
+                self.min_overlap_fraction,
+                Real::fraction(),
+            )
+            .real("agreement_z", self.agreement_z, Real::within(0.0, 10.0))
+            .real_opt("max_distance_m", self.max_distance_m, Real::positive())
+            .real("distance_cap_m", self.distance_cap_m, Real::positive())
+            .real(
+                "normal_radius_m",
+                self.normal_radius_m,
+                Real::positive_up_to(100.0),
+            )
+            .real("min_planarity", self.min_planarity, Real::fraction());
+    }
 }
 
 #[cfg(test)]

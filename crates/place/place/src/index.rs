@@ -4,6 +4,7 @@
 use std::num::NonZeroUsize;
 
 use kiddo::{MutableKdTree, SquaredEuclidean};
+use mapmerge_params::{Checker, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::descriptor::PlaceDescriptor;
@@ -384,6 +385,12 @@ impl<D: PlaceDescriptor> PlaceIndex<D> {
         }
         nearest.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         nearest
+    }
+}
+
+impl Validate for IndexParams {
+    fn check(&self, check: &mut Checker) {
+        check.size("ring_key_neighbours", self.ring_key_neighbours, 1, 10_000);
     }
 }
 

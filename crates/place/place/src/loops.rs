@@ -5,6 +5,7 @@ use std::borrow::Cow;
 use std::collections::HashMap;
 
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use nalgebra::Matrix3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -355,5 +356,33 @@ impl<'k, D: crate::descriptor::PlaceDescriptor> PlaceDatabase<'k, D> {
                 verify_candidates(query, &candidates, verifier, params)
             })
             .collect()
+    }
+}
+
+impl Validate for PlaceParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("descriptor", &self.descriptor)
+            .nested("index", &self.index)
+            .size("candidates_per_query", self.candidates_per_query, 1, 1000)
+            .real(
+                "max_descriptor_distance",
+                self.max_descriptor_distance,
+                Real::fraction(),
+            )
+            .nested_opt("appearance", self.appearance.as_ref())
+            .real(
+                "max_appearance_distance",
+                self.max_appearance_distance,
+                Real::within(0.0, 2.0),
+            )
+            .real("min_score", self.min_score, Real::fraction())
+            .size("distinct_index_gap", self.distinct_index_gap, 0, 1_000_000)
+            .real("same_place_m", self.same_place_m, Real::non_negative())
+            .real(
+                "same_place_rad",
+                self.same_place_rad,
+                Real::within(0.0, std::f64::consts::PI),
+            );
     }
 }

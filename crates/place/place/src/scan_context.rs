@@ -28,6 +28,7 @@
 //! Feeding a local map (several scans merged in the keyframe frame) instead of one scan fills
 //! occlusion shadows and helps further; the descriptor needs no change for that.
 
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::Point2;
 use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
@@ -319,6 +320,19 @@ impl PlaceDescriptor for ScanContext {
             distance: best,
             yaw_rad: mapmerge_geometry::wrap_angle_rad((best_shift as f64 + offset) * sector_rad),
         }
+    }
+}
+
+impl Validate for ScanContextParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .size("ring_count", self.ring_count, 1, 256)
+            .size("sector_count", self.sector_count, 1, MAX_SECTORS as u64)
+            .real(
+                "max_radius_m",
+                self.max_radius_m,
+                Real::positive_up_to(1000.0),
+            );
     }
 }
 

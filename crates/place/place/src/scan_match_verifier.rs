@@ -3,6 +3,7 @@
 //! scored by the [`Evidence`] the alignment gives.
 
 use mapmerge_geometry::Se2;
+use mapmerge_params::{Checker, Validate};
 use mapmerge_scanmatch::{
     match_scan_above, Match, ScanMatchError, ScanMatchParams, ScanMatchTarget, ScanMatcher,
     SearchWindow,
@@ -260,6 +261,15 @@ impl GeometricVerifier for ScanMatchVerifier {
             score: found.score,
             covariance: found.covariance,
         })
+    }
+}
+
+impl Validate for PlaceVerifierParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("matcher", &self.matcher)
+            .nested("window", &self.window)
+            .nested("evidence", &self.evidence);
     }
 }
 

@@ -11,6 +11,7 @@
 //! match between two places would be.
 
 use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::transform_points;
 use mapmerge_scanmatch::{
     match_scan_above, ScanMatchError, ScanMatchParams, ScanMatcher, SearchWindow,
@@ -56,6 +57,26 @@ impl Default for SelfSimilarityParams {
     }
 }
 
+impl Validate for SelfSimilarityParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("min_shift_m", self.min_shift_m, Real::positive())
+            .real(
+                "radius_m",
+                self.radius_m,
+                Real::open(self.min_shift_m, 1000.0),
+            )
+            .real(
+                "min_turn_rad",
+                self.min_turn_rad,
+                Real::open(0.0, std::f64::consts::PI),
+            )
+            .real("floor_ratio", self.floor_ratio, Real::fraction())
+            .real("resolution_m", self.resolution_m, Real::within(0.01, 10.0))
+            .real("query_voxel_m", self.query_voxel_m, Real::within(0.0, 10.0));
+    }
+}
+
 /// The best placement of a keyframe's local map on itself away from the identity.
 pub struct SelfSimilarity {
     matcher: ScanMatcher,
@@ -70,22 +91,7 @@ impl SelfSimilarity {
         params: SelfSimilarityParams,
         evidence: EvidenceParams,
     ) -> Result<Self, ScanMatchError> {
-        let invalid = |field, reason| Err(ScanMatchError::InvalidParams { field, reason });
-        if !(params.radius_m.is_finite() && params.radius_m > params.min_shift_m) {
-            return invalid(
-                "self_similarity.radius_m",
-                "must be finite and > min_shift_m",
-            );
-        }
-        if !(params.min_shift_m > 0.0 && params.min_turn_rad > 0.0) {
-            return invalid("self_similarity.min_shift_m", "shift and turn must be > 0");
-        }
-        if params.min_turn_rad >= std::f64::consts::PI {
-            return invalid("self_similarity.min_turn_rad", "must be < π");
-        }
-        if !(0.0..=1.0).contains(&params.floor_ratio) {
-            return invalid("self_similarity.floor_ratio", "must be in [0, 1]");
-        }
+        params.validate()?;
         let mut matcher = ScanMatchParams::default();
         matcher.correlative.resolution_m = params.resolution_m;
         matcher.correlative.query_voxel_m = params.query_voxel_m;

@@ -49,6 +49,7 @@
 
 use std::sync::Arc;
 
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_scan::Point2;
 use rustfft::num_complex::Complex32;
 use rustfft::{Fft, FftPlanner};
@@ -766,6 +767,33 @@ impl SubmapDescriptor for RingSpectrumDescriptor3 {
         let (query_height, _) = self.spectra(query);
         let (candidate_height, _) = self.spectra(candidate);
         self.polar.relative_yaw(&query_height, &candidate_height)
+    }
+}
+
+impl Validate for RingSpectrumParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "max_radius_m",
+                self.max_radius_m,
+                Real::positive_up_to(1000.0),
+            )
+            .size("direction_count", self.direction_count, 4, 4096)
+            .size("ring_count", self.ring_count, 1, 1024)
+            .size(
+                "projection_bins",
+                self.projection_bins,
+                2 * self.ring_count.min(1024) as u64 + 2,
+                65_536,
+            )
+            .size(
+                "harmonic_count",
+                self.harmonic_count,
+                1,
+                self.direction_count.min(4096) as u64 / 2 + 1,
+            )
+            .size("yaw_ring_count", self.yaw_ring_count, 1, 1024)
+            .size("yaw_sector_count", self.yaw_sector_count, 1, 4096);
     }
 }
 

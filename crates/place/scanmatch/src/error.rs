@@ -17,12 +17,7 @@ pub enum ScanMatchError {
         /// The limit (`ScanMatchParams::max_grid_cells`).
         max_cells: u64,
     },
-    /// A parameter is out of its domain.
-    #[error("parameter `{field}` is invalid: {reason}")]
-    InvalidParams {
-        /// The field's name.
-        field: &'static str,
-        /// What is wrong with it.
-        reason: &'static str,
-    },
+    /// A parameter is out of its range.
+    #[error(transparent)]
+    InvalidParams(#[from] mapmerge_params::ParamError),
 }

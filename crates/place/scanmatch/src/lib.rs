@@ -52,4 +52,6 @@ pub use correlative::{
 pub use error::ScanMatchError;
 pub use icp::{refine_icp, IcpInfo, IcpTarget};
 pub use matcher::{Match, ScanMatchTarget, ScanMatcher};
-pub use params::{CorrelativeParams, IcpParams, ScanMatchParams, SearchWindow};
+pub use params::{
+    CorrelativeParams, IcpParams, ScanMatchParams, SearchWindow, MAX_GRID_CELLS_LIMIT,
+};

@@ -1,5 +1,6 @@
 //! Parameters of the correlative matcher, of ICP and of the search window.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 use crate::error::ScanMatchError;
@@ -104,25 +105,43 @@ impl Default for CorrelativeParams {
 }
 
 impl CorrelativeParams {
-    /// Checks every field's domain.
+    /// Checks every field's range.
     pub fn validate(&self) -> Result<(), ScanMatchError> {
-        let invalid = |field, reason| Err(ScanMatchError::InvalidParams { field, reason });
-        if !(self.resolution_m.is_finite() && self.resolution_m > 0.0) {
-            return invalid("resolution_m", "must be finite and positive");
-        }
-        if !(self.kernel_sigma_cells.is_finite() && self.kernel_sigma_cells > 0.0) {
-            return invalid("kernel_sigma_cells", "must be finite and positive");
-        }
-        if self.branch_and_bound_depth > 16 {
-            return invalid("branch_and_bound_depth", "must be at most 16");
-        }
-        if !self.min_score.is_finite() {
-            return invalid("min_score", "must be finite");
-        }
-        if !(self.query_voxel_m.is_finite() && self.query_voxel_m >= 0.0) {
-            return invalid("query_voxel_m", "must be finite and non-negative");
-        }
-        Ok(())
+        Ok(Validate::validate(self)?)
+    }
+}
+
+/// Grids of more cells than this are refused whatever `max_grid_cells` says (4 GB of
+/// levels at the default depth).
+pub const MAX_GRID_CELLS_LIMIT: u64 = 1 << 28;
+
+impl Validate for CorrelativeParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("resolution_m", self.resolution_m, Real::within(1e-3, 10.0))
+            .real(
+                "kernel_sigma_cells",
+                self.kernel_sigma_cells,
+                Real::positive_up_to(100.0),
+            )
+            .size("branch_and_bound_depth", self.branch_and_bound_depth, 0, 16)
+            .real("min_score", self.min_score, Real::fraction())
+            .real("query_voxel_m", self.query_voxel_m, Real::within(0.0, 10.0))
+            .size("covariance_half_width", self.covariance_half_width, 0, 64)
+            .count(
+                "max_grid_cells",
+                self.max_grid_cells,
+                1,
+                MAX_GRID_CELLS_LIMIT,
+            );
+    }
+}
+
+impl Validate for SearchWindow {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real("linear_m", self.linear_m, Real::within(0.0, 1000.0))
+            .real("angular_rad", self.angular_rad, Real::within(0.0, 4.0));
     }
 }
 
@@ -195,9 +214,79 @@ impl Default for ScanMatchParams {
     }
 }
 
+impl Validate for IcpParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .real(
+                "max_correspondence_m",
+                self.max_correspondence_m,
+                Real::positive_up_to(100.0),
+            )
+            .real("huber_m", self.huber_m, Real::positive())
+            .size("max_iterations", self.max_iterations, 1, 10_000)
+            .real(
+                "translation_tolerance_m",
+                self.translation_tolerance_m,
+                Real::non_negative(),
+            )
+            .real(
+                "rotation_tolerance_rad",
+                self.rotation_tolerance_rad,
+                Real::non_negative(),
+            )
+            .real(
+                "normal_radius_m",
+                self.normal_radius_m,
+                Real::positive_up_to(100.0),
+            )
+            .real("min_planarity", self.min_planarity, Real::fraction())
+            .real(
+                "target_voxel_m",
+                self.target_voxel_m,
+                Real::within(0.0, 10.0),
+            );
+    }
+}
+
+impl Validate for ScanMatchParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("correlative", &self.correlative)
+            .nested_opt("icp", self.icp.as_ref())
+            .real(
+                "icp_min_inlier_fraction",
+                self.icp_min_inlier_fraction,
+                Real::fraction(),
+            )
+            .real(
+                "icp_max_shift_cells",
+                self.icp_max_shift_cells,
+                Real::non_negative(),
+            );
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn defaults_validate_and_sizes_are_limited() {
+        assert_eq!(Validate::validate(&ScanMatchParams::default()), Ok(()));
+        assert_eq!(Validate::validate(&SearchWindow::default()), Ok(()));
+        let mut p = ScanMatchParams::default();
+        p.correlative.max_grid_cells = u64::MAX;
+        let e = Validate::validate(&p).unwrap_err();
+        assert_eq!(e.field, "correlative.max_grid_cells");
+        let mut p = ScanMatchParams::default();
+        if let Some(icp) = p.icp.as_mut() {
+            icp.max_iterations = u32::MAX as usize;
+        }
+        assert_eq!(
+            Validate::validate(&p).unwrap_err().field,
+            "icp.max_iterations"
+        );
+    }
 
     #[test]
     fn a_window_needs_the_levels_whose_block_covers_it() {

@@ -22,6 +22,9 @@ pub enum SolveError {
     /// A parameter is out of range.
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
+    /// A parameter struct's field is out of its range.
+    #[error(transparent)]
+    Params(#[from] mapmerge_params::ParamError),
     /// The sparse symbolic analysis failed (out of memory or index overflow).
     #[error("sparse symbolic analysis failed: {0}")]
     Symbolic(String),

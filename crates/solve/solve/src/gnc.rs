@@ -220,7 +220,7 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
             let kernel = RobustKernel::Dcs {
                 phi: phi.unwrap_or(threshold),
             };
-            kernel.validate().map_err(SolveError::InvalidParameter)?;
+            mapmerge_params::Validate::validate(&kernel)?;
             // DCS as explicit reweighting rounds. An edge whose DCS weight is negligible is
             // left out of the sparsity pattern until its residual shrinks: random false loop
             // closures would otherwise fill the factor (city10000 with 50 %: dense).

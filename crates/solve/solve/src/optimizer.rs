@@ -3,6 +3,7 @@
 use std::time::Instant;
 
 use mapmerge_geometry::LieGroup;
+use mapmerge_params::{Checker, Real, Validate};
 use mapmerge_posegraph::{NodeId, PoseGraph};
 use serde::{Deserialize, Serialize};
 
@@ -66,33 +67,38 @@ impl Default for OptimizerParams {
 impl OptimizerParams {
     /// Checks every parameter's range.
     pub fn validate(&self) -> Result<(), SolveError> {
-        self.robust
-            .validate()
-            .map_err(SolveError::InvalidParameter)?;
-        let positive = [
-            ("lambda_initial", self.lambda_initial),
-            ("lambda_max", self.lambda_max),
-            ("lambda_factor", self.lambda_factor - 1.0),
-        ];
-        for (name, v) in positive {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(SolveError::InvalidParameter(format!("{name} out of range")));
-            }
-        }
-        let non_negative = [
-            (
+        Ok(Validate::validate(self)?)
+    }
+}
+
+impl Validate for OptimizerParams {
+    fn check(&self, check: &mut Checker) {
+        check
+            .nested("robust", &self.robust)
+            // 0 scores the initial estimate without a step.
+            .size("max_iterations", self.max_iterations, 0, 100_000)
+            .real(
                 "relative_decrease_tolerance",
                 self.relative_decrease_tolerance,
-            ),
-            ("absolute_tolerance", self.absolute_tolerance),
-            ("gradient_tolerance", self.gradient_tolerance),
-        ];
-        for (name, v) in non_negative {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(SolveError::InvalidParameter(format!("{name} must be >= 0")));
-            }
-        }
-        Ok(())
+                Real::non_negative(),
+            )
+            .real(
+                "absolute_tolerance",
+                self.absolute_tolerance,
+                Real::non_negative(),
+            )
+            .real(
+                "gradient_tolerance",
+                self.gradient_tolerance,
+                Real::non_negative(),
+            )
+            .real("lambda_initial", self.lambda_initial, Real::positive())
+            .real("lambda_factor", self.lambda_factor, Real::open(1.0, 1e6))
+            .real(
+                "lambda_max",
+                self.lambda_max,
+                Real::at_least(self.lambda_initial),
+            );
     }
 }
 

@@ -3,6 +3,7 @@
 //! Iteratively reweighted least squares: each edge's information is scaled by `ρ'(s)` and the
 //! cost is `Σ ρ(s)`.
 
+use mapmerge_params::{Checker, Real, Validate};
 use serde::{Deserialize, Serialize};
 
 /// A robust kernel `ρ(s)` on the squared error `s`.
@@ -76,20 +77,17 @@ impl RobustKernel {
             }
         }
     }
+}
 
-    /// Rejects kernel parameters that are not positive and finite.
-    pub fn validate(&self) -> Result<(), String> {
-        let (name, value) = match *self {
-            Self::None => return Ok(()),
-            Self::Huber { delta } => ("huber delta", delta),
-            Self::Cauchy { c } => ("cauchy c", c),
-            Self::Dcs { phi } => ("dcs phi", phi),
+impl Validate for RobustKernel {
+    fn check(&self, check: &mut Checker) {
+        let positive = Real::positive_up_to(1e9);
+        match *self {
+            Self::None => check,
+            Self::Huber { delta } => check.real("delta", delta, positive),
+            Self::Cauchy { c } => check.real("c", c, positive),
+            Self::Dcs { phi } => check.real("phi", phi, positive),
         };
-        if value.is_finite() && value > 0.0 {
-            Ok(())
-        } else {
-            Err(format!("{name} must be positive and finite, got {value}"))
-        }
     }
 }
 

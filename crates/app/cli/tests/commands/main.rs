@@ -8,6 +8,7 @@ mod areas_commands;
 mod assemble_commands;
 mod atlas_commands;
 mod bag_commands;
+mod config_mutation;
 mod crash_store;
 mod eval_commands;
 mod eval_slam;

@@ -87,6 +87,48 @@ fn slam_refuses_bad_input_with_exit_code_2() {
     assert_eq!(out.status.code(), Some(2));
 }
 
+/// Issue 67: the same config out of range is refused alike by slam, atlas and a store run:
+/// exit code 2, the config file and the field's path named, nothing written.
+#[test]
+fn a_config_out_of_range_is_refused_alike_by_every_command() {
+    let dir = scratch("config-range");
+    let config = dir.join("bad.json");
+    std::fs::write(&config, r#"{"decisions": {"probation_m": -5}}"#).unwrap();
+    let log = testdata("sim/office-aliased/session_0.log.xz");
+    let out_dir = dir.join("out");
+    let store = dir.join("site.db");
+    for args in [
+        vec!["slam", p(&log), "-o", p(&out_dir), "--config", p(&config)],
+        vec![
+            "atlas",
+            p(&log),
+            "-o",
+            p(&out_dir),
+            "--no-pictures",
+            "--config",
+            p(&config),
+        ],
+        vec![
+            "atlas",
+            p(&log),
+            "-o",
+            p(&out_dir),
+            "--store",
+            p(&store),
+            "--no-pictures",
+            "--config",
+            p(&config),
+        ],
+    ] {
+        let out = run(&args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains("bad.json"), "{stderr}");
+        assert!(stderr.contains("`decisions.probation_m` = -5"), "{stderr}");
+        assert!(!out_dir.join("graph.g2o").exists() && !store.exists());
+    }
+}
+
 /// Issue 67: an output the command cannot write is refused before any work, with exit code 2
 /// and the path: a file where a folder goes, a folder where a file goes, a folder under a file.
 #[test]

@@ -298,7 +298,12 @@ fn mutated_map_yamls_never_panic() {
             .unwrap_or_else(|e| panic!("{e}\ninput:\n{text}\nwritten:\n{written}"));
         assert_eq!(again, map, "{text}");
     }
-    assert!(parsed > 1000, "only {parsed} mutated YAMLs parsed");
+    // About one in twenty mutations of each seed still parses.
+    assert!(
+        parsed > 250 * seeds.len(),
+        "only {parsed} mutated YAMLs of {} seeds parsed",
+        seeds.len()
+    );
 }
 
 /// Byte-level mutations (PGM is binary).
