@@ -74,6 +74,18 @@ enum Command {
 
 pub use mapmerge_jobs::cli::*;
 
+/// Gives the free pages of the heap back to the system (glibc's `malloc_trim`). After a run,
+/// the blocks the engine freed (matching grids of 1–20 MB, which glibc serves from its heaps
+/// once its mmap threshold has risen) stay resident, and the map built next would count on
+/// top of them.
+pub(crate) fn return_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only releases memory no allocation holds; any thread may call it.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 fn main() -> ExitCode {
     // `mapmerge … | head` must end quietly, like other Unix tools, instead of panicking in
     // `println!` on a closed pipe: restore the default SIGPIPE action Rust turns off.
@@ -81,14 +93,6 @@ fn main() -> ExitCode {
     // SAFETY: called before any thread starts; SIG_DFL is a valid handler for SIGPIPE.
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
-    // glibc serves blocks below a threshold that rises to 32 MB from its heaps, and keeps
-    // what they free: a long run that rebuilds matching grids (1–20 MB each) would hold
-    // its peak for good. Blocks from 1 MB on are mapped and given back when freed.
-    #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: called before any thread starts or allocates concurrently; the value is valid.
-    unsafe {
-        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
     }
     let cli = Cli::parse();
     let result = match &cli.command {
