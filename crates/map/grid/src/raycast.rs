@@ -404,6 +404,58 @@ mod tests {
         }
     }
 
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+        /// A grid sized once (`from_posed_scans`) takes the geometry scan-by-scan growth
+        /// reaches and the same cells, but where a point rounds to the other side of a cell
+        /// boundary against another origin while inserting.
+        #[test]
+        fn a_grid_sized_once_is_the_grid_grown_scan_by_scan(
+            poses in prop::collection::vec((-20.0..20.0f64, -20.0..20.0f64, -3.2..3.2f64), 1..10),
+            range_m in 0.5..12.0f32,
+            seed in 0u64..1000,
+        ) {
+            let scans: Vec<LaserScan> = (0..poses.len() as u64)
+                .map(|k| {
+                    let ranges = (0..91u64)
+                        .map(|i| {
+                            let wobble = ((i * 7919 + seed + k * 31) % 97) as f32 / 97.0;
+                            // Some beams beyond the range limit: no return, free space only.
+                            range_m * (1.0 + 3.0 * wobble)
+                        })
+                        .collect();
+                    LaserScan::new(-90f64.to_radians(), 90f64.to_radians(), 30.0, ranges)
+                })
+                .collect();
+            let posed: Vec<(Se2, &LaserScan)> = poses
+                .iter()
+                .zip(&scans)
+                .map(|(&(x, y, t), scan)| (Se2::new(x, y, t), scan))
+                .collect();
+            let params = InsertParams::default();
+            let mut calls = 0;
+            let (sized, info) =
+                OccupancyGrid::from_posed_scans(0.05, &posed, &params, || calls += 1).unwrap();
+            prop_assert_eq!(calls, posed.len());
+            let mut grown = OccupancyGrid::new(0.05).unwrap();
+            let mut grown_info = InsertInfo::default();
+            for (pose, scan) in &posed {
+                grown_info.accumulate(&grown.insert_scan(pose, scan, &params).unwrap());
+            }
+            prop_assert_eq!(sized.geometry(), grown.geometry());
+            prop_assert_eq!(info.hits, grown_info.hits);
+            let differ = sized
+                .log_odds()
+                .iter()
+                .zip(grown.log_odds())
+                .filter(|(a, b)| a != b)
+                .count();
+            let known = grown.log_odds().iter().filter(|l| **l != 0.0).count();
+            prop_assert!(known > 0);
+            prop_assert!(differ * 1000 <= known, "{} of {} known cells differ", differ, known);
+        }
+    }
+
     #[test]
     fn axis_aligned_and_single_cell_rays() {
         let mut v = Vec::new();
