@@ -90,6 +90,7 @@ pub fn run(args: &SlamArgs) -> anyhow::Result<ExitCode> {
     })
     .map_err(job_error)?;
     bar.finish_and_clear();
+    crate::return_freed_memory();
     let (stamps, tum_stamps_rewritten) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     if let Some(reference) = &reference {
         std::fs::create_dir_all(&args.output).map_err(crate::writing(&args.output))?;

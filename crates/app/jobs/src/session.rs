@@ -150,13 +150,14 @@ pub fn build_grid(
     poses: &[Se2],
     resolution_m: f64,
     params: &InsertParams,
-    mut progress: impl FnMut(),
+    progress: impl FnMut(),
 ) -> Result<(OccupancyGrid, InsertInfo), JobError> {
-    let scans = poses.iter().zip(&log.scans).map(|(pose, record)| {
-        progress();
-        (*pose, &record.scan)
-    });
-    OccupancyGrid::from_scans(resolution_m, scans, params)
+    let scans: Vec<_> = poses
+        .iter()
+        .zip(&log.scans)
+        .map(|(pose, record)| (*pose, &record.scan))
+        .collect();
+    OccupancyGrid::from_posed_scans(resolution_m, &scans, params, progress)
         .map_err(|e| JobError::context("building the grid", &e))
 }
 
@@ -198,8 +199,8 @@ pub const TUM_CLOCK_PERIOD_S: f64 = 0.1;
 /// Writes a SLAM run's outputs into `dir` (created if missing): `trajectory.tum` (one pose per
 /// scan, with the scan's stamp, or [`TUM_CLOCK_PERIOD_S`] apart when the log's stamps do not
 /// increase: TUM readers such as evo pair poses by stamp), `graph.g2o`, the map from every scan at its final pose
-/// (`map.yaml` + `map.pgm`) and `map.png` with the trajectory and graph over it. Returns the
-/// map.
+/// (`map.yaml` + `map.pgm`) and `map.png` with the trajectory and graph over it. Each
+/// product is freed once written or drawn, so the largest two never coexist with a third.
 pub fn write_slam_outputs(
     dir: &Path,
     log: &LaserLog,
@@ -207,7 +208,7 @@ pub fn write_slam_outputs(
     graph: &PoseGraph2,
     resolution_m: f64,
     progress: impl FnMut(),
-) -> Result<OccupancyGrid, JobError> {
+) -> Result<(), JobError> {
     std::fs::create_dir_all(dir).map_err(|e| JobError::writing(dir, &e))?;
     let (stamps, _) = log.increasing_scan_stamps(TUM_CLOCK_PERIOD_S);
     let stamped: Vec<(f64, Se2)> = stamps.into_iter().zip(trajectory.iter().copied()).collect();
@@ -228,18 +229,20 @@ pub fn write_slam_outputs(
     let map = RosMap::from_grid(&grid, MapMode::Trinary, &thresholds);
     let path = dir.join("map.yaml");
     mapmerge_io::write_ros_map(&path, &map).map_err(|e| JobError::writing(&path, &e))?;
+    // Written: its bytes go before the picture's are made.
+    drop(map);
     let style = PictureStyle {
         pixels_per_cell: 1,
         classes: Some(thresholds),
     };
     let mut picture = Picture::of_grid(&grid, &style);
+    drop(grid);
     picture.draw_trajectory(trajectory, Rgb::RED, 1.0);
     picture.draw_graph(graph, &GraphStyle::default());
     let path = dir.join("map.png");
     picture
         .save_png(&path)
-        .map_err(|e| JobError::writing(&path, &e))?;
-    Ok(grid)
+        .map_err(|e| JobError::writing(&path, &e))
 }
 
 #[cfg(test)]

@@ -539,7 +539,7 @@ impl LocalTracker {
         let guess = submap.local_from_submap.between(predicted);
         let refined = self
             .matcher
-            .refine(submap.target(), points, &guess)
+            .refine(submap.target()?, points, &guess)
             .filter(|m| self.params.refine_first.accepts(m, &guess));
         self.info.refined += usize::from(refined.is_some());
         let mut found = match refined {
@@ -549,7 +549,7 @@ impl LocalTracker {
             None => {
                 submap.prepare();
                 self.matcher.match_scan(
-                    submap.target(),
+                    submap.target()?,
                     points,
                     &guess,
                     &self.params.odometry_window,
@@ -595,7 +595,7 @@ impl LocalTracker {
         submap.prepare();
         let guess = submap.local_from_submap.between(predicted);
         let found = self.matcher.match_scan_above(
-            submap.target(),
+            submap.target()?,
             points,
             &guess,
             &SearchWindow::new(linear_m, angular_rad),
@@ -624,7 +624,7 @@ impl LocalTracker {
         )
         .ok()?;
         let robot_from_submap = local_from_robot.between(&submap.local_from_submap);
-        let map_points = submap.target().correlative().points_in_target();
+        let map_points = submap.target()?.correlative().points_in_target();
         let stride = (map_points.len() / SEEN_THROUGH_POINTS).max(1);
         let reach_m = f64::from(self.params.max_match_range_m);
         let (mut near, mut crossed) = (0usize, 0usize);
@@ -704,6 +704,7 @@ impl LocalTracker {
             self.newest_submap_started_m = self.travel_m;
             self.info.submaps += 1;
         }
+        let points_in_robot: Arc<[Point2]> = Arc::from(points_in_robot);
         for submap in &mut self.active {
             submap.insert(node, &local_from_robot, &points_in_robot)?;
         }
@@ -723,7 +724,7 @@ impl LocalTracker {
             node,
             local_from_robot,
             odom_from_robot,
-            points_in_robot: Arc::from(points_in_robot),
+            points_in_robot,
             travel_m: self.travel_m,
             edges,
             submap: first_submap,

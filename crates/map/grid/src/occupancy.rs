@@ -137,11 +137,12 @@ pub struct OccupancyGrid {
     geometry: GridGeometry,
     log_odds: Vec<f32>,
     /// Scratch for scan insertion: the scan generation that last changed each cell (empty
-    /// until the first insertion). Not part of the grid's value.
+    /// until the first insertion), a byte per cell that wraps every 255 insertions. Not part
+    /// of the grid's value.
     #[serde(skip)]
-    marks: Vec<u32>,
+    marks: Vec<u8>,
     #[serde(skip)]
-    generation: u32,
+    generation: u8,
 }
 
 impl PartialEq for OccupancyGrid {
@@ -193,9 +194,12 @@ impl OccupancyGrid {
     }
 
     /// Starts a new insertion: returns a generation number no cell is marked with yet.
-    pub(crate) fn next_generation(&mut self) -> u32 {
-        if self.marks.len() != self.log_odds.len() || self.generation == u32::MAX {
+    pub(crate) fn next_generation(&mut self) -> u8 {
+        if self.marks.len() != self.log_odds.len() {
             self.marks = vec![0; self.log_odds.len()];
+            self.generation = 0;
+        } else if self.generation == u8::MAX {
+            self.marks.fill(0);
             self.generation = 0;
         }
         self.generation += 1;
@@ -203,8 +207,13 @@ impl OccupancyGrid {
     }
 
     /// The cells and their insertion marks, for [`crate::raycast`].
-    pub(crate) fn cells_and_marks(&mut self) -> (&mut [f32], &mut [u32]) {
+    pub(crate) fn cells_and_marks(&mut self) -> (&mut [f32], &mut [u8]) {
         (&mut self.log_odds, &mut self.marks)
+    }
+
+    /// Frees the insertion scratch (a byte per cell); the next insertion makes it again.
+    pub fn release_scratch(&mut self) {
+        self.marks = Vec::new();
     }
 
     /// Size and placement.
@@ -300,56 +309,12 @@ impl OccupancyGrid {
     /// Grows so that cells `lo..=hi` (current coordinates) are inside; returns the shift.
     pub(crate) fn grow_to_cells(&mut self, lo: Cell, hi: Cell) -> Result<Cell, GridError> {
         let g = self.geometry;
-        let inside = g.contains(lo) && g.contains(hi);
-        if inside {
+        let Some((grown, shift)) = grown_to_cells(&g, lo, hi)? else {
             return Ok(Cell::new(0, 0));
-        }
-        let margin = GROWTH_MARGIN_CELLS as i64;
-        let (old_w, old_h) = (g.width as i64, g.height as i64);
-        let empty = g.is_empty();
-        let new_lo = if empty {
-            Cell::new(lo.x - margin, lo.y - margin)
-        } else {
-            Cell::new(
-                if lo.x < 0 { lo.x - margin } else { 0 },
-                if lo.y < 0 { lo.y - margin } else { 0 },
-            )
         };
-        let new_hi = if empty {
-            Cell::new(hi.x + margin, hi.y + margin)
-        } else {
-            Cell::new(
-                if hi.x >= old_w {
-                    hi.x + margin
-                } else {
-                    old_w - 1
-                },
-                if hi.y >= old_h {
-                    hi.y + margin
-                } else {
-                    old_h - 1
-                },
-            )
-        };
-        let width = new_hi
-            .x
-            .checked_sub(new_lo.x)
-            .and_then(|w| w.checked_add(1));
-        let height = new_hi
-            .y
-            .checked_sub(new_lo.y)
-            .and_then(|h| h.checked_add(1));
-        let (Some(width), Some(height)) = (width, height) else {
-            return Err(GridError::TooLarge);
-        };
-        let cells = (width as u128).saturating_mul(height as u128);
-        if width <= 0 || height <= 0 || cells > MAX_CELLS as u128 {
-            return Err(GridError::TooLarge);
-        }
-        let (width, height) = (width as usize, height as usize);
-        let mut log_odds = vec![0.0f32; width * height];
-        let shift = Cell::new(-new_lo.x, -new_lo.y);
-        if !empty {
+        let width = grown.width;
+        let mut log_odds = vec![0.0f32; grown.len()];
+        if !g.is_empty() {
             for row in 0..g.height {
                 let dst = (row as i64 + shift.y) as usize * width + shift.x as usize;
                 let src = row * g.width;
@@ -361,16 +326,61 @@ impl OccupancyGrid {
                 }
             }
         }
-        self.geometry = GridGeometry {
-            resolution_m: g.resolution_m,
-            origin_m: g.origin_m + Point2::new(new_lo.x as f64, new_lo.y as f64) * g.resolution_m,
-            width,
-            height,
-        };
+        self.geometry = grown;
         self.log_odds = log_odds;
         self.marks = Vec::new();
         Ok(shift)
     }
+}
+
+/// The geometry `g` grows to so that cells `lo..=hi` (its coordinates) are inside, with
+/// [`GROWTH_MARGIN_CELLS`] beyond every side that grows, and the shift of its cells; `None`
+/// when they are inside already.
+pub(crate) fn grown_to_cells(
+    g: &GridGeometry,
+    lo: Cell,
+    hi: Cell,
+) -> Result<Option<(GridGeometry, Cell)>, GridError> {
+    if g.contains(lo) && g.contains(hi) {
+        return Ok(None);
+    }
+    let margin = GROWTH_MARGIN_CELLS as i64;
+    let (old_w, old_h) = (g.width as i64, g.height as i64);
+    let (new_lo, new_hi) = if g.is_empty() {
+        (
+            Cell::new(lo.x - margin, lo.y - margin),
+            Cell::new(hi.x + margin, hi.y + margin),
+        )
+    } else {
+        let below = |v: i64| if v < 0 { v - margin } else { 0 };
+        let above = |v: i64, size: i64| if v >= size { v + margin } else { size - 1 };
+        (
+            Cell::new(below(lo.x), below(lo.y)),
+            Cell::new(above(hi.x, old_w), above(hi.y, old_h)),
+        )
+    };
+    let width = new_hi
+        .x
+        .checked_sub(new_lo.x)
+        .and_then(|w| w.checked_add(1));
+    let height = new_hi
+        .y
+        .checked_sub(new_lo.y)
+        .and_then(|h| h.checked_add(1));
+    let (Some(width), Some(height)) = (width, height) else {
+        return Err(GridError::TooLarge);
+    };
+    let cells = (width as u128).saturating_mul(height as u128);
+    if width <= 0 || height <= 0 || cells > MAX_CELLS as u128 {
+        return Err(GridError::TooLarge);
+    }
+    let grown = GridGeometry {
+        resolution_m: g.resolution_m,
+        origin_m: g.origin_m + Point2::new(new_lo.x as f64, new_lo.y as f64) * g.resolution_m,
+        width: width as usize,
+        height: height as usize,
+    };
+    Ok(Some((grown, Cell::new(-new_lo.x, -new_lo.y))))
 }
 
 fn check_geometry(geometry: &GridGeometry) -> Result<(), GridError> {

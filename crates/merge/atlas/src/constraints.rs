@@ -15,7 +15,7 @@
 //! when its epoch ends or its graph is imported — and each search filters the candidates by
 //! the graph they belong to.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -59,6 +59,11 @@ pub struct LoopClosureParams {
     pub max_distance_m: f64,
     /// At most this many nearby submaps are searched per keyframe, nearest first (default: 2).
     pub max_submaps_per_keyframe: usize,
+    /// Finished submaps keep their match targets (grid, branch-and-bound levels, ICP
+    /// target) up to this many MB together, the least recently searched released first and
+    /// rebuilt from their scans when searched again (default: 64). Outdoors a target is
+    /// about 20 MB, so memory follows the submaps in use, not the submaps made.
+    pub submap_targets_mb: f64,
     /// Translation half-width of the local search: `min + per_m · d`, not searched beyond
     /// `max`, with `d` the path since the submap or since the last long loop, whichever is
     /// shorter (m) (default: 0.5, 0.05, 7).
@@ -125,6 +130,7 @@ impl Default for LoopClosureParams {
             min_score: 0.6,
             max_distance_m: 5.0,
             max_submaps_per_keyframe: 2,
+            submap_targets_mb: 64.0,
             window_linear: (0.5, 0.05, 7.0),
             window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
             refine_below_drift_m: 5.0,
@@ -223,6 +229,11 @@ pub struct ConstraintInfo {
     pub optimization_seconds: f64,
     /// See `local_loops_seconds`.
     pub merge_search_seconds: f64,
+    /// Finished submaps' match targets rebuilt from their scans after being released
+    /// (`loops.submap_targets_mb`).
+    pub submap_target_rebuilds: usize,
+    /// The most bytes finished submaps' match targets held at once.
+    pub peak_submap_target_bytes: usize,
 }
 
 /// What one keyframe's constraint search found (see the module docs).
@@ -268,6 +279,10 @@ pub(crate) struct ConstraintBuilder {
     ordinal_of: HashMap<KeyframeId, usize>,
     /// The current epoch's finished submaps, by anchor node (creation order).
     submaps: BTreeMap<NodeId, Submap>,
+    /// The finished submaps holding their match target, least recently searched first, and
+    /// the bytes those targets hold (`loops.submap_targets_mb`).
+    held_targets: VecDeque<NodeId>,
+    held_target_bytes: usize,
     /// Travel at the newest keyframe of the epoch (m).
     pub(crate) travel_m: f64,
     /// Travel (m) at the last loop to a submap older than the active ones.
@@ -316,6 +331,8 @@ impl ConstraintBuilder {
             indexed: Vec::new(),
             ordinal_of: HashMap::new(),
             submaps: BTreeMap::new(),
+            held_targets: VecDeque::new(),
+            held_target_bytes: 0,
             travel_m: 0.0,
             travel_at_last_loop_m: 0.0,
             pending_loops: Vec::new(),
@@ -338,6 +355,8 @@ impl ConstraintBuilder {
     pub(crate) fn start_epoch(&mut self, session_start: bool) {
         self.session_start = session_start;
         self.submaps.clear();
+        self.held_targets.clear();
+        self.held_target_bytes = 0;
         self.travel_m = 0.0;
         self.travel_at_last_loop_m = 0.0;
         self.pending_loops.clear();
@@ -379,6 +398,48 @@ impl ConstraintBuilder {
     pub(crate) fn is_indexed(&self, node: NodeId) -> bool {
         self.ordinal_of.contains_key(&KeyframeId(node.0))
     }
+
+    /// Makes the finished submaps `anchors` hold their match targets (rebuilt from their
+    /// scans where released) as the most recently searched, then releases the least
+    /// recently searched others until the held targets fit `budget_mb`. A target that
+    /// cannot be rebuilt stays released, and searches skip its submap.
+    fn hold_targets(&mut self, anchors: &[NodeId], budget_mb: f64) {
+        for anchor in anchors {
+            let Some(submap) = self.submaps.get_mut(anchor) else {
+                continue;
+            };
+            if let Some(k) = self.held_targets.iter().position(|a| a == anchor) {
+                self.held_targets.remove(k);
+            } else if submap.target().is_some() {
+                self.held_target_bytes += submap.target_bytes();
+            } else if let Ok(bytes) = submap.restore_target(&self.matcher) {
+                self.held_target_bytes += bytes;
+                self.info.submap_target_rebuilds += 1;
+            } else {
+                continue;
+            }
+            self.held_targets.push_back(*anchor);
+        }
+        let budget_bytes = (budget_mb * 1e6) as usize;
+        while self.held_target_bytes > budget_bytes {
+            let Some(oldest) = self.held_targets.front().copied() else {
+                break;
+            };
+            if anchors.contains(&oldest) {
+                break;
+            }
+            self.held_targets.pop_front();
+            let freed = self
+                .submaps
+                .get_mut(&oldest)
+                .map_or(0, Submap::release_target);
+            self.held_target_bytes = self.held_target_bytes.saturating_sub(freed);
+        }
+        self.info.peak_submap_target_bytes = self
+            .info
+            .peak_submap_target_bytes
+            .max(self.held_target_bytes);
+    }
 }
 
 /// Verifies a place-recognition candidate keyframe against the submap it belongs to (a
@@ -399,7 +460,7 @@ impl GeometricVerifier for SubmapVerifier<'_> {
         guess_candidate_from_query: &Se2,
     ) -> Option<Verification> {
         let (submap, submap_from_candidate) = (self.locate)(candidate.id)?;
-        let target = self.submaps.get(&submap)?.target();
+        let target = self.submaps.get(&submap)?.target()?;
         let guess = submap_from_candidate.compose(guess_candidate_from_query);
         let found =
             self.matcher
@@ -428,7 +489,10 @@ impl<B: BackupStore> Atlas<B> {
     pub fn add_finished_submap(&mut self, submap: Submap) {
         let members: Vec<NodeId> = submap.keyframes.iter().map(|(m, _)| *m).collect();
         self.index_nodes(&members, Some(submap.anchor));
-        self.constraints.submaps.insert(submap.anchor, submap);
+        let anchor = submap.anchor;
+        self.constraints.submaps.insert(anchor, submap);
+        let budget_mb = self.params.loops.submap_targets_mb;
+        self.constraints.hold_targets(&[anchor], budget_mb);
     }
 
     /// Indexes `nodes` of the active graph not yet in the place index, with `submap`.
@@ -626,10 +690,17 @@ impl<B: BackupStore> Atlas<B> {
             })
             .collect();
         nearby.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let mut added = 0;
+        nearby.truncate(loops_params.max_submaps_per_keyframe);
+        let anchors: Vec<NodeId> = nearby.iter().map(|(_, anchor)| *anchor).collect();
         let started = Instant::now();
-        for &(_, anchor) in nearby.iter().take(loops_params.max_submaps_per_keyframe) {
+        self.constraints
+            .hold_targets(&anchors, loops_params.submap_targets_mb);
+        let mut added = 0;
+        for &anchor in &anchors {
             let Some(submap) = self.constraints.submaps.get(&anchor) else {
+                continue;
+            };
+            let Some(target) = submap.target() else {
                 continue;
             };
             let Some(map_from_submap) = self.active.vertex(submap.anchor).map(|v| v.pose) else {
@@ -648,22 +719,14 @@ impl<B: BackupStore> Atlas<B> {
             // Right after a long loop the estimate is good: ICP from it, trusted as the
             // tracker trusts it, spares the search.
             let matcher = &self.constraints.matcher;
-            let refined = matcher
-                .refine(submap.target(), &points, &guess)
-                .filter(|m| {
-                    distance <= loops_params.refine_below_drift_m
-                        && loops_params.refine_first.accepts(m, &guess)
-                });
+            let refined = matcher.refine(target, &points, &guess).filter(|m| {
+                distance <= loops_params.refine_below_drift_m
+                    && loops_params.refine_first.accepts(m, &guess)
+            });
             // Matches below `min_score` are refused below, so the search need only prove that
             // nothing reaches it (the same loops; fewer cells where none is found).
             let Some(found) = refined.or_else(|| {
-                matcher.match_scan_above(
-                    submap.target(),
-                    &points,
-                    &guess,
-                    &window,
-                    loops_params.min_score,
-                )
+                matcher.match_scan_above(target, &points, &guess, &window, loops_params.min_score)
             }) else {
                 continue;
             };
@@ -717,36 +780,54 @@ impl<B: BackupStore> Atlas<B> {
         let Some((_, descriptor)) = self.describe(&self.active, &[node]).pop() else {
             return 0;
         };
-        let c = &self.constraints;
-        let c_submaps = &c.submaps;
-        let retrieved = c.index.query_filtered(
-            &descriptor,
-            loops_params.place.candidates_per_query,
-            |ordinal, _| {
-                c.indexed
-                    .get(ordinal)
-                    .and_then(|k| k.submap)
-                    .is_some_and(|s| c_submaps.contains_key(&s))
-            },
-        );
         // Candidates the gate would refuse anyway are not verified: the query must lie within
         // the verifier's window of the candidate, and the candidate within the gate.
         let (gate_m, gate_per_m, gate_rad, gate_rad_per_m) = loops_params.place_gate;
-        let candidates: Vec<PlaceCandidate> = retrieved
+        let admitted: Vec<(usize, f64, Se2, NodeId)> = {
+            let c = &self.constraints;
+            let c_submaps = &c.submaps;
+            c.index
+                .query_filtered(
+                    &descriptor,
+                    loops_params.place.candidates_per_query,
+                    |ordinal, _| {
+                        c.indexed
+                            .get(ordinal)
+                            .and_then(|k| k.submap)
+                            .is_some_and(|s| c_submaps.contains_key(&s))
+                    },
+                )
+                .iter()
+                .filter(|c| loops_params.place.admits(c))
+                .filter_map(|candidate| {
+                    let ordinal = *c.ordinal_of.get(&candidate.keyframe)?;
+                    let submap = c.indexed.get(ordinal)?.submap?;
+                    let map_from_keyframe = self.active.vertex(NodeId(candidate.keyframe.0))?.pose;
+                    let distance_m =
+                        (map_from_keyframe.translation() - map_from_robot.translation()).norm();
+                    let drift_m = self.drift_since(NodeId(candidate.keyframe.0));
+                    let reach_m =
+                        gate_m + gate_per_m * drift_m + loops_params.place_window.linear_m;
+                    (distance_m <= reach_m).then_some((
+                        ordinal,
+                        candidate.yaw_rad,
+                        map_from_keyframe,
+                        submap,
+                    ))
+                })
+                .collect()
+        };
+        let anchors: Vec<NodeId> = admitted.iter().map(|(.., submap)| *submap).collect();
+        self.constraints
+            .hold_targets(&anchors, loops_params.submap_targets_mb);
+        let c = &self.constraints;
+        let candidates: Vec<PlaceCandidate> = admitted
             .iter()
-            .filter(|c| loops_params.place.admits(c))
-            .filter_map(|candidate| {
-                let ordinal = *c.ordinal_of.get(&candidate.keyframe)?;
-                let keyframe = &c.indexed.get(ordinal)?.keyframe;
-                let map_from_keyframe = self.active.vertex(NodeId(candidate.keyframe.0))?.pose;
-                let distance_m =
-                    (map_from_keyframe.translation() - map_from_robot.translation()).norm();
-                let drift_m = self.drift_since(NodeId(candidate.keyframe.0));
-                let reach_m = gate_m + gate_per_m * drift_m + loops_params.place_window.linear_m;
-                (distance_m <= reach_m).then_some(PlaceCandidate {
+            .filter_map(|&(ordinal, yaw_rad, map_from_keyframe, _)| {
+                Some(PlaceCandidate {
                     ordinal,
-                    keyframe,
-                    yaw_rad: candidate.yaw_rad,
+                    keyframe: &c.indexed.get(ordinal)?.keyframe,
+                    yaw_rad,
                     map_from_keyframe: Some(map_from_keyframe),
                 })
             })
@@ -1355,6 +1436,11 @@ impl Validate for LoopClosureParams {
                 self.max_submaps_per_keyframe,
                 1,
                 1000,
+            )
+            .real(
+                "submap_targets_mb",
+                self.submap_targets_mb,
+                Real::within(0.0, 1e6),
             )
             .reals(
                 "window_linear",

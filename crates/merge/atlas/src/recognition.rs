@@ -90,8 +90,9 @@ pub struct RecognitionParams {
     /// (negative: right), and the `place.candidates_per_query` nearest of all those lists
     /// are verified (Kim et al., "Scan Context++", T-RO 2021, Sec. IV-B, lateral
     /// augmentation: a polar descriptor changes quickly with a sideways offset, so a robot
-    /// passing 0.5–1 m beside its earlier path ranks the true place low). Empty: the query
-    /// as seen from the robot only (default).
+    /// passing 0.5–1 m beside its earlier path ranks the true place low; against a map whose
+    /// views are pruned to a budget per m², the nearest view is often that far). Default
+    /// ±1 m; empty: the query as seen from the robot only.
     pub lateral_offsets_m: Vec<f64>,
     /// Keep a trace of every merge query against every inactive graph (what was retrieved,
     /// each admitted candidate's verification, what was accepted) for diagnosis
@@ -129,7 +130,7 @@ impl Default for RecognitionParams {
             min_epoch_keyframes: 10,
             session_start_search_m: 5.0,
             verifier: PlaceVerifierParams::default().with_flip_by_agreement(),
-            lateral_offsets_m: Vec::new(),
+            lateral_offsets_m: vec![-1.0, 1.0],
             trace: false,
         }
     }

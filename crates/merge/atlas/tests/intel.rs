@@ -151,3 +151,41 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
         .all(|(_, v)| EpochId::of(&v.meta) == current));
     assert_eq!(atlas.active().num_edges(), current_edges);
 }
+
+/// Finished submaps that release their match targets (`loops.submap_targets_mb`) and rebuild
+/// them from their scans when searched again close the same loops: the graph is the same to
+/// the bit, while the targets held at once stay a fraction of keeping them all.
+#[test]
+fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
+    let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let log = mapmerge_io::read_carmen(&path).unwrap();
+    let run = |budget_mb: f64| {
+        let mut params = AtlasParams::default();
+        params.loops.submap_targets_mb = budget_mb;
+        let mut atlas = Atlas::new(params).unwrap();
+        map_scans(&mut atlas, &log, 0..600, false);
+        let poses: Vec<(NodeId, Se2)> = atlas
+            .active()
+            .vertices()
+            .map(|(n, v)| (n, v.pose))
+            .collect();
+        (poses, atlas.loops().to_vec(), atlas.constraint_info())
+    };
+    let (kept_poses, kept_loops, kept) = run(1e6);
+    let (poses, loops, released) = run(0.0);
+    eprintln!(
+        "all kept: {} loops, peak {:.1} MB; released: {} rebuilds, peak {:.1} MB",
+        kept_loops.len(),
+        kept.peak_submap_target_bytes as f64 / 1e6,
+        released.submap_target_rebuilds,
+        released.peak_submap_target_bytes as f64 / 1e6
+    );
+    assert!(kept.local_loops >= 10, "{kept:?}");
+    assert_eq!(kept.submap_target_rebuilds, 0);
+    assert!(released.submap_target_rebuilds > 0);
+    assert!(released.peak_submap_target_bytes * 4 < kept.peak_submap_target_bytes);
+    assert_eq!(loops, kept_loops);
+    assert_eq!(poses, kept_poses);
+}

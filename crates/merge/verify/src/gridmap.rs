@@ -563,12 +563,15 @@ impl GridmapDetector {
             // A scan that cannot be inserted (it would exceed the grid's limits) is skipped.
             let _ = grid.insert_rays(origin, ends, &[], &model);
         }
-        // 3. Classes, occupied dilated (Sec. IV-B: 7 × 7).
+        drop(beams);
+        // 3. Classes, occupied dilated (Sec. IV-B: 7 × 7). The log-odds go before the
+        // canvas is made: on a campus-sized map each is tens of MB.
         let radius = self.params.dilation_radius_cells.min(20);
         let thresholds = &self.params.other_thresholds;
         let occupied = grid.mask(CellClass::Occupied, thresholds).dilate(radius);
         let free = grid.mask(CellClass::Free, thresholds);
         let geometry = *grid.geometry();
+        drop(grid);
         let (lattice, stored) = TileLattice::new(geometry.width, geometry.height);
         if stored > MAX_STORED_CELLS {
             return;
@@ -591,6 +594,8 @@ impl GridmapDetector {
                 *w |= 1 << (i & 63);
             }
         }
+        // The masks go before the window's counters are made.
+        drop((occupied, free));
         self.canvas = Canvas {
             geometry: Some(geometry),
             hits: vec![0; stored],

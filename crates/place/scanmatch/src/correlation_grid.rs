@@ -69,6 +69,11 @@ impl CorrelationGrid {
         self.cells.is_empty()
     }
 
+    /// Bytes its cells hold on the heap (their buffer's capacity).
+    pub fn heap_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<u16>()
+    }
+
     /// Kernel reach in cells (3σ).
     fn reach(&self) -> i64 {
         (3.0 * self.sigma_cells).ceil().max(1.0) as i64
@@ -441,6 +446,11 @@ impl PrecomputedGrid {
         out.offset = old_offset + half as i64;
         out.width = width;
         out.height = height;
+    }
+
+    /// Bytes its cells hold on the heap.
+    pub(crate) fn heap_bytes(&self) -> usize {
+        self.cells.capacity() * std::mem::size_of::<u16>()
     }
 
     /// The cells as the search reads them: index (i, j) is the block with lower-left corner

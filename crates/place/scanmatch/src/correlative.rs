@@ -148,6 +148,12 @@ impl MatchTarget {
         }
     }
 
+    /// Frees the row buffer the levels are computed in (as large as the grid): a target
+    /// that stops growing needs it only if its levels go stale again.
+    pub fn release_scratch(&mut self) {
+        self.scratch = Vec::new();
+    }
+
     /// The parameters the target was built with (also used by every match against it).
     pub fn params(&self) -> &CorrelativeParams {
         &self.params
@@ -161,6 +167,19 @@ impl MatchTarget {
     /// The finite target points (target frame).
     pub fn points_in_target(&self) -> &[Point2] {
         &self.points_in_target
+    }
+
+    /// Bytes it holds on the heap: the grid, its levels, the scratch row buffer and the points.
+    pub fn heap_bytes(&self) -> usize {
+        self.grid.heap_bytes()
+            + self
+                .levels
+                .iter()
+                .map(PrecomputedGrid::heap_bytes)
+                .sum::<usize>()
+            + self.levels.capacity() * std::mem::size_of::<PrecomputedGrid>()
+            + self.scratch.capacity() * std::mem::size_of::<u16>()
+            + self.points_in_target.capacity() * std::mem::size_of::<Point2>()
     }
 }
 

@@ -197,6 +197,20 @@ impl IcpTarget {
         self.buckets.extend(&self.points, first);
     }
 
+    /// Bytes it holds on the heap: points, buckets and the voxel set (a `HashSet` slot
+    /// counted as its key plus a control byte).
+    pub fn heap_bytes(&self) -> usize {
+        self.points.capacity() * std::mem::size_of::<PointNormal>()
+            + self.buckets.buckets.capacity() * std::mem::size_of::<Vec<u32>>()
+            + self
+                .buckets
+                .buckets
+                .iter()
+                .map(|b| b.capacity() * std::mem::size_of::<u32>())
+                .sum::<usize>()
+            + self.occupied.capacity() * (std::mem::size_of::<(i64, i64)>() + 1)
+    }
+
     /// Number of target points that have a normal.
     pub fn len(&self) -> usize {
         self.points.len()

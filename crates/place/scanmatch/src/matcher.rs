@@ -33,6 +33,11 @@ impl ScanMatchTarget {
         &self.correlative
     }
 
+    /// Bytes it holds on the heap (correlation grids and the ICP target).
+    pub fn heap_bytes(&self) -> usize {
+        self.correlative.heap_bytes() + self.icp.as_ref().map_or(0, IcpTarget::heap_bytes)
+    }
+
     /// Mutable access to the correlative target (e.g. to deepen its levels once a map is
     /// finished and will be searched with large windows).
     pub fn correlative_mut(&mut self) -> &mut MatchTarget {
