@@ -139,22 +139,15 @@ impl SimParams {
         if !(1..=MAX_SESSIONS).contains(&self.sessions) {
             return bad("sessions", "must be in [1, 1000]");
         }
-        if !(self.duration_secs.is_finite()
-            && self.duration_secs > 0.0
-            && self.duration_secs <= MAX_DURATION_SECS)
-        {
+        // In (0, max]; NaN and infinities are outside.
+        let positive_up_to = |value: f64, max: f64| value > 0.0 && value <= max;
+        if !positive_up_to(self.duration_secs, MAX_DURATION_SECS) {
             return bad("duration_secs", "must be in (0, 86400] s");
         }
-        if !(self.odometry_rate_hz.is_finite()
-            && self.odometry_rate_hz > 0.0
-            && self.odometry_rate_hz <= MAX_RATE_HZ)
-        {
+        if !positive_up_to(self.odometry_rate_hz, MAX_RATE_HZ) {
             return bad("odometry_rate_hz", "must be in (0, 1000] Hz");
         }
-        if !(self.scan_rate_hz.is_finite()
-            && self.scan_rate_hz > 0.0
-            && self.scan_rate_hz <= MAX_RATE_HZ)
-        {
+        if !positive_up_to(self.scan_rate_hz, MAX_RATE_HZ) {
             return bad("scan_rate_hz", "must be in (0, 1000] Hz");
         }
         if !(self.first_stamp_secs.is_finite()

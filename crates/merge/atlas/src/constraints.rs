@@ -279,10 +279,9 @@ pub(crate) struct ConstraintBuilder {
     ordinal_of: HashMap<KeyframeId, usize>,
     /// The current epoch's finished submaps, by anchor node (creation order).
     submaps: BTreeMap<NodeId, Submap>,
-    /// The finished submaps holding their match target, least recently searched first, and
-    /// the bytes those targets hold (`loops.submap_targets_mb`).
-    held_targets: VecDeque<NodeId>,
-    held_target_bytes: usize,
+    /// The finished submaps holding their match target, least recently searched first, with
+    /// the bytes each target holds (`loops.submap_targets_mb`).
+    held_targets: VecDeque<(NodeId, usize)>,
     /// Travel at the newest keyframe of the epoch (m).
     pub(crate) travel_m: f64,
     /// Travel (m) at the last loop to a submap older than the active ones.
@@ -332,7 +331,6 @@ impl ConstraintBuilder {
             ordinal_of: HashMap::new(),
             submaps: BTreeMap::new(),
             held_targets: VecDeque::new(),
-            held_target_bytes: 0,
             travel_m: 0.0,
             travel_at_last_loop_m: 0.0,
             pending_loops: Vec::new(),
@@ -356,7 +354,6 @@ impl ConstraintBuilder {
         self.session_start = session_start;
         self.submaps.clear();
         self.held_targets.clear();
-        self.held_target_bytes = 0;
         self.travel_m = 0.0;
         self.travel_at_last_loop_m = 0.0;
         self.pending_loops.clear();
@@ -408,37 +405,34 @@ impl ConstraintBuilder {
             let Some(submap) = self.submaps.get_mut(anchor) else {
                 continue;
             };
-            if let Some(k) = self.held_targets.iter().position(|a| a == anchor) {
-                self.held_targets.remove(k);
+            let bytes = if let Some(k) = self.held_targets.iter().position(|(a, _)| a == anchor) {
+                self.held_targets.remove(k).map_or(0, |(_, bytes)| bytes)
             } else if submap.target().is_some() {
-                self.held_target_bytes += submap.target_bytes();
+                submap.target_bytes()
             } else if let Ok(bytes) = submap.restore_target(&self.matcher) {
-                self.held_target_bytes += bytes;
                 self.info.submap_target_rebuilds += 1;
+                bytes
             } else {
                 continue;
-            }
-            self.held_targets.push_back(*anchor);
+            };
+            self.held_targets.push_back((*anchor, bytes));
         }
         let budget_bytes = (budget_mb * 1e6) as usize;
-        while self.held_target_bytes > budget_bytes {
-            let Some(oldest) = self.held_targets.front().copied() else {
+        let mut held_bytes: usize = self.held_targets.iter().map(|(_, bytes)| bytes).sum();
+        while held_bytes > budget_bytes {
+            let Some(&(oldest, bytes)) = self.held_targets.front() else {
                 break;
             };
             if anchors.contains(&oldest) {
                 break;
             }
             self.held_targets.pop_front();
-            let freed = self
-                .submaps
-                .get_mut(&oldest)
-                .map_or(0, Submap::release_target);
-            self.held_target_bytes = self.held_target_bytes.saturating_sub(freed);
+            if let Some(submap) = self.submaps.get_mut(&oldest) {
+                submap.release_target();
+            }
+            held_bytes -= bytes;
         }
-        self.info.peak_submap_target_bytes = self
-            .info
-            .peak_submap_target_bytes
-            .max(self.held_target_bytes);
+        self.info.peak_submap_target_bytes = self.info.peak_submap_target_bytes.max(held_bytes);
     }
 }
 
