@@ -140,25 +140,12 @@ impl OccupancyGrid {
         params: &InsertParams,
         mut progress: impl FnMut(),
     ) -> Result<(OccupancyGrid, InsertInfo), GridError> {
-        let mut geometry = *OccupancyGrid::new(resolution_m)?.geometry();
+        let mut boxes = Vec::with_capacity(posed_scans.len());
         for (grid_from_robot, scan) in posed_scans {
             let (origin, beams) = scan_beams(grid_from_robot, scan, params)?;
-            if let Some((lo, hi)) = beams_box(&origin, &beams) {
-                if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite())) {
-                    return Err(GridError::NotFinite);
-                }
-                if let Some((grown, _)) =
-                    grown_to_cells(&geometry, geometry.cell_of(&lo), geometry.cell_of(&hi))?
-                {
-                    geometry = grown;
-                }
-            }
+            boxes.extend(beams_box(&origin, &beams));
         }
-        let mut grid = if geometry.is_empty() {
-            OccupancyGrid::new(resolution_m)?
-        } else {
-            OccupancyGrid::with_geometry(geometry)?
-        };
+        let mut grid = Self::sized_for(resolution_m, boxes)?;
         let mut total = InsertInfo::default();
         for (grid_from_robot, scan) in posed_scans {
             total.accumulate(&grid.insert_scan(grid_from_robot, scan, params)?);
@@ -166,6 +153,31 @@ impl OccupancyGrid {
         }
         grid.release_scratch();
         Ok((grid, total))
+    }
+
+    /// An empty grid of `resolution_m` as large as inserting rays within each box `(lo, hi)`
+    /// (metres; a scan's sensor and beam ends), in order, would grow it: the same geometry,
+    /// made at once, so that inserting those rays never copies the grid.
+    pub fn sized_for(
+        resolution_m: f64,
+        boxes: impl IntoIterator<Item = (Point2, Point2)>,
+    ) -> Result<OccupancyGrid, GridError> {
+        let mut geometry = *OccupancyGrid::new(resolution_m)?.geometry();
+        for (lo, hi) in boxes {
+            if !(lo.iter().chain(hi.iter()).all(|v| v.is_finite())) {
+                return Err(GridError::NotFinite);
+            }
+            if let Some((grown, _)) =
+                grown_to_cells(&geometry, geometry.cell_of(&lo), geometry.cell_of(&hi))?
+            {
+                geometry = grown;
+            }
+        }
+        if geometry.is_empty() {
+            OccupancyGrid::new(resolution_m)
+        } else {
+            OccupancyGrid::with_geometry(geometry)
+        }
     }
 
     /// Inserts `scan` taken with the robot at `grid_from_robot`: free space along every beam,

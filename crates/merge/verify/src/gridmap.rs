@@ -191,34 +191,75 @@ impl TileLattice {
     }
 }
 
-/// The two grids on one lattice.
+/// Cells of one tile (see [`TileLattice`]).
+const TILE_CELLS: usize = TileLattice::SIDE * TileLattice::SIDE;
+
+/// `Canvas::slot_of_tile` of a tile without window counters.
+const NO_SLOT: u32 = u32::MAX;
+
+/// The two grids on one lattice. The other epochs' classes are two bits a cell over the
+/// whole grid; the window's counters exist only in the tiles its scans touch (a window of
+/// `n` scans covers a small part of a campus-sized grid: 2²⁴ cells of counters were 200 MB).
 #[derive(Debug, Default)]
 struct Canvas {
     geometry: Option<GridGeometry>,
-    /// Per cell (stored as `geometry`'s [`TileLattice`] says): the other epochs' dilated class and the window's
-    /// counters (one 8-byte record, so a beam step touches one record).
-    cells: Vec<CellState>,
-    /// Window: returns per cell (same storage order).
-    hits: Vec<u32>,
-    /// One bit per cell (same storage order): the other epochs know it (not unknown). A
-    /// beam's misses in cells they never saw change nothing (no overlap either way), so those
-    /// cells are not touched: the bit set (2 MB at most) stays in cache while the cell
-    /// records would not.
+    lattice: TileLattice,
+    /// One bit per cell (storage order): the other epochs know it (not unknown). A beam's
+    /// misses in cells they never saw change nothing (no overlap either way), so those cells
+    /// are not touched: the bit set (2 MB at most) stays in cache while counters would not.
     known: Vec<u64>,
+    /// One bit per cell: the other epochs' dilated class is occupied (else free, if known).
+    occupied: Vec<u64>,
+    /// Per tile: its slot in `tiles`, or [`NO_SLOT`].
+    slot_of_tile: Vec<u32>,
+    /// The window's counters of the tiles it touched since the last sweep.
+    tiles: Vec<Box<WindowTile>>,
+    /// Slots in use after the last sweep of empty tiles.
+    live_after_sweep: usize,
     radius: i64,
     overlap: u64,
     contradictions: u64,
 }
 
-/// One cell of the canvas.
+/// The window's counters of one tile, in storage order.
+#[derive(Debug)]
+struct WindowTile {
+    /// The tile's index in the lattice.
+    tile: usize,
+    cells: [CellState; TILE_CELLS],
+    /// Window: returns per cell.
+    hits: [u32; TILE_CELLS],
+}
+
+impl WindowTile {
+    /// Every counter is 0: dropping the tile changes no class.
+    fn is_empty(&self) -> bool {
+        self.hits.iter().all(|&h| h == 0) && self.cells.iter().all(|c| c.misses == 0 && c.near == 0)
+    }
+}
+
+/// One cell of the window's grid (one 8-byte record, so a beam step touches one record).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 struct CellState {
     /// Window: beams through the cell.
     misses: u32,
     /// Window: cells with returns within the dilation square.
     near: u16,
-    /// The other epochs' dilated class.
+    /// The other epochs' dilated class (copied from the bit sets).
     other: u8,
+}
+
+impl CellState {
+    #[inline]
+    fn window_class(&self) -> u8 {
+        if self.near > 0 {
+            OCCUPIED
+        } else if self.misses > 0 {
+            FREE
+        } else {
+            UNKNOWN
+        }
+    }
 }
 
 #[inline]
@@ -228,42 +269,77 @@ fn contribution(a: u8, b: u8) -> (u64, u64) {
     (overlap, contradiction)
 }
 
+#[inline]
+fn bit(bits: &[u64], i: usize) -> bool {
+    bits.get(i >> 6).is_some_and(|w| (w >> (i & 63)) & 1 == 1)
+}
+
 impl Canvas {
+    /// The other epochs' dilated class of cell `i` (storage index).
     #[inline]
-    fn window_class(&self, i: usize) -> u8 {
-        match self.cells.get(i) {
-            Some(c) if c.near > 0 => OCCUPIED,
-            Some(c) if c.misses > 0 => FREE,
-            _ => UNKNOWN,
+    fn other_class(&self, i: usize) -> u8 {
+        if !bit(&self.known, i) {
+            UNKNOWN
+        } else if bit(&self.occupied, i) {
+            OCCUPIED
+        } else {
+            FREE
         }
     }
 
-    /// Applies `change` to cell `i`'s counters, keeping the totals right.
+    /// The window's class of cell `i`.
+    #[cfg(test)]
+    fn window_class(&self, i: usize) -> u8 {
+        let slot = self.slot_of_tile.get(i / TILE_CELLS).copied();
+        match slot.and_then(|s| self.tiles.get(s as usize)) {
+            Some(tile) => tile.cells[i % TILE_CELLS].window_class(),
+            None => UNKNOWN,
+        }
+    }
+
+    /// The counters of cell `i`'s tile, made (all 0) when the window first touches it.
     #[inline]
-    fn update(&mut self, i: usize, change: impl FnOnce(&mut Self)) {
-        let b = self.cells.get(i).map_or(UNKNOWN, |c| c.other);
-        if b == UNKNOWN {
-            change(self);
+    fn tile_mut(&mut self, i: usize) -> Option<&mut WindowTile> {
+        let tile = i / TILE_CELLS;
+        let slot = *self.slot_of_tile.get(tile)?;
+        if slot == NO_SLOT {
+            let mut fresh = Box::new(WindowTile {
+                tile,
+                cells: [CellState::default(); TILE_CELLS],
+                hits: [0; TILE_CELLS],
+            });
+            for (k, cell) in fresh.cells.iter_mut().enumerate() {
+                cell.other = self.other_class(tile * TILE_CELLS + k);
+            }
+            let slot = u32::try_from(self.tiles.len()).ok()?;
+            self.slot_of_tile[tile] = slot;
+            self.tiles.push(fresh);
+            return self.tiles.last_mut().map(|t| &mut **t);
+        }
+        self.tiles.get_mut(slot as usize).map(|t| &mut **t)
+    }
+
+    /// Adds the change of one cell's window class against its other class to the totals.
+    #[inline]
+    fn account(&mut self, before: u8, after: u8, other: u8) {
+        if before == after || other == UNKNOWN {
             return;
         }
-        let before = self.window_class(i);
-        change(self);
-        let after = self.window_class(i);
-        if before != after {
-            let (o0, c0) = contribution(before, b);
-            let (o1, c1) = contribution(after, b);
-            self.overlap = self.overlap.wrapping_sub(o0).wrapping_add(o1);
-            self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
-        }
+        let (o0, c0) = contribution(before, other);
+        let (o1, c1) = contribution(after, other);
+        self.overlap = self.overlap.wrapping_sub(o0).wrapping_add(o1);
+        self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
     }
 
-    /// One beam more (or less) through cell `i`. The class changes only when the count
-    /// leaves or reaches 0 and no return is near (the hot path: two loads and a store).
+    /// One beam more (or less) through cell `i` (known to the other epochs). The class
+    /// changes only when the count leaves or reaches 0 and no return is near (the hot path:
+    /// a slot load, a record load and a store).
     #[inline]
     fn miss(&mut self, i: usize, add: bool) {
-        let Some(cell) = self.cells.get_mut(i) else {
+        let Some(tile) = self.tile_mut(i) else {
             return;
         };
+        let cell = &mut tile.cells[i % TILE_CELLS];
         let before = cell.misses;
         cell.misses = if add {
             before.wrapping_add(1)
@@ -271,18 +347,33 @@ impl Canvas {
             before.wrapping_sub(1)
         };
         let toggled = if add { before == 0 } else { before == 1 };
-        let b = cell.other;
-        if !toggled || cell.near > 0 || b == UNKNOWN {
+        if !toggled || cell.near > 0 {
             return;
         }
-        let (with, without) = (contribution(FREE, b), contribution(UNKNOWN, b));
-        let ((o0, c0), (o1, c1)) = if add {
-            (without, with)
+        let other = cell.other;
+        let (without, with) = (UNKNOWN, FREE);
+        if add {
+            self.account(without, with, other);
         } else {
-            (with, without)
+            self.account(with, without, other);
+        }
+    }
+
+    /// One return more (or less) within the dilation square of cell `j`.
+    #[inline]
+    fn near(&mut self, j: usize, add: bool) {
+        let Some(tile) = self.tile_mut(j) else {
+            return;
         };
-        self.overlap = self.overlap.wrapping_sub(o0).wrapping_add(o1);
-        self.contradictions = self.contradictions.wrapping_sub(c0).wrapping_add(c1);
+        let cell = &mut tile.cells[j % TILE_CELLS];
+        let before = cell.window_class();
+        cell.near = if add {
+            cell.near.wrapping_add(1)
+        } else {
+            cell.near.wrapping_sub(1)
+        };
+        let (after, other) = (cell.window_class(), cell.other);
+        self.account(before, after, other);
     }
 
     /// One return more (or less) in cell `(x, y)`.
@@ -290,10 +381,11 @@ impl Canvas {
         let Some(geometry) = self.geometry else {
             return;
         };
-        let lattice = TileLattice::new(geometry.width, geometry.height).0;
-        let Some(h) = self.hits.get_mut(lattice.index(x, y)) else {
+        let lattice = self.lattice;
+        let Some(tile) = self.tile_mut(lattice.index(x, y)) else {
             return;
         };
+        let h = &mut tile.hits[lattice.index(x, y) % TILE_CELLS];
         let was = *h > 0;
         *h = if add {
             h.wrapping_add(1)
@@ -303,24 +395,39 @@ impl Canvas {
         if was == (*h > 0) {
             return;
         }
-        // The cell started or stopped returning: its dilation square changes.
+        // The cell started or stopped returning: its dilation square changes. Cells the
+        // other epochs never saw cannot overlap; their counters are not kept.
         let (w, h) = (geometry.width as i64, geometry.height as i64);
         let (cx, cy) = (x as i64, y as i64);
         let r = self.radius;
         for y in (cy - r).max(0)..=(cy + r).min(h - 1) {
             for x in (cx - r).max(0)..=(cx + r).min(w - 1) {
                 let j = lattice.index(x as usize, y as usize);
-                self.update(j, |c| {
-                    if let Some(cell) = c.cells.get_mut(j) {
-                        cell.near = if add {
-                            cell.near.wrapping_add(1)
-                        } else {
-                            cell.near.wrapping_sub(1)
-                        };
-                    }
-                });
+                if bit(&self.known, j) {
+                    self.near(j, add);
+                }
             }
         }
+    }
+
+    /// Sweeps once the tiles in use have doubled since the last sweep (amortised: the
+    /// window's tiles, not the path's, stay in memory).
+    fn sweep_when_grown(&mut self) {
+        if self.tiles.len() >= (2 * self.live_after_sweep).max(64) {
+            self.sweep();
+        }
+    }
+
+    /// Drops the tiles whose counters all went back to 0.
+    fn sweep(&mut self) {
+        self.tiles.retain(|t| !t.is_empty());
+        self.slot_of_tile.fill(NO_SLOT);
+        for (slot, t) in self.tiles.iter().enumerate() {
+            if let Some(s) = self.slot_of_tile.get_mut(t.tile) {
+                *s = slot as u32;
+            }
+        }
+        self.live_after_sweep = self.tiles.len();
     }
 
     /// Adds the beams of `points_in_robot` taken at `map_from_robot`, and records in `changed`
@@ -344,9 +451,7 @@ impl Canvas {
         let to_cells = |p: &Point2| (p - geometry.origin_m) / geometry.resolution_m;
         let start = to_cells(&origin);
         let size = Point2::new(geometry.width as f64, geometry.height as f64);
-        // Borrowed apart from the counters `miss` changes (given back below).
-        let known = std::mem::take(&mut self.known);
-        let lattice = TileLattice::new(geometry.width, geometry.height).0;
+        let lattice = self.lattice;
         for p in points_in_robot {
             let range = p.norm();
             if !(range.is_finite() && range > 0.0 && range <= max_range_m) {
@@ -361,7 +466,7 @@ impl Canvas {
             // (`MAX_STORED_CELLS`).
             mapmerge_grid::traverse_cells(from, to, end_inside, |x, y| {
                 let i = lattice.index(x as usize, y as usize);
-                if known.get(i >> 6).is_some_and(|w| (w >> (i & 63)) & 1 == 1) {
+                if bit(&self.known, i) {
                     self.miss(i, true);
                     changed.missed.push(i as u32);
                 }
@@ -372,7 +477,6 @@ impl Canvas {
                 changed.returned.push((x, y));
             }
         }
-        self.known = known;
     }
 
     /// Takes out a scan whose insertion changed `cells`.
@@ -555,7 +659,18 @@ impl GridmapDetector {
             cell_m = ((extent.x + 1.0) * (extent.y + 1.0) / max_cells).sqrt() * 1.01;
         }
         // 2. The other epochs' log-odds grid by exact ray casting (`mapmerge-grid`).
-        let Ok(mut grid) = OccupancyGrid::new(cell_m) else {
+        // Made at once as large as the insertions grow it (a campus-sized grid is not copied
+        // as it grows); when that fails, grown scan by scan.
+        let boxes = beams
+            .iter()
+            .filter(|(_, ends)| !ends.is_empty())
+            .map(|(origin, ends)| {
+                ends.iter()
+                    .fold((*origin, *origin), |(l, h), e| (l.inf(e), h.sup(e)))
+            });
+        let Ok(mut grid) =
+            OccupancyGrid::sized_for(cell_m, boxes).or_else(|_| OccupancyGrid::new(cell_m))
+        else {
             return;
         };
         let model = InsertParams::default().model;
@@ -564,6 +679,7 @@ impl GridmapDetector {
             let _ = grid.insert_rays(origin, ends, &[], &model);
         }
         drop(beams);
+        grid.release_scratch();
         // 3. Classes, occupied dilated (Sec. IV-B: 7 × 7). The log-odds go before the
         // canvas is made: on a campus-sized map each is tens of MB.
         let radius = self.params.dilation_radius_cells.min(20);
@@ -576,31 +692,29 @@ impl GridmapDetector {
         if stored > MAX_STORED_CELLS {
             return;
         }
-        let mut cells = vec![CellState::default(); stored];
         let mut known = vec![0u64; stored.div_ceil(64)];
+        let mut occupied_bits = vec![0u64; stored.div_ceil(64)];
         let classes = occupied.flags().iter().zip(free.flags());
         for (row_major, (&o, &f)) in classes.enumerate() {
-            let other = if o {
-                OCCUPIED
-            } else if f {
-                FREE
-            } else {
+            if !(o || f) {
                 continue;
-            };
+            }
             let (x, y) = (row_major % geometry.width, row_major / geometry.width);
             let i = lattice.index(x, y);
-            if let (Some(c), Some(w)) = (cells.get_mut(i), known.get_mut(i >> 6)) {
-                c.other = other;
-                *w |= 1 << (i & 63);
+            if let (Some(k), Some(w)) = (known.get_mut(i >> 6), occupied_bits.get_mut(i >> 6)) {
+                *k |= 1 << (i & 63);
+                *w |= u64::from(o) << (i & 63);
             }
         }
-        // The masks go before the window's counters are made.
         drop((occupied, free));
         self.canvas = Canvas {
             geometry: Some(geometry),
-            hits: vec![0; stored],
+            lattice,
             known,
-            cells,
+            occupied: occupied_bits,
+            slot_of_tile: vec![NO_SLOT; stored / TILE_CELLS],
+            tiles: Vec::new(),
+            live_after_sweep: 0,
             radius: radius as i64,
             overlap: 0,
             contradictions: 0,
@@ -667,6 +781,7 @@ impl InvalidMergeDetector for GridmapDetector {
             updated += 1;
         }
         self.inserted = inserted;
+        self.canvas.sweep_when_grown();
         // 3. r = |C_contradictions| / |C_overlap| from τ on (Sec. IV-B).
         let (overlap, contradictions) = (self.canvas.overlap, self.canvas.contradictions);
         self.info = GridmapInfo {
@@ -703,8 +818,9 @@ mod tests {
     /// The counters, recomputed from scratch: the incremental totals must equal them.
     fn totals_from_scratch(c: &Canvas) -> (u64, u64) {
         let (mut o, mut k) = (0, 0);
-        for i in 0..c.cells.len() {
-            let (a, b) = contribution(c.window_class(i), c.cells[i].other);
+        // Every stored cell (the grid padded to whole tiles) has one bit.
+        for i in 0..c.known.len() * 64 {
+            let (a, b) = contribution(c.window_class(i), c.other_class(i));
             o += a;
             k += b;
         }
@@ -764,8 +880,44 @@ mod tests {
             other: &case.other,
         });
         assert_eq!((d.canvas.overlap, d.canvas.contradictions), (0, 0));
-        assert!(d.canvas.hits.iter().all(|&h| h == 0));
-        assert!(d.canvas.cells.iter().all(|c| c.misses == 0 && c.near == 0));
+        assert!(d.canvas.tiles.iter().all(|t| t.is_empty()));
+    }
+
+    /// Dropping the tiles whose counters went back to 0 changes no count and no ratio, and
+    /// leaves only the window's tiles.
+    #[test]
+    fn sweeping_empty_tiles_changes_nothing() {
+        let open = World::office(false);
+        let case = Case::office(&open, &open, &wrong_turned());
+        let (mut kept, mut swept) = (GridmapDetector::default(), GridmapDetector::default());
+        let first = MergedMap {
+            current: &case.current[..1],
+            other: &case.other,
+        };
+        kept.on_merge(&first);
+        swept.on_merge(&first);
+        let mut dropped = 0;
+        for k in 1..=case.current.len() {
+            let map = MergedMap {
+                current: &case.current[..k],
+                other: &case.other,
+            };
+            let (a, b) = (kept.on_vertex(&map), swept.on_vertex(&map));
+            let before = swept.canvas.tiles.len();
+            swept.canvas.sweep();
+            dropped += before - swept.canvas.tiles.len();
+            assert!(swept.canvas.tiles.iter().all(|t| !t.is_empty()));
+            assert_eq!(a, b, "vertex {k}");
+            assert_eq!(
+                (swept.canvas.overlap, swept.canvas.contradictions),
+                totals_from_scratch(&swept.canvas)
+            );
+            assert_eq!(
+                (swept.canvas.overlap, swept.canvas.contradictions),
+                (kept.canvas.overlap, kept.canvas.contradictions)
+            );
+        }
+        assert!(dropped > 0, "the window never left a tile");
     }
 
     /// A second merge of the same epochs (a conditional merge made full) keeps their grid
