@@ -6,7 +6,8 @@
 //! - the other epochs' grid does not depend on the current epoch, so it is built once per
 //!   merge (exact ray casting, `mapmerge-grid`), classified and dilated (`CellMask::dilate`);
 //! - the window's grid is kept as per-cell counters (returns, beams through, returns within
-//!   the dilation square) on the other grid's lattice, so a new vertex adds one scan and
+//!   the dilation square) on the other grid's lattice, in the tiles of it the window's scans
+//!   touch (the other grid's classes are two bits a cell), so a new vertex adds one scan and
 //!   removes the one that left the window (walking the cells its insertion recorded, not
 //!   tracing its beams again), and the overlap and contradiction counts are updated for the
 //!   cells whose class changed. Comparing on all cells known in the window's
@@ -46,7 +47,8 @@ pub struct GridmapParams {
     /// `n`: the most recent current-epoch keyframes in the window (default: 10).
     pub recent_scans: usize,
     /// Cell side (m) (default: 0.025, the paper's). The other epochs' extent at this
-    /// resolution is held in memory (11 bytes a cell); see `max_cells`.
+    /// resolution is held in memory (a quarter byte a cell, and 12 bytes a cell in the
+    /// tiles the window's scans touch); see `max_cells`.
     pub cell_m: f64,
     /// Dilation radius (cells) of occupied cells in both grids (default: 3, the paper's 7 × 7
     /// square; at most 20). Larger forgives more misalignment of correct merges, and hides
@@ -312,7 +314,7 @@ impl Canvas {
                 cell.other = self.other_class(tile * TILE_CELLS + k);
             }
             let slot = u32::try_from(self.tiles.len()).ok()?;
-            self.slot_of_tile[tile] = slot;
+            *self.slot_of_tile.get_mut(tile)? = slot;
             self.tiles.push(fresh);
             return self.tiles.last_mut().map(|t| &mut **t);
         }
