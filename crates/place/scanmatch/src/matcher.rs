@@ -163,10 +163,9 @@ impl ScanMatcher {
     pub fn empty_target(&self) -> Result<ScanMatchTarget, ScanMatchError> {
         Ok(ScanMatchTarget {
             correlative: MatchTarget::empty(&self.params.correlative)?,
-            icp: self
-                .params
-                .icp
-                .map_or_else(OnceLock::new, |params| OnceLock::from(IcpTarget::empty(&params))),
+            icp: self.params.icp.map_or_else(OnceLock::new, |params| {
+                OnceLock::from(IcpTarget::empty(&params))
+            }),
             icp_params: self.params.icp,
         })
     }
