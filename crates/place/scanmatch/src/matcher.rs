@@ -1,5 +1,7 @@
 //! The combined matcher: correlative search, then point-to-line ICP refinement.
 
+use std::sync::OnceLock;
+
 use mapmerge_geometry::Se2;
 use mapmerge_scan::{scan_normals, transform_points, voxel_downsample, Point2};
 use nalgebra::Matrix3;
@@ -14,7 +16,11 @@ use crate::params::{IcpParams, ScanMatchParams, SearchWindow};
 #[derive(Clone, Debug)]
 pub struct ScanMatchTarget {
     correlative: MatchTarget,
-    icp: Option<IcpTarget>,
+    /// The ICP target (with `icp_params`): kept up to date by a target built scan by scan;
+    /// made from the correlative target's points the first time ICP needs it in a target
+    /// built from points, so that a search that finds nothing (most candidates of a place
+    /// query) does not pay for normals.
+    icp: OnceLock<IcpTarget>,
     icp_params: Option<IcpParams>,
 }
 
@@ -35,7 +41,17 @@ impl ScanMatchTarget {
 
     /// Bytes it holds on the heap (correlation grids and the ICP target).
     pub fn heap_bytes(&self) -> usize {
-        self.correlative.heap_bytes() + self.icp.as_ref().map_or(0, IcpTarget::heap_bytes)
+        self.correlative.heap_bytes() + self.icp.get().map_or(0, IcpTarget::heap_bytes)
+    }
+
+    /// The ICP target, made now from the correlative target's points if it was deferred;
+    /// `None` without ICP parameters.
+    fn icp_target(&self) -> Option<&IcpTarget> {
+        let params = self.icp_params.as_ref()?;
+        Some(
+            self.icp
+                .get_or_init(|| IcpTarget::new(self.correlative.points_in_target(), params)),
+        )
     }
 
     /// Mutable access to the correlative target (e.g. to deepen its levels once a map is
@@ -59,9 +75,11 @@ impl ScanMatchTarget {
         points_in_robot: &[Point2],
     ) -> Result<(), ScanMatchError> {
         let points_in_target = transform_points(target_from_robot, points_in_robot);
+        // A deferred ICP target is made first from the points so far, as it would have been.
+        let _ = self.icp_target();
         self.correlative
             .insert(&points_in_target, GROWTH_MARGIN_CELLS)?;
-        if let (Some(icp), Some(params)) = (self.icp.as_mut(), self.icp_params.as_ref()) {
+        if let (Some(icp), Some(params)) = (self.icp.get_mut(), self.icp_params.as_ref()) {
             let mut normals = scan_normals(
                 points_in_robot,
                 SCAN_NORMAL_HALF_WINDOW,
@@ -136,10 +154,7 @@ impl ScanMatcher {
         target
             .correlative
             .rebuild(points_in_target, &self.params.correlative)?;
-        target.icp = self
-            .params
-            .icp
-            .map(|params| IcpTarget::new(target.correlative.points_in_target(), &params));
+        target.icp = OnceLock::new();
         target.icp_params = self.params.icp;
         Ok(())
     }
@@ -148,7 +163,9 @@ impl ScanMatcher {
     pub fn empty_target(&self) -> Result<ScanMatchTarget, ScanMatchError> {
         Ok(ScanMatchTarget {
             correlative: MatchTarget::empty(&self.params.correlative)?,
-            icp: self.params.icp.map(|params| IcpTarget::empty(&params)),
+            icp: self.params.icp.map_or_else(OnceLock::new, |params| {
+                OnceLock::from(IcpTarget::empty(&params))
+            }),
             icp_params: self.params.icp,
         })
     }
@@ -163,7 +180,7 @@ impl ScanMatcher {
         query_points_in_robot: &[Point2],
         guess_target_from_robot: &Se2,
     ) -> Option<Match> {
-        let (Some(icp_params), Some(icp_target)) = (self.params.icp, &target.icp) else {
+        let (Some(icp_params), Some(icp_target)) = (self.params.icp, target.icp_target()) else {
             return None;
         };
         let query = voxel_downsample(query_points_in_robot, self.params.correlative.query_voxel_m);
@@ -227,7 +244,7 @@ impl ScanMatcher {
             icp: None,
         };
         // 2. Point-to-line ICP from the correlative optimum.
-        let (Some(icp_params), Some(icp_target)) = (self.params.icp, &target.icp) else {
+        let (Some(icp_params), Some(icp_target)) = (self.params.icp, target.icp_target()) else {
             return Some(result);
         };
         let query = voxel_downsample(query_points_in_robot, self.params.correlative.query_voxel_m);

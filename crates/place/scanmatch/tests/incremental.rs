@@ -200,6 +200,51 @@ fn a_retargeted_target_matches_as_a_fresh_one() {
     assert!(fine.retarget(&mut reused, &[]).is_err());
 }
 
+/// A target built from points makes its ICP target when a match first refines: until then it
+/// holds the correlation grids alone; the refined match is the same every time; and scans
+/// inserted afterwards join the ICP target made from the points before them.
+#[test]
+fn a_target_from_points_makes_its_icp_target_on_first_use() {
+    let world = world();
+    let matcher = ScanMatcher::default();
+    let at = Se2::new(11.0, 1.5, 0.1);
+    let target_points: Vec<Point2> = scan_at(&world, &at)
+        .into_iter()
+        .map(|p| at.transform_point(&p))
+        .collect();
+    let mut target = matcher.target(&target_points).unwrap();
+    let grids_only = target.heap_bytes();
+    assert_eq!(grids_only, target.correlative().heap_bytes());
+    let truth = Se2::new(10.7, 1.3, 0.05);
+    let query = scan_at(&world, &truth);
+    let guess = truth.compose(&Se2::new(0.2, -0.15, 0.05));
+    let window = SearchWindow::new(0.5, 0.2);
+    let first = matcher
+        .match_scan(&target, &query, &guess, &window)
+        .unwrap();
+    assert!(first.icp.is_some(), "{first:?}");
+    assert!(target.heap_bytes() > grids_only);
+    assert_eq!(
+        matcher.match_scan(&target, &query, &guess, &window),
+        Some(first)
+    );
+    // Nothing found, nothing made; a scan inserted later makes it first.
+    let mut untouched = matcher.target(&target_points).unwrap();
+    let far = Se2::new(-40.0, 30.0, 0.0);
+    let missed = matcher.match_scan(
+        &untouched,
+        &scan_at(&world, &far),
+        &far,
+        &SearchWindow::new(0.1, 0.01),
+    );
+    assert!(missed.is_none(), "{missed:?}");
+    assert_eq!(untouched.heap_bytes(), untouched.correlative().heap_bytes());
+    untouched.insert_scan(&truth, &query).unwrap();
+    assert!(untouched.heap_bytes() > untouched.correlative().heap_bytes());
+    target.insert_scan(&truth, &query).unwrap();
+    assert_eq!(untouched.heap_bytes(), target.heap_bytes());
+}
+
 /// A point on a cell border next to the grid's edge (found by the property test above): its
 /// kernel is written, clipped to the grid, not skipped.
 #[test]
