@@ -119,7 +119,7 @@ impl CorrelationGrid {
             // Point position in cell units, relative to the grid corner.
             let u = (p.x - origin_m.x) / resolution_m;
             let v = (p.y - origin_m.y) / resolution_m;
-            let (cu, cv) = (u.floor() as i64, v.floor() as i64);
+            let (cu, cv) = (fast_floor(u), fast_floor(v));
             // The Gaussian is separable: exp(−(du² + dv²)/2σ²) = exp(−du²/2σ²)·exp(−dv²/2σ²).
             for (k, (gx, gy)) in along_x.iter_mut().zip(along_y.iter_mut()).enumerate() {
                 let offset = k as i64 - reach;
@@ -143,7 +143,7 @@ impl CorrelationGrid {
                     continue;
                 }
                 for (value, gx) in row_values.iter_mut().zip(&along_x) {
-                    *value = (gx * gy * f64::from(LIKELIHOOD_MAX)).round() as u16;
+                    *value = round_likelihood(gx * gy * f64::from(LIKELIHOOD_MAX));
                 }
                 let start = j as usize * self.width + (i0 + first as i64) as usize;
                 let values = row_values.get(first..last).unwrap_or_default();
@@ -312,6 +312,15 @@ pub(crate) fn fast_floor(v: f64) -> i64 {
     } else {
         truncated
     }
+}
+
+/// `v.round()` (half away from zero) as a likelihood, for `v` in `[0, LIKELIHOOD_MAX]`,
+/// without a libm call: the grid's rasterisation rounds every cell of every kernel.
+#[inline]
+fn round_likelihood(v: f64) -> u16 {
+    let whole = v as u16;
+    // `v − whole` is exact here, so this is `round` exactly (and branch-free).
+    whole.saturating_add(u16::from(v - f64::from(whole) >= 0.5))
 }
 
 /// Appends `new[k] = max(old[k − shift], old[k])` for `k ∈ [0, old.len() + shift)`, missing
@@ -526,6 +535,11 @@ impl CellScan {
         self.cells.len()
     }
 
+    /// How many cells each run of [`CELLS_PER_CHUNK`] holds.
+    pub(crate) fn cells_by_chunk(&self) -> impl Iterator<Item = usize> + '_ {
+        self.cells.chunks(CELLS_PER_CHUNK).map(<[_]>::len)
+    }
+
     /// The cells.
     pub(crate) fn cells(&self) -> impl Iterator<Item = (i64, i64)> + '_ {
         self.cells
@@ -534,41 +548,117 @@ impl CellScan {
     }
 
     /// Σ over the scan's cells shifted by (x, y) of `view`'s values (0 outside).
-    #[inline]
+    #[cfg(test)]
     pub(crate) fn sum(&self, view: &CellView<'_>, x: i64, y: i64) -> u64 {
-        let Some((min_i, min_j, max_i, max_j)) = self.bounds else {
-            return 0;
-        };
-        let (dx, dy) = (x + view.offset, y + view.offset);
-        let (lo_a, lo_b, hi_a, hi_b) = (min_i + dx, min_j + dy, max_i + dx, max_j + dy);
-        if hi_a < 0 || hi_b < 0 || lo_a >= view.width || lo_b >= view.height {
-            return 0;
+        self.sum_under(view, x, y, &Ceiling::Max, 0, None)
+    }
+
+    /// As [`CellScan::sum`] when the sum reaches `cutoff`; otherwise some value below
+    /// `cutoff` (an upper bound of the sum), returned as soon as the cells left cannot lift
+    /// the partial sum to `cutoff` by their `ceiling`: a branch-and-bound node that cannot
+    /// beat the incumbent is dropped after part of its cells. With `chunk_sums`, the sums of
+    /// its cells in runs of [`CELLS_PER_CHUNK`] are written there (all of them when the sum
+    /// reaches `cutoff`): the ceiling of the node's children.
+    #[inline]
+    pub(crate) fn sum_under(
+        &self,
+        view: &CellView<'_>,
+        x: i64,
+        y: i64,
+        ceiling: &Ceiling<'_>,
+        cutoff: u64,
+        mut chunk_sums: Option<&mut Vec<u32>>,
+    ) -> u64 {
+        if let Some(chunk_sums) = chunk_sums.as_deref_mut() {
+            chunk_sums.clear();
         }
+        let n = self.cells.len();
+        let (dx, dy) = (x + view.offset, y + view.offset);
         let (cells, width) = (view.cells, view.width);
-        if lo_a >= 0 && lo_b >= 0 && hi_a < view.width && hi_b < view.height {
-            // Every shifted cell is inside: one index per point (`get` never misses here).
-            let base = dy * width + dx;
-            self.cells
-                .iter()
-                .map(|&(i, j)| {
-                    let index = (base + i64::from(j) * width + i64::from(i)) as usize;
-                    u64::from(cells.get(index).copied().unwrap_or(0))
-                })
-                .sum()
-        } else {
-            // Negative offsets wrap to huge unsigned ones: one comparison per axis.
-            let (width_u, height_u) = (width as u64, view.height as u64);
-            self.cells
-                .iter()
-                .map(|&(i, j)| {
-                    let (a, b) = (i64::from(i) + dx, i64::from(j) + dy);
-                    if (a as u64) < width_u && (b as u64) < height_u {
-                        u64::from(cells.get((b * width + a) as usize).copied().unwrap_or(0))
-                    } else {
-                        0
+        let inside = match self.bounds {
+            None => return 0,
+            Some((min_i, min_j, max_i, max_j)) => {
+                let (lo_a, lo_b, hi_a, hi_b) = (min_i + dx, min_j + dy, max_i + dx, max_j + dy);
+                if hi_a < 0 || hi_b < 0 || lo_a >= view.width || lo_b >= view.height {
+                    if let Some(chunk_sums) = chunk_sums {
+                        chunk_sums.resize(n.div_ceil(CELLS_PER_CHUNK), 0);
                     }
-                })
-                .sum()
+                    return 0;
+                }
+                lo_a >= 0 && lo_b >= 0 && hi_a < view.width && hi_b < view.height
+            }
+        };
+        let base = dy * width + dx;
+        let (width_u, height_u) = (width as u64, view.height as u64);
+        let mut sum = 0u64;
+        // The most the cells not yet summed can add.
+        let mut left = ceiling.total(n);
+        for (index, chunk) in self.cells.chunks(CELLS_PER_CHUNK).enumerate() {
+            let chunk_sum: u32 = if inside {
+                // Every shifted cell is inside: one index per point (`get` never misses).
+                chunk
+                    .iter()
+                    .map(|&(i, j)| {
+                        let index = (base + i64::from(j) * width + i64::from(i)) as usize;
+                        u32::from(cells.get(index).copied().unwrap_or(0))
+                    })
+                    .sum()
+            } else {
+                // Negative offsets wrap to huge unsigned ones: one comparison per axis.
+                chunk
+                    .iter()
+                    .map(|&(i, j)| {
+                        let (a, b) = (i64::from(i) + dx, i64::from(j) + dy);
+                        if (a as u64) < width_u && (b as u64) < height_u {
+                            u32::from(cells.get((b * width + a) as usize).copied().unwrap_or(0))
+                        } else {
+                            0
+                        }
+                    })
+                    .sum()
+            };
+            if let Some(chunk_sums) = chunk_sums.as_deref_mut() {
+                chunk_sums.push(chunk_sum);
+            }
+            sum += u64::from(chunk_sum);
+            left = left.saturating_sub(ceiling.of_chunk(index, chunk.len()));
+            if sum + left < cutoff {
+                return sum + left;
+            }
+        }
+        sum
+    }
+}
+
+/// Cells per run of a [`CellScan`] between two tests of a sum against its cutoff (a run of
+/// `u16` values sums within a `u32`).
+pub(crate) const CELLS_PER_CHUNK: usize = 16;
+
+/// The most each run of [`CELLS_PER_CHUNK`] cells of a [`CellScan`] can add to a sum: every
+/// likelihood at most [`LIKELIHOOD_MAX`], or the run's sum one level up (Hess et al. 2016,
+/// Sec. V-C: a child's block lies within its parent's, so no cell scores more in the child).
+pub(crate) enum Ceiling<'a> {
+    Max,
+    /// The parent's sums, run by run, and their total.
+    Parent(&'a [u32], u64),
+}
+
+impl Ceiling<'_> {
+    /// The ceiling of all `n` cells.
+    fn total(&self, n: usize) -> u64 {
+        match self {
+            Ceiling::Max => n as u64 * u64::from(LIKELIHOOD_MAX),
+            Ceiling::Parent(_, total) => *total,
+        }
+    }
+
+    /// The ceiling of run `index`, of `len` cells.
+    #[inline]
+    fn of_chunk(&self, index: usize, len: usize) -> u64 {
+        match self {
+            Ceiling::Max => len as u64 * u64::from(LIKELIHOOD_MAX),
+            // A missing run lowers nothing: the bound stays valid, only looser.
+            Ceiling::Parent(sums, _) => sums.get(index).map_or(0, |&s| u64::from(s)),
         }
     }
 }
@@ -636,6 +726,87 @@ mod tests {
             }
         }
         assert_eq!(CellScan::new(std::iter::empty()).sum(&base.view(), 0, 0), 0);
+    }
+
+    /// Below its cutoff a sum may stop early, but only at an upper bound that is itself below
+    /// the cutoff; at or above it, it is exact with every run's sum. A child under its
+    /// parent's run sums (Hess et al.: its block lies within the parent's) obeys the same.
+    #[test]
+    fn a_sum_under_a_cutoff_is_exact_above_it_and_a_bound_below_it() {
+        let points: Vec<Point2> = (0..150)
+            .map(|k| Point2::new((k as f64 * 0.41).sin() * 1.7, (k as f64 * 0.23).cos() * 1.1))
+            .collect();
+        let base = CorrelationGrid::new(&points, &CorrelativeParams::default()).unwrap();
+        let levels = PrecomputedGrid::levels(&base, 3);
+        let scan = CellScan::new(points.iter().map(|p| base.cell_of(p)));
+        let full = scan.len() as u64 * u64::from(LIKELIHOOD_MAX);
+        let (mut parent_runs, mut child_runs) = (Vec::new(), Vec::new());
+        let mut stopped_early = 0;
+        for (x, y) in [(0, 0), (3, -2), (-7, 5), (12, 12), (-40, 1)] {
+            let parent = scan.sum_under(
+                &levels[2].view(),
+                x,
+                y,
+                &Ceiling::Max,
+                0,
+                Some(&mut parent_runs),
+            );
+            assert_eq!(parent, scan.sum(&levels[2].view(), x, y));
+            assert_eq!(parent_runs.len(), scan.len().div_ceil(CELLS_PER_CHUNK));
+            assert_eq!(
+                parent_runs.iter().map(|&r| u64::from(r)).sum::<u64>(),
+                parent
+            );
+            for (dx, dy) in [(0, 0), (0, 4), (4, 0), (4, 4)] {
+                let exact = scan.sum(&levels[1].view(), x + dx, y + dy);
+                assert!(exact <= parent);
+                for cutoff in [0, exact / 2, exact, exact + 1, (exact + parent) / 2, full] {
+                    for ceiling in [Ceiling::Max, Ceiling::Parent(&parent_runs, parent)] {
+                        let view = levels[1].view();
+                        let got = scan.sum_under(
+                            &view,
+                            x + dx,
+                            y + dy,
+                            &ceiling,
+                            cutoff,
+                            Some(&mut child_runs),
+                        );
+                        if exact >= cutoff {
+                            assert_eq!(
+                                got, exact,
+                                "shift ({x}, {y}) + ({dx}, {dy}), cutoff {cutoff}"
+                            );
+                            assert_eq!(
+                                child_runs.iter().map(|&r| u64::from(r)).sum::<u64>(),
+                                exact
+                            );
+                        } else {
+                            assert!(
+                                got < cutoff && got >= exact,
+                                "{got} against {exact}, cutoff {cutoff}"
+                            );
+                            stopped_early += usize::from(got > exact);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(stopped_early > 0, "no sum stopped early");
+    }
+
+    #[test]
+    fn a_likelihood_rounds_as_f64_round() {
+        let halves = (0..=2 * u32::from(LIKELIHOOD_MAX)).map(|k| f64::from(k) * 0.5);
+        let near = (0..20_000).flat_map(|k| {
+            let v = f64::from(k) * 3.2767 + 0.5;
+            [v, v.next_down(), v.next_up(), v - 0.25]
+        });
+        for v in halves
+            .chain(near)
+            .filter(|v| (0.0..=f64::from(LIKELIHOOD_MAX)).contains(v))
+        {
+            assert_eq!(round_likelihood(v), v.round() as u16, "{v}");
+        }
     }
 
     #[test]

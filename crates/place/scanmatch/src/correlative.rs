@@ -13,7 +13,8 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
 use crate::correlation_grid::{
-    fast_floor, CellScan, CorrelationGrid, PrecomputedGrid, LIKELIHOOD_MAX,
+    fast_floor, Ceiling, CellScan, CorrelationGrid, PrecomputedGrid, CELLS_PER_CHUNK,
+    LIKELIHOOD_MAX,
 };
 use crate::error::ScanMatchError;
 use crate::params::{CorrelativeParams, SearchWindow};
@@ -287,14 +288,18 @@ impl Search {
 
     /// Σ of the height-`height` values of the scan at angle `a` shifted by (x, y) cells: the
     /// exact score (height 0) or an upper bound of every leaf in the block (Hess, Sec. V-C).
+    /// Exact when it reaches `cutoff`; below it, some value below `cutoff`, and `chunk_sums`
+    /// then incomplete ([`CellScan::sum_under`]).
+    #[allow(clippy::too_many_arguments)]
     fn score(
         &self,
         target: &MatchTarget,
         levels: &[PrecomputedGrid],
-        a: i64,
-        x: i64,
-        y: i64,
+        (a, x, y): (i64, i64, i64),
         height: usize,
+        ceiling: &Ceiling<'_>,
+        cutoff: u64,
+        chunk_sums: Option<&mut Vec<u32>>,
     ) -> u64 {
         let Some(scan) = usize::try_from(a - self.angle_min)
             .ok()
@@ -302,13 +307,24 @@ impl Search {
         else {
             return 0;
         };
-        match height.checked_sub(1) {
-            None => scan.sum(&target.grid.view(), x, y),
+        let view = match height.checked_sub(1) {
+            None => target.grid.view(),
             Some(level) => match levels.get(level) {
-                Some(grid) => scan.sum(&grid.view(), x, y),
-                None => scan.len() as u64 * u64::from(LIKELIHOOD_MAX),
+                Some(grid) => grid.view(),
+                None => {
+                    // Above the tallest level: every cell may score the most.
+                    if let Some(chunk_sums) = chunk_sums {
+                        chunk_sums.clear();
+                        chunk_sums.extend(
+                            scan.cells_by_chunk()
+                                .map(|cells| cells as u32 * u32::from(LIKELIHOOD_MAX)),
+                        );
+                    }
+                    return scan.len() as u64 * u64::from(LIKELIHOOD_MAX);
+                }
             },
-        }
+        };
+        scan.sum_under(&view, x, y, ceiling, cutoff, chunk_sums)
     }
 
     /// The exact score (height 0) the slow way, one bounds-checked cell at a time: the
@@ -373,7 +389,8 @@ impl Search {
             }
             for dx in -k..=k {
                 for dy in -k..=k {
-                    let sum = self.score(target, &[], a, best.1 + dx, best.2 + dy, 0);
+                    let key = (a, best.1 + dx, best.2 + dy);
+                    let sum = self.score(target, &[], key, 0, &Ceiling::Max, 0, None);
                     let offset = Vector3::new(
                         dx as f64 * resolution,
                         dy as f64 * resolution,
@@ -514,14 +531,18 @@ pub fn match_scan_above(
         return None;
     }
     let mut candidates = 0usize;
-    // Hess et al., Algorithm 2: the coarsest candidates, best bound first.
+    let threshold = search.threshold(min_score);
+    // Hess et al., Algorithm 2: the coarsest candidates, best bound first. A root below the
+    // threshold is only known to be below it (`Search::score`), and is never explored.
     let mut roots = Vec::new();
     for a in search.angle_min..=search.angle_max {
         let mut x = -n;
         while x <= n {
             let mut y = -n;
             while y <= n {
-                roots.push((search.score(target, &levels, a, x, y, top), (a, x, y)));
+                let key = (a, x, y);
+                let bound = search.score(target, &levels, key, top, &Ceiling::Max, threshold, None);
+                roots.push((bound, key));
                 candidates += 1;
                 y += block;
             }
@@ -529,15 +550,30 @@ pub fn match_scan_above(
         }
     }
     roots.sort_unstable_by(|l, r| r.0.cmp(&l.0).then(l.1.cmp(&r.1)));
-    let threshold = search.threshold(min_score);
     let mut best: Option<(u64, (i64, i64, i64))> = None;
     // Depth-first with an explicit stack; children are pushed worst first so the best is
-    // popped first (Hess et al., Algorithm 3).
+    // popped first (Hess et al., Algorithm 3). Entry k's run sums (the ceiling of its
+    // children's) are `values[k · runs ..][.. runs]`.
+    let runs = (search.point_count as usize).div_ceil(CELLS_PER_CHUNK);
     let mut stack: Vec<(u64, (i64, i64, i64), usize)> = Vec::new();
+    let mut values: Vec<u32> = Vec::new();
+    let mut child_values: [Vec<u32>; 4] = Default::default();
     for &(bound, key) in roots.iter() {
         if bound < threshold {
             break;
         }
+        let [root_values, ..] = &mut child_values;
+        search.score(
+            target,
+            &levels,
+            key,
+            top,
+            &Ceiling::Max,
+            0,
+            Some(root_values),
+        );
+        values.clear();
+        values.extend_from_slice(root_values);
         stack.push((bound, key, top));
         while let Some((bound, key, height)) = stack.pop() {
             // Prune: the block cannot beat the incumbent (ties: only smaller keys can win,
@@ -556,26 +592,60 @@ pub fn match_scan_above(
                 }
                 continue;
             }
+            let slot = stack.len();
             let half = 1i64 << (height - 1);
             let (a, x0, y0) = key;
-            // The children go straight onto the stack (no allocation per node); those below
-            // the threshold would only be popped and pruned.
-            let first_child = stack.len();
-            for x in [x0, x0 + half] {
-                for y in [y0, y0 + half] {
-                    if x > n || y > n {
-                        continue;
-                    }
-                    let child_bound = search.score(target, &levels, a, x, y, height - 1);
-                    candidates += 1;
-                    if child_bound >= threshold {
-                        stack.push((child_bound, (a, x, y), height - 1));
+            // A child below the incumbent is pruned when popped, so its bound need only be
+            // known to be below it; each of its cells scores at most the parent's.
+            let cutoff = best.map_or(threshold, |(best_sum, _)| best_sum.max(threshold));
+            let parent = values.get(slot * runs..(slot + 1) * runs).unwrap_or(&[]);
+            let ceiling = if parent.len() == runs {
+                Ceiling::Parent(parent, bound)
+            } else {
+                Ceiling::Max
+            };
+            let mut children = [(0u64, (0i64, 0i64, 0i64), 0usize); 4];
+            let mut passed = 0;
+            for (c, (x, y)) in [
+                (x0, y0),
+                (x0, y0 + half),
+                (x0 + half, y0),
+                (x0 + half, y0 + half),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                if x > n || y > n {
+                    continue;
+                }
+                let out = child_values.get_mut(c).filter(|_| height > 1);
+                let child_bound = search.score(
+                    target,
+                    &levels,
+                    (a, x, y),
+                    height - 1,
+                    &ceiling,
+                    cutoff,
+                    out,
+                );
+                candidates += 1;
+                if child_bound >= cutoff {
+                    if let Some(entry) = children.get_mut(passed) {
+                        *entry = (child_bound, (a, x, y), c);
+                        passed += 1;
                     }
                 }
             }
             // Ascending bound, ties: larger key first, so the stack pops best/smallest first.
-            if let Some(children) = stack.get_mut(first_child..) {
-                children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
+            let children = children.get_mut(..passed).unwrap_or(&mut []);
+            children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
+            values.truncate(slot * runs);
+            for &(child_bound, child_key, c) in children.iter() {
+                stack.push((child_bound, child_key, height - 1));
+                match child_values.get(c).filter(|_| height > 1) {
+                    Some(child) => values.extend_from_slice(child),
+                    None => values.resize(values.len() + runs, 0),
+                }
             }
         }
     }
