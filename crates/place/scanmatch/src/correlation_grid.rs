@@ -535,9 +535,9 @@ impl CellScan {
         self.cells.len()
     }
 
-    /// How many cells each run of [`CELLS_PER_CHUNK`] holds.
-    pub(crate) fn cells_by_chunk(&self) -> impl Iterator<Item = usize> + '_ {
-        self.cells.chunks(CELLS_PER_CHUNK).map(<[_]>::len)
+    /// How many cells each run of [`CELLS_PER_RUN`] holds.
+    pub(crate) fn cells_by_run(&self) -> impl Iterator<Item = usize> + '_ {
+        self.cells.chunks(CELLS_PER_RUN).map(<[_]>::len)
     }
 
     /// The cells.
@@ -556,8 +556,8 @@ impl CellScan {
     /// As [`CellScan::sum`] when the sum reaches `cutoff`; otherwise some value below
     /// `cutoff` (an upper bound of the sum), returned as soon as the cells left cannot lift
     /// the partial sum to `cutoff` by their `ceiling`: a branch-and-bound node that cannot
-    /// beat the incumbent is dropped after part of its cells. With `chunk_sums`, the sums of
-    /// its cells in runs of [`CELLS_PER_CHUNK`] are written there (all of them when the sum
+    /// beat the incumbent is dropped after part of its cells. With `run_sums`, the sums of
+    /// its cells in runs of [`CELLS_PER_RUN`] are written there (all of them when the sum
     /// reaches `cutoff`): the ceiling of the node's children.
     #[inline]
     pub(crate) fn sum_under(
@@ -567,10 +567,10 @@ impl CellScan {
         y: i64,
         ceiling: &Ceiling<'_>,
         cutoff: u64,
-        mut chunk_sums: Option<&mut Vec<u32>>,
+        mut run_sums: Option<&mut Vec<u32>>,
     ) -> u64 {
-        if let Some(chunk_sums) = chunk_sums.as_deref_mut() {
-            chunk_sums.clear();
+        if let Some(run_sums) = run_sums.as_deref_mut() {
+            run_sums.clear();
         }
         let n = self.cells.len();
         let (dx, dy) = (x + view.offset, y + view.offset);
@@ -580,8 +580,8 @@ impl CellScan {
             Some((min_i, min_j, max_i, max_j)) => {
                 let (lo_a, lo_b, hi_a, hi_b) = (min_i + dx, min_j + dy, max_i + dx, max_j + dy);
                 if hi_a < 0 || hi_b < 0 || lo_a >= view.width || lo_b >= view.height {
-                    if let Some(chunk_sums) = chunk_sums {
-                        chunk_sums.resize(n.div_ceil(CELLS_PER_CHUNK), 0);
+                    if let Some(run_sums) = run_sums {
+                        run_sums.resize(n.div_ceil(CELLS_PER_RUN), 0);
                     }
                     return 0;
                 }
@@ -593,11 +593,10 @@ impl CellScan {
         let mut sum = 0u64;
         // The most the cells not yet summed can add.
         let mut left = ceiling.total(n);
-        for (index, chunk) in self.cells.chunks(CELLS_PER_CHUNK).enumerate() {
-            let chunk_sum: u32 = if inside {
+        for (k, run) in self.cells.chunks(CELLS_PER_RUN).enumerate() {
+            let run_sum: u32 = if inside {
                 // Every shifted cell is inside: one index per point (`get` never misses).
-                chunk
-                    .iter()
+                run.iter()
                     .map(|&(i, j)| {
                         let index = (base + i64::from(j) * width + i64::from(i)) as usize;
                         u32::from(cells.get(index).copied().unwrap_or(0))
@@ -605,8 +604,7 @@ impl CellScan {
                     .sum()
             } else {
                 // Negative offsets wrap to huge unsigned ones: one comparison per axis.
-                chunk
-                    .iter()
+                run.iter()
                     .map(|&(i, j)| {
                         let (a, b) = (i64::from(i) + dx, i64::from(j) + dy);
                         if (a as u64) < width_u && (b as u64) < height_u {
@@ -617,11 +615,11 @@ impl CellScan {
                     })
                     .sum()
             };
-            if let Some(chunk_sums) = chunk_sums.as_deref_mut() {
-                chunk_sums.push(chunk_sum);
+            if let Some(run_sums) = run_sums.as_deref_mut() {
+                run_sums.push(run_sum);
             }
-            sum += u64::from(chunk_sum);
-            left = left.saturating_sub(ceiling.of_chunk(index, chunk.len()));
+            sum += u64::from(run_sum);
+            left = left.saturating_sub(ceiling.of_run(k, run.len()));
             if sum + left < cutoff {
                 return sum + left;
             }
@@ -632,12 +630,13 @@ impl CellScan {
 
 /// Cells per run of a [`CellScan`] between two tests of a sum against its cutoff (a run of
 /// `u16` values sums within a `u32`).
-pub(crate) const CELLS_PER_CHUNK: usize = 16;
+pub(crate) const CELLS_PER_RUN: usize = 16;
 
-/// The most each run of [`CELLS_PER_CHUNK`] cells of a [`CellScan`] can add to a sum: every
+/// The most each run of [`CELLS_PER_RUN`] cells of a [`CellScan`] can add to a sum: every
 /// likelihood at most [`LIKELIHOOD_MAX`], or the run's sum one level up (Hess et al. 2016,
 /// Sec. V-C: a child's block lies within its parent's, so no cell scores more in the child).
 pub(crate) enum Ceiling<'a> {
+    /// Every cell at most [`LIKELIHOOD_MAX`].
     Max,
     /// The parent's sums, run by run, and their total.
     Parent(&'a [u32], u64),
@@ -654,7 +653,7 @@ impl Ceiling<'_> {
 
     /// The ceiling of run `index`, of `len` cells.
     #[inline]
-    fn of_chunk(&self, index: usize, len: usize) -> u64 {
+    fn of_run(&self, index: usize, len: usize) -> u64 {
         match self {
             Ceiling::Max => len as u64 * u64::from(LIKELIHOOD_MAX),
             // A missing run lowers nothing: the bound stays valid, only looser.
@@ -667,13 +666,25 @@ impl Ceiling<'_> {
 mod tests {
     use super::*;
 
-    #[test]
-    fn precomputed_levels_hold_block_maxima() {
-        let points: Vec<Point2> = (0..40)
-            .map(|k| Point2::new((k as f64 * 0.37).sin() * 1.3, (k as f64 * 0.71).cos() * 0.9))
+    /// `n` points on the curve `(sin(k·fx)·ax, cos(k·fy)·ay)`, their grid and its first
+    /// `depth` levels.
+    fn curve_grid(
+        n: usize,
+        (fx, ax): (f64, f64),
+        (fy, ay): (f64, f64),
+        depth: usize,
+    ) -> (Vec<Point2>, CorrelationGrid, Vec<PrecomputedGrid>) {
+        let points: Vec<Point2> = (0..n)
+            .map(|k| Point2::new((k as f64 * fx).sin() * ax, (k as f64 * fy).cos() * ay))
             .collect();
         let base = CorrelationGrid::new(&points, &CorrelativeParams::default()).unwrap();
-        let levels = PrecomputedGrid::levels(&base, 4);
+        let levels = PrecomputedGrid::levels(&base, depth);
+        (points, base, levels)
+    }
+
+    #[test]
+    fn precomputed_levels_hold_block_maxima() {
+        let (_, base, levels) = curve_grid(40, (0.37, 1.3), (0.71, 0.9), 4);
         assert_eq!(levels.len(), 4);
         for (index, grid) in levels.iter().enumerate() {
             let level = index + 1;
@@ -695,11 +706,7 @@ mod tests {
 
     #[test]
     fn a_shifted_scan_sums_the_cells_it_lands_on_inside_partly_and_outside_the_grid() {
-        let points: Vec<Point2> = (0..60)
-            .map(|k| Point2::new((k as f64 * 0.41).sin() * 1.7, (k as f64 * 0.23).cos() * 1.1))
-            .collect();
-        let base = CorrelationGrid::new(&points, &CorrelativeParams::default()).unwrap();
-        let levels = PrecomputedGrid::levels(&base, 3);
+        let (points, base, levels) = curve_grid(60, (0.41, 1.7), (0.23, 1.1), 3);
         let cells: Vec<(i64, i64)> = points
             .iter()
             .map(|p| base.cell_of(p))
@@ -733,11 +740,7 @@ mod tests {
     /// parent's run sums (Hess et al.: its block lies within the parent's) obeys the same.
     #[test]
     fn a_sum_under_a_cutoff_is_exact_above_it_and_a_bound_below_it() {
-        let points: Vec<Point2> = (0..150)
-            .map(|k| Point2::new((k as f64 * 0.41).sin() * 1.7, (k as f64 * 0.23).cos() * 1.1))
-            .collect();
-        let base = CorrelationGrid::new(&points, &CorrelativeParams::default()).unwrap();
-        let levels = PrecomputedGrid::levels(&base, 3);
+        let (points, base, levels) = curve_grid(150, (0.41, 1.7), (0.23, 1.1), 3);
         let scan = CellScan::new(points.iter().map(|p| base.cell_of(p)));
         let full = scan.len() as u64 * u64::from(LIKELIHOOD_MAX);
         let (mut parent_runs, mut child_runs) = (Vec::new(), Vec::new());
@@ -752,7 +755,7 @@ mod tests {
                 Some(&mut parent_runs),
             );
             assert_eq!(parent, scan.sum(&levels[2].view(), x, y));
-            assert_eq!(parent_runs.len(), scan.len().div_ceil(CELLS_PER_CHUNK));
+            assert_eq!(parent_runs.len(), scan.len().div_ceil(CELLS_PER_RUN));
             assert_eq!(
                 parent_runs.iter().map(|&r| u64::from(r)).sum::<u64>(),
                 parent

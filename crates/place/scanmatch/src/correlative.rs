@@ -13,8 +13,7 @@ use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
 use crate::correlation_grid::{
-    fast_floor, Ceiling, CellScan, CorrelationGrid, PrecomputedGrid, CELLS_PER_CHUNK,
-    LIKELIHOOD_MAX,
+    fast_floor, Ceiling, CellScan, CorrelationGrid, PrecomputedGrid, CELLS_PER_RUN, LIKELIHOOD_MAX,
 };
 use crate::error::ScanMatchError;
 use crate::params::{CorrelativeParams, SearchWindow};
@@ -288,7 +287,7 @@ impl Search {
 
     /// Σ of the height-`height` values of the scan at angle `a` shifted by (x, y) cells: the
     /// exact score (height 0) or an upper bound of every leaf in the block (Hess, Sec. V-C).
-    /// Exact when it reaches `cutoff`; below it, some value below `cutoff`, and `chunk_sums`
+    /// Exact when it reaches `cutoff`; below it, some value below `cutoff`, and `run_sums`
     /// then incomplete ([`CellScan::sum_under`]).
     #[allow(clippy::too_many_arguments)]
     fn score(
@@ -299,7 +298,7 @@ impl Search {
         height: usize,
         ceiling: &Ceiling<'_>,
         cutoff: u64,
-        chunk_sums: Option<&mut Vec<u32>>,
+        run_sums: Option<&mut Vec<u32>>,
     ) -> u64 {
         let Some(scan) = usize::try_from(a - self.angle_min)
             .ok()
@@ -313,10 +312,10 @@ impl Search {
                 Some(grid) => grid.view(),
                 None => {
                     // Above the tallest level: every cell may score the most.
-                    if let Some(chunk_sums) = chunk_sums {
-                        chunk_sums.clear();
-                        chunk_sums.extend(
-                            scan.cells_by_chunk()
+                    if let Some(run_sums) = run_sums {
+                        run_sums.clear();
+                        run_sums.extend(
+                            scan.cells_by_run()
                                 .map(|cells| cells as u32 * u32::from(LIKELIHOOD_MAX)),
                         );
                     }
@@ -324,7 +323,7 @@ impl Search {
                 }
             },
         };
-        scan.sum_under(&view, x, y, ceiling, cutoff, chunk_sums)
+        scan.sum_under(&view, x, y, ceiling, cutoff, run_sums)
     }
 
     /// The exact score (height 0) the slow way, one bounds-checked cell at a time: the
@@ -553,16 +552,16 @@ pub fn match_scan_above(
     let mut best: Option<(u64, (i64, i64, i64))> = None;
     // Depth-first with an explicit stack; children are pushed worst first so the best is
     // popped first (Hess et al., Algorithm 3). Entry k's run sums (the ceiling of its
-    // children's) are `values[k · runs ..][.. runs]`.
-    let runs = (search.point_count as usize).div_ceil(CELLS_PER_CHUNK);
+    // children's) are `run_sums[k · runs ..][.. runs]`.
+    let runs = (search.point_count as usize).div_ceil(CELLS_PER_RUN);
     let mut stack: Vec<(u64, (i64, i64, i64), usize)> = Vec::new();
-    let mut values: Vec<u32> = Vec::new();
-    let mut child_values: [Vec<u32>; 4] = Default::default();
+    let mut run_sums: Vec<u32> = Vec::new();
+    let mut child_run_sums: [Vec<u32>; 4] = Default::default();
     for &(bound, key) in roots.iter() {
         if bound < threshold {
             break;
         }
-        let [root_values, ..] = &mut child_values;
+        let [root_run_sums, ..] = &mut child_run_sums;
         search.score(
             target,
             &levels,
@@ -570,10 +569,10 @@ pub fn match_scan_above(
             top,
             &Ceiling::Max,
             0,
-            Some(root_values),
+            Some(root_run_sums),
         );
-        values.clear();
-        values.extend_from_slice(root_values);
+        run_sums.clear();
+        run_sums.extend_from_slice(root_run_sums);
         stack.push((bound, key, top));
         while let Some((bound, key, height)) = stack.pop() {
             // Prune: the block cannot beat the incumbent (ties: only smaller keys can win,
@@ -598,7 +597,7 @@ pub fn match_scan_above(
             // A child below the incumbent is pruned when popped, so its bound need only be
             // known to be below it; each of its cells scores at most the parent's.
             let cutoff = best.map_or(threshold, |(best_sum, _)| best_sum.max(threshold));
-            let parent = values.get(slot * runs..(slot + 1) * runs).unwrap_or(&[]);
+            let parent = run_sums.get(slot * runs..(slot + 1) * runs).unwrap_or(&[]);
             let ceiling = if parent.len() == runs {
                 Ceiling::Parent(parent, bound)
             } else {
@@ -618,7 +617,7 @@ pub fn match_scan_above(
                 if x > n || y > n {
                     continue;
                 }
-                let out = child_values.get_mut(c).filter(|_| height > 1);
+                let out = child_run_sums.get_mut(c).filter(|_| height > 1);
                 let child_bound = search.score(
                     target,
                     &levels,
@@ -639,12 +638,12 @@ pub fn match_scan_above(
             // Ascending bound, ties: larger key first, so the stack pops best/smallest first.
             let children = children.get_mut(..passed).unwrap_or(&mut []);
             children.sort_unstable_by(|l, r| l.0.cmp(&r.0).then(r.1.cmp(&l.1)));
-            values.truncate(slot * runs);
+            run_sums.truncate(slot * runs);
             for &(child_bound, child_key, c) in children.iter() {
                 stack.push((child_bound, child_key, height - 1));
-                match child_values.get(c).filter(|_| height > 1) {
-                    Some(child) => values.extend_from_slice(child),
-                    None => values.resize(values.len() + runs, 0),
+                match child_run_sums.get(c).filter(|_| height > 1) {
+                    Some(child) => run_sums.extend_from_slice(child),
+                    None => run_sums.resize(run_sums.len() + runs, 0),
                 }
             }
         }

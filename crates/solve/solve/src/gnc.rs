@@ -262,6 +262,10 @@ pub fn optimize_gnc<G: LieGroup<D>, const D: usize>(
                 tls_weight(*s, threshold, mu)
             };
         }
+        // The session leaves edges outside its pattern out of every step: an edge the warm
+        // start dropped that regains weight must be back in it, and the false loop closures
+        // the graduation switches off leave it (their fill is most of the factor's).
+        session = rebuild_if_needed(session, &mut problem, &weights, &mut pattern)?;
         let run = session.run(&mut problem, &weights, &params.inner, |_| {});
         inner_iterations += run.iterations.len();
         residuals = chi2_of(&problem);
@@ -331,6 +335,58 @@ mod tests {
         // As μ grows the transition band shrinks to the threshold.
         assert_eq!(tls_weight(c2 * 0.99, c2, 1e4), 1.0);
         assert_eq!(tls_weight(c2 * 1.01, c2, 1e4), 0.0);
+    }
+
+    /// A square of odometry closed by a loop that disagrees with it by 0.5 m: an edge left
+    /// out of the session's pattern is left out of its steps (the odometry alone is met and
+    /// the loop keeps its whole error), and shares the error once `rebuild_if_needed` puts it
+    /// back, as the graduation needs when a dropped edge regains weight.
+    #[test]
+    fn an_edge_that_regains_weight_is_back_in_the_steps() {
+        use mapmerge_geometry::Se2;
+        use mapmerge_posegraph::{Edge, NodeId, PoseGraph2, Vertex};
+        use nalgebra::Matrix3;
+        let mut graph = PoseGraph2::new();
+        let step = Se2::new(1.0, 0.0, std::f64::consts::FRAC_PI_2);
+        let mut pose = Se2::identity();
+        for k in 0..4u64 {
+            graph.add_vertex(NodeId(k), Vertex::new(pose)).unwrap();
+            pose = pose.compose(&step);
+        }
+        for (from, to, kind) in [
+            (0, 1, EdgeKind::Odometry),
+            (1, 2, EdgeKind::Odometry),
+            (2, 3, EdgeKind::Odometry),
+            (3, 0, EdgeKind::Loop),
+        ] {
+            graph
+                .add_edge(Edge {
+                    from: NodeId(from),
+                    to: NodeId(to),
+                    measurement: if kind == EdgeKind::Loop {
+                        Se2::new(1.0, 0.5, std::f64::consts::FRAC_PI_2)
+                    } else {
+                        step
+                    },
+                    information: Matrix3::identity(),
+                    kind,
+                })
+                .unwrap();
+        }
+        let loop_chi2 = |rebuild: bool| {
+            let mut problem = Problem::compile(&graph).unwrap();
+            let mut pattern = vec![true, true, true, false];
+            let weights = vec![1.0; 4];
+            let mut session = Session::with_active_edges(&mut problem, Some(&pattern)).unwrap();
+            if rebuild {
+                session = rebuild_if_needed(session, &mut problem, &weights, &mut pattern).unwrap();
+            }
+            session.run(&mut problem, &weights, &OptimizerParams::default(), |_| {});
+            Problem::edge_chi2(&problem.edges[3], &problem.poses)
+        };
+        let (left_out, back_in) = (loop_chi2(false), loop_chi2(true));
+        assert!((left_out - 0.25).abs() < 1e-6, "{left_out}");
+        assert!(back_in < 0.5 * left_out, "{back_in} against {left_out}");
     }
 
     #[test]
