@@ -1,8 +1,6 @@
 //! A pose graph compiled into flat arrays for the optimizer: dense vertex indices, free-variable
 //! slots, and per-edge residuals and Jacobians.
 
-use std::collections::BTreeMap;
-
 use mapmerge_geometry::LieGroup;
 use mapmerge_posegraph::{EdgeId, EdgeKind, NodeId, PoseGraph};
 use nalgebra::{SMatrix, SVector};
@@ -70,15 +68,13 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
             poses.push(v.pose);
             fixed.push(v.fixed);
         }
-        let index: BTreeMap<NodeId, u32> = ids
-            .iter()
-            .enumerate()
-            .map(|(i, id)| (*id, i as u32))
-            .collect();
+        // The graph lists its vertices in id order, so `ids` is sorted.
+        debug_assert!(ids.windows(2).all(|w| w[0] < w[1]));
+        let index_of = |id: &NodeId| ids.binary_search(id).ok().map(|i| i as u32);
         let mut edges = Vec::with_capacity(graph.num_edges());
         let mut anchored = fixed.clone();
         for (eid, e) in graph.edges() {
-            let (Some(&from), Some(&to)) = (index.get(&e.from), index.get(&e.to)) else {
+            let (Some(from), Some(to)) = (index_of(&e.from), index_of(&e.to)) else {
                 return Err(SolveError::DanglingEdge(eid));
             };
             if !e.measurement.is_finite() || e.information.iter().any(|x| !x.is_finite()) {
@@ -102,9 +98,9 @@ impl<G: LieGroup<D>, const D: usize> Problem<G, D> {
         for component in graph.connected_components() {
             let has_anchor = component
                 .iter()
-                .any(|id| index.get(id).is_some_and(|&i| anchored[i as usize]));
+                .any(|id| index_of(id).is_some_and(|i| anchored[i as usize]));
             if !has_anchor {
-                if let Some(&i) = component.first().and_then(|id| index.get(id)) {
+                if let Some(i) = component.first().and_then(index_of) {
                     fixed[i as usize] = true;
                     gauge_fixed.push(component[0]);
                 }
