@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # Benchmark mapmerge against its peers (GTSAM, factrs, apex-solver) side by side in one run.
 #
-# usage: scripts/bench_peers.sh [--global | --outliers] [--repeats N] [--timeout S]
+# usage: scripts/bench_peers.sh [--global | --outliers [--seeds S,S,...]] [--repeats N] [--timeout S]
 #                               [--only SUBSTRING ...] [--out-dir DIR]
 #
 #   (default)   pose-graph table: every graph optimised by mapmerge, GTSAM, factrs and apex,
 #               median of 3 wall times; GTSAM scores mapmerge's result  -> bench-out/peers.md
 #   --global    mapmerge --init global on torus3D, cubicle, ais2klinik next to GTSAM from the
 #               file's initial guess                                      -> bench-out/global.md
-#   --outliers  vertigo-style false loop closures (fractions 0.1, 0.5, seed 42) on M3500 and
+#   --outliers  vertigo-style false loop closures (fractions 0.1, 0.5; --seeds S,S,... default 42) on M3500 and
 #               city10000, mapmerge --robust gnc: precision/recall of the rejected edges, share of
 #               true loop closures kept, RMS against the outlier-free optimum -> bench-out/outliers.md
 #
