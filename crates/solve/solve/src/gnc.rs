@@ -85,10 +85,6 @@ impl Default for GncParams {
             inner: OptimizerParams {
                 max_iterations: 30,
                 relative_decrease_tolerance: 1e-6,
-                // Each step starts next to the last one's solution with new weights; damping
-                // from 1e-9 took longer here (city10000 with 50 % false loops: 32 s against
-                // 28 s, the same edges rejected).
-                lambda_initial: 1e-5,
                 ..Default::default()
             },
             inlier_threshold_chi2: None,
