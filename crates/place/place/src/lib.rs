@@ -69,9 +69,9 @@ pub use evidence::{disagreement_ratio, evidence, Evidence, EvidenceParams};
 pub use index::{Candidate, IndexParams, PlaceIndex};
 pub use keyframe::{Keyframe, KeyframeId};
 pub use loops::{
-    find_loop_candidates, find_loop_candidates_with, find_loop_candidates_with_poses,
-    verify_candidates, verify_candidates_by, PlaceCandidate, PlaceDatabase, PlaceParams,
-    VerifiedLoop,
+    accept_verified, find_loop_candidates, find_loop_candidates_with,
+    find_loop_candidates_with_poses, verify_candidates, verify_candidates_by, PlaceCandidate,
+    PlaceDatabase, PlaceParams, VerifiedLoop,
 };
 /// The free space a [`Keyframe`] may carry (re-exported: it is part of the keyframe).
 pub use mapmerge_grid::FreeSpace;

@@ -230,6 +230,18 @@ pub fn verify_candidates_by(
             v.score.is_finite().then_some((c, v))
         })
         .collect();
+    accept_verified(query, &verified, params, same_place)
+}
+
+/// The acceptance step of [`verify_candidates_by`] for candidates the caller verified itself
+/// (pairs with a finite score): the best when it reaches `params.min_score`, with its
+/// confidence against the best rival that `same_place` says shows another place.
+pub fn accept_verified(
+    query: &Keyframe,
+    verified: &[(&PlaceCandidate, Verification)],
+    params: &PlaceParams,
+    same_place: impl Fn((&PlaceCandidate, &Verification), (&PlaceCandidate, &Verification)) -> bool,
+) -> Option<VerifiedLoop> {
     let (best_candidate, best) = verified.iter().max_by(|x, y| {
         x.1.score
             .total_cmp(&y.1.score)

@@ -103,15 +103,14 @@ impl DescriptorExtractor for ScanContextParams {
 pub struct ScanContext {
     ring_count: usize,
     sector_count: usize,
-    /// Bin values in `[0, 1]`, row-major `[ring][sector]`.
-    bins: Vec<f32>,
     /// Mean of each ring (Sec. IV-A).
     ring_key: Vec<f32>,
     /// Column `j` (sector `j`, all rings) scaled to unit length (`ring × sector`); zeros for
-    /// an empty column.
+    /// an empty column. With `column_norms` it is the whole image: a keyframe's descriptor
+    /// is kept for as long as the map, so it holds one copy of it.
     unit_columns: DMatrix<f32>,
-    /// `unit_columns` transposed (`sector × ring`), for the product in the comparison.
-    unit_rows: DMatrix<f32>,
+    /// The length of each column before scaling (0 for an empty column).
+    column_norms: Vec<f32>,
     /// Whether column `j` holds any occupancy.
     column_occupied: Vec<bool>,
 }
@@ -169,6 +168,7 @@ impl ScanContext {
             .map(|ring| ring.iter().sum::<f32>() / sector_count as f32)
             .collect();
         let mut unit_columns = DMatrix::<f32>::zeros(ring_count, sector_count);
+        let mut column_norms = vec![0.0f32; sector_count];
         let mut column_occupied = vec![false; sector_count];
         for sector in 0..sector_count {
             let column = (0..ring_count).filter_map(|ring| bins.get(ring * sector_count + sector));
@@ -176,6 +176,9 @@ impl ScanContext {
             if norm > 1e-6 {
                 if let Some(flag) = column_occupied.get_mut(sector) {
                     *flag = true;
+                }
+                if let Some(out) = column_norms.get_mut(sector) {
+                    *out = norm;
                 }
                 for ring in 0..ring_count {
                     let value = bins
@@ -191,10 +194,9 @@ impl ScanContext {
         Self {
             ring_count,
             sector_count,
-            bins,
             ring_key,
-            unit_rows: unit_columns.transpose(),
             unit_columns,
+            column_norms,
             column_occupied,
         }
     }
@@ -209,15 +211,12 @@ impl ScanContext {
         self.sector_count
     }
 
-    /// Value of bin `(ring, sector)` in `[0, 1]` (0 outside the grid).
+    /// Value of bin `(ring, sector)` in `[0, 1]` (0 outside the grid, and in a column whose
+    /// values are all below about 1e-6).
     pub fn bin(&self, ring: usize, sector: usize) -> f32 {
-        if ring >= self.ring_count || sector >= self.sector_count {
-            return 0.0;
-        }
-        self.bins
-            .get(ring * self.sector_count + sector)
-            .copied()
-            .unwrap_or(0.0)
+        let unit = self.unit_columns.get((ring, sector)).copied();
+        let norm = self.column_norms.get(sector).copied();
+        unit.zip(norm).map_or(0.0, |(unit, norm)| unit * norm)
     }
 
     /// The ring key: the mean bin value of each ring, innermost first (rotation invariant).
@@ -237,7 +236,7 @@ impl ScanContext {
     fn shifted_distances(&self, candidate: &Self) -> Vec<f64> {
         let sectors = self.sector_count;
         // cosines[(j, k)] = q_j · c_k (unit columns).
-        let cosines = &self.unit_rows * &candidate.unit_columns;
+        let cosines = self.unit_columns.tr_mul(&candidate.unit_columns);
         let cosines = cosines.as_slice();
         let occupied = |flags: &[bool]| flags.iter().filter(|&&f| f).count() as f64;
         let (q_count, c_count) = (
@@ -343,6 +342,43 @@ mod tests {
     use super::*;
     use mapmerge_geometry::{wrap_angle_rad, Se2};
     use proptest::prelude::*;
+
+    /// Hard bins: a point fills its bin with 1, two points in one bin still read 1, and every
+    /// other bin reads 0, from the one copy of the image the descriptor keeps.
+    #[test]
+    fn the_bins_are_the_polar_image() {
+        let params = ScanContextParams {
+            soft_binning: false,
+            ..ScanContextParams::default()
+        };
+        let (rings, sectors, radius_m) = params.sanitized();
+        let ring_width_m = radius_m / rings as f64;
+        let sector_rad = std::f64::consts::TAU / sectors as f64;
+        // The centre of bin (ring, sector) in the keyframe frame (sector 0 starts behind).
+        let at = |ring: usize, sector: usize| {
+            let range_m = (ring as f64 + 0.5) * ring_width_m;
+            let angle = (sector as f64 + 0.5) * sector_rad - std::f64::consts::PI;
+            Point2::new(range_m * angle.cos(), range_m * angle.sin())
+        };
+        let filled = [(0, 0), (3, 7), (3, 8), (rings - 1, sectors - 1)];
+        let mut points: Vec<Point2> = filled.iter().map(|&(r, s)| at(r, s)).collect();
+        points.push(at(3, 7) * 1.001);
+        let context = ScanContext::new(&points, &params);
+        for ring in 0..rings {
+            for sector in 0..sectors {
+                let expected = if filled.contains(&(ring, sector)) {
+                    1.0
+                } else {
+                    0.0
+                };
+                assert!(
+                    (context.bin(ring, sector) - expected).abs() < 1e-6,
+                    "({ring}, {sector})"
+                );
+            }
+        }
+        assert_eq!(context.bin(rings, 0), 0.0);
+    }
 
     /// An L-shaped room with a pillar, seen from `(x, y)`: an asymmetric scene.
     fn room_points(x: f64, y: f64) -> Vec<Point2> {

@@ -115,6 +115,7 @@ impl ScanMatchVerifier {
         query: &Keyframe,
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
+        window: &SearchWindow,
     ) -> (Option<ScanMatchTarget>, Option<Match>) {
         let spare = self
             .spare_targets
@@ -134,7 +135,7 @@ impl ScanMatchVerifier {
                 target,
                 &query.points_in_keyframe,
                 guess_candidate_from_query,
-                &self.window,
+                window,
             )
         });
         (target, found)
@@ -155,7 +156,21 @@ impl ScanMatchVerifier {
         candidate: &Keyframe,
         guess_candidate_from_query: &Se2,
     ) -> Option<(Verification, Evidence)> {
-        let (target, found) = self.search(query, candidate, guess_candidate_from_query);
+        self.verify_within(query, candidate, guess_candidate_from_query, &self.window)
+    }
+
+    /// As [`ScanMatchVerifier::verify_with_evidence`], searching `window` around the guess
+    /// in place of the verifier's own: a guess known to a few centimetres (an alignment
+    /// found before and carried along the query's path) needs a far smaller window. The
+    /// search for the query turned around keeps the verifier's window.
+    pub fn verify_within(
+        &self,
+        query: &Keyframe,
+        candidate: &Keyframe,
+        guess_candidate_from_query: &Se2,
+        window: &SearchWindow,
+    ) -> Option<(Verification, Evidence)> {
+        let (target, found) = self.search(query, candidate, guess_candidate_from_query, window);
         let verified = target.as_ref().zip(found).map(|(target, found)| {
             self.weigh(query, candidate, target, found, guess_candidate_from_query)
         });
@@ -253,7 +268,8 @@ impl GeometricVerifier for ScanMatchVerifier {
                 .verify_with_evidence(query, candidate, guess_candidate_from_query)
                 .map(|(v, _)| v);
         }
-        let (target, found) = self.search(query, candidate, guess_candidate_from_query);
+        let (target, found) =
+            self.search(query, candidate, guess_candidate_from_query, &self.window);
         self.spare(target);
         let found = found?;
         Some(Verification {
@@ -298,7 +314,7 @@ mod tests {
         candidate: &Keyframe,
         guess: &Se2,
     ) -> f64 {
-        let (target, found) = verifier.search(query, candidate, guess);
+        let (target, found) = verifier.search(query, candidate, guess, &verifier.window);
         let (target, found) = (target.unwrap(), found.unwrap());
         let turned = Se2::new(guess.x_m, guess.y_m, guess.theta_rad + std::f64::consts::PI);
         let flip_ratio = verifier
@@ -367,6 +383,61 @@ mod tests {
         }
         assert!(flips[0] > 0.5, "the rectangle fits turned: {flips:?}");
         assert!(flips[1] <= 0.5, "the irregular room does not: {flips:?}");
+    }
+
+    /// A small window around a guess a few centimetres off finds the alignment and score of
+    /// the whole window around a guess with no translation; around a guess 1 m off, it
+    /// searches the small window only.
+    #[test]
+    fn a_small_window_around_a_close_guess_verifies_as_the_whole_window() {
+        let irregular = walls(&[
+            Point2::new(-3.0, -2.5),
+            Point2::new(5.0, -2.0),
+            Point2::new(4.0, 3.0),
+            Point2::new(-1.2, 3.0),
+            Point2::new(-3.5, 1.0),
+        ]);
+        let mut params = PlaceVerifierParams::default();
+        params.matcher.correlative.query_voxel_m = 0.2;
+        let verifier = params.verifier().unwrap();
+        let candidate_from_query = Se2::new(0.8, -0.6, 0.1);
+        let candidate = Keyframe::new(1, irregular.clone());
+        let query_from_candidate = candidate_from_query.inverse();
+        let query = Keyframe::new(
+            2,
+            irregular
+                .iter()
+                .map(|p| query_from_candidate.transform_point(p))
+                .collect::<Vec<_>>(),
+        );
+        let (whole, _) = verifier
+            .verify_with_evidence(&query, &candidate, &Se2::new(0.0, 0.0, 0.05))
+            .unwrap();
+        let small = SearchWindow::new(0.3, 3f64.to_radians());
+        let close = Se2::new(0.86, -0.55, 0.12);
+        let (near, _) = verifier
+            .verify_within(&query, &candidate, &close, &small)
+            .unwrap();
+        let offset = whole.candidate_from_query.between(&candidate_from_query);
+        assert!(offset.translation().norm() < 0.05, "{whole:?}");
+        let apart = near
+            .candidate_from_query
+            .between(&whole.candidate_from_query);
+        assert!(
+            apart.translation().norm() < 0.02 && apart.theta_rad.abs() < 0.01,
+            "{near:?}"
+        );
+        assert!(
+            (near.score - whole.score).abs() < 0.02,
+            "{near:?} {whole:?}"
+        );
+        // The search stays inside the small window: from a guess 1 m off, whatever it finds
+        // is within 0.3 m (and ICP's last step) of that guess, not the true alignment.
+        let far = Se2::new(1.8, -0.6, 0.1);
+        if let Some((v, _)) = verifier.verify_within(&query, &candidate, &far, &small) {
+            let moved = far.between(&v.candidate_from_query).translation();
+            assert!(moved.x.abs() < 0.4 && moved.y.abs() < 0.4, "{v:?}");
+        }
     }
 
     /// A 360° scan (720 beams, robot frame) of the closed polygon `corners` from
