@@ -339,6 +339,36 @@ mod tests {
     /// The flipped search prunes below `flip_tolerance` of the best fit: the score is the
     /// full search's, in a rectangle (the turned query fits as well: penalised) and in an
     /// irregular room (it does not: no penalty either way).
+    /// An irregular room's walls (no turned or shifted fit).
+    fn irregular_room() -> Vec<Point2> {
+        walls(&[
+            Point2::new(-3.0, -2.5),
+            Point2::new(5.0, -2.0),
+            Point2::new(4.0, 3.0),
+            Point2::new(-1.2, 3.0),
+            Point2::new(-3.5, 1.0),
+        ])
+    }
+
+    /// The default verifier with a query thinned to 0.2 m: these rooms are small, and at the
+    /// default 0.4 m the irregular one keeps too few points to tell its turned fit from the
+    /// rectangle's.
+    fn fine_verifier() -> ScanMatchVerifier {
+        let mut params = PlaceVerifierParams::default();
+        params.matcher.correlative.query_voxel_m = 0.2;
+        params.verifier().unwrap()
+    }
+
+    /// `room` as a candidate keyframe, and as a query seen from `candidate_from_query`.
+    fn candidate_and_query(room: &[Point2], candidate_from_query: &Se2) -> (Keyframe, Keyframe) {
+        let query_from_candidate = candidate_from_query.inverse();
+        let query = room
+            .iter()
+            .map(|p| query_from_candidate.transform_point(p))
+            .collect::<Vec<_>>();
+        (Keyframe::new(1, room.to_vec()), Keyframe::new(2, query))
+    }
+
     #[test]
     fn the_pruned_flip_search_gives_the_full_searchs_score() {
         let rectangle = walls(&[
@@ -347,29 +377,11 @@ mod tests {
             Point2::new(3.0, 2.0),
             Point2::new(-3.0, 2.0),
         ]);
-        let irregular = walls(&[
-            Point2::new(-3.0, -2.5),
-            Point2::new(5.0, -2.0),
-            Point2::new(4.0, 3.0),
-            Point2::new(-1.2, 3.0),
-            Point2::new(-3.5, 1.0),
-        ]);
-        // A query thinned to 0.2 m: these rooms are small, and at the default 0.4 m the
-        // irregular one keeps too few points to tell its turned fit from the rectangle's.
-        let mut params = PlaceVerifierParams::default();
-        params.matcher.correlative.query_voxel_m = 0.2;
-        let verifier = params.verifier().unwrap();
+        let verifier = fine_verifier();
         let candidate_from_query = Se2::new(0.3, -0.2, 0.1);
         let mut flips = Vec::new();
-        for room in [rectangle, irregular] {
-            let candidate = Keyframe::new(1, room.clone());
-            let query_from_candidate = candidate_from_query.inverse();
-            let query = Keyframe::new(
-                2,
-                room.iter()
-                    .map(|p| query_from_candidate.transform_point(p))
-                    .collect::<Vec<_>>(),
-            );
+        for room in [rectangle, irregular_room()] {
+            let (candidate, query) = candidate_and_query(&room, &candidate_from_query);
             let guess = Se2::new(0.0, 0.0, 0.05);
             let (verification, proof) = verifier
                 .verify_with_evidence(&query, &candidate, &guess)
@@ -390,26 +402,9 @@ mod tests {
     /// searches the small window only.
     #[test]
     fn a_small_window_around_a_close_guess_verifies_as_the_whole_window() {
-        let irregular = walls(&[
-            Point2::new(-3.0, -2.5),
-            Point2::new(5.0, -2.0),
-            Point2::new(4.0, 3.0),
-            Point2::new(-1.2, 3.0),
-            Point2::new(-3.5, 1.0),
-        ]);
-        let mut params = PlaceVerifierParams::default();
-        params.matcher.correlative.query_voxel_m = 0.2;
-        let verifier = params.verifier().unwrap();
+        let verifier = fine_verifier();
         let candidate_from_query = Se2::new(0.8, -0.6, 0.1);
-        let candidate = Keyframe::new(1, irregular.clone());
-        let query_from_candidate = candidate_from_query.inverse();
-        let query = Keyframe::new(
-            2,
-            irregular
-                .iter()
-                .map(|p| query_from_candidate.transform_point(p))
-                .collect::<Vec<_>>(),
-        );
+        let (candidate, query) = candidate_and_query(&irregular_room(), &candidate_from_query);
         let (whole, _) = verifier
             .verify_with_evidence(&query, &candidate, &Se2::new(0.0, 0.0, 0.05))
             .unwrap();
