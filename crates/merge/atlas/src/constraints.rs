@@ -15,11 +15,11 @@
 //! when its epoch ends or its graph is imported — and each search filters the candidates by
 //! the graph they belong to.
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
 
-use mapmerge_geometry::{LieGroup, Se2};
+use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_params::{Checker, Real, Validate, SIGMA_M, SIGMA_RAD};
 use mapmerge_place::{
     seen_from_beside, verify_candidates, DescriptorExtractor, GeometricVerifier, Keyframe,
@@ -64,6 +64,14 @@ pub struct LoopClosureParams {
     /// rebuilt from their scans when searched again (default: 64). Outdoors a target is
     /// about 20 MB, so memory follows the submaps in use, not the submaps made.
     pub submap_targets_mb: f64,
+    /// A keyframe of the active graph joins the place index only when no indexed keyframe of
+    /// its epoch at least `REVISIT_MIN_VERTICES` vertices older lies within this distance (m)
+    /// and `REVISIT_MAX_TURN_RAD` of it (current poses): a revisit of a mapped place adds no
+    /// descriptor, so the index grows with the mapped area, not with the time spent in it
+    /// (default: 1; 0 indexes every keyframe). Loops still reach the revisited place through
+    /// the older keyframe: on the 13 public logs `slam` closed the same loops on 12 and one
+    /// fewer on infinite-corridor.
+    pub revisit_spacing_m: f64,
     /// Translation half-width of the local search: `min + per_m · d`, not searched beyond
     /// `max`, with `d` the path since the submap or since the last long loop, whichever is
     /// shorter (m) (default: 0.5, 0.05, 7).
@@ -131,6 +139,7 @@ impl Default for LoopClosureParams {
             max_distance_m: 5.0,
             max_submaps_per_keyframe: 2,
             submap_targets_mb: 64.0,
+            revisit_spacing_m: 1.0,
             window_linear: (0.5, 0.05, 7.0),
             window_angular: (10f64.to_radians(), 0.5f64.to_radians(), 45f64.to_radians()),
             refine_below_drift_m: 5.0,
@@ -234,7 +243,16 @@ pub struct ConstraintInfo {
     pub submap_target_rebuilds: usize,
     /// The most bytes finished submaps' match targets held at once.
     pub peak_submap_target_bytes: usize,
+    /// Keyframes of the active graph left out of the place index as revisits
+    /// (`loops.revisit_spacing_m`).
+    pub revisits_not_indexed: usize,
 }
+
+/// An indexed keyframe counts against a revisit only when at least this many vertices older:
+/// the keyframes just before it see the same place on the first pass.
+const REVISIT_MIN_VERTICES: u64 = 50;
+/// ... and when turned by at most this much (rad): a 180° laser sees another scene turned.
+const REVISIT_MAX_TURN_RAD: f64 = 0.5;
 
 /// What one keyframe's constraint search found (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -277,6 +295,13 @@ pub(crate) struct ConstraintBuilder {
     /// Indexed keyframes by insertion ordinal.
     indexed: Vec<IndexedKeyframe>,
     ordinal_of: HashMap<KeyframeId, usize>,
+    /// Indexed keyframes of the active graph by the cell (`loops.revisit_spacing_m`) of their
+    /// pose when indexed, to find revisits without a scan of the whole index. A keyframe
+    /// moved to another cell by later corrections may be missed: then a revisit is indexed,
+    /// which costs memory only.
+    revisit_cells: HashMap<(i64, i64), Vec<NodeId>>,
+    /// Keyframes left out of the index as revisits (not checked again).
+    revisits: HashSet<NodeId>,
     /// The current epoch's finished submaps, by anchor node (creation order).
     submaps: BTreeMap<NodeId, Submap>,
     /// The finished submaps holding their match target, least recently searched first, with
@@ -329,6 +354,8 @@ impl ConstraintBuilder {
             index: PlaceIndex::new(params.place.index.clone()),
             indexed: Vec::new(),
             ordinal_of: HashMap::new(),
+            revisit_cells: HashMap::new(),
+            revisits: HashSet::new(),
             submaps: BTreeMap::new(),
             held_targets: VecDeque::new(),
             travel_m: 0.0,
@@ -365,17 +392,59 @@ impl ConstraintBuilder {
         self.keyframes_since_merge_search = 0;
     }
 
-    /// Indexes keyframe `node` (once) with its descriptor.
+    /// The cell of `pose` in the revisit lookup (`spacing_m` > 0).
+    fn revisit_cell(pose: &Se2, spacing_m: f64) -> (i64, i64) {
+        (
+            (pose.x_m / spacing_m).floor() as i64,
+            (pose.y_m / spacing_m).floor() as i64,
+        )
+    }
+
+    /// Whether `node` of the active graph `graph` revisits an indexed keyframe of its own
+    /// epoch (`loops.revisit_spacing_m`). Only its own epoch's: those stay in the graph when a
+    /// merge is undone.
+    fn revisits(&self, graph: &PoseGraph2, node: NodeId, spacing_m: f64) -> bool {
+        let Some(this) = graph.vertex(node) else {
+            return false;
+        };
+        let pose = this.pose;
+        if !(spacing_m > 0.0 && pose.is_finite()) {
+            return false;
+        }
+        let (cx, cy) = Self::revisit_cell(&pose, spacing_m);
+        (cx - 1..=cx + 1)
+            .flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y)))
+            .filter_map(|cell| self.revisit_cells.get(&cell))
+            .flatten()
+            .filter(|older| older.0 + REVISIT_MIN_VERTICES <= node.0)
+            .filter_map(|older| graph.vertex(*older))
+            .any(|older| {
+                older.meta.session == this.meta.session
+                    && (older.pose.translation() - pose.translation()).norm() < spacing_m
+                    && wrap_angle_rad(older.pose.theta_rad - pose.theta_rad).abs()
+                        <= REVISIT_MAX_TURN_RAD
+            })
+    }
+
+    /// Indexes keyframe `node` (once) with its descriptor; `active_pose`, its pose when it
+    /// belongs to the active graph, enters the revisit lookup with `spacing_m`.
     pub(crate) fn index_keyframe(
         &mut self,
         node: NodeId,
         points: &Arc<[Point2]>,
         descriptor: PlaceSignature,
         submap: Option<NodeId>,
+        active_pose: Option<(Se2, f64)>,
     ) {
         let id = KeyframeId(node.0);
         if self.ordinal_of.contains_key(&id) {
             return;
+        }
+        if let Some((pose, spacing_m)) = active_pose.filter(|(p, m)| *m > 0.0 && p.is_finite()) {
+            self.revisit_cells
+                .entry(Self::revisit_cell(&pose, spacing_m))
+                .or_default()
+                .push(node);
         }
         self.index.insert(id, descriptor);
         self.ordinal_of.insert(id, self.indexed.len());
@@ -505,7 +574,11 @@ impl<B: BackupStore> Atlas<B> {
         let fresh: Vec<NodeId> = nodes
             .iter()
             .copied()
-            .filter(|n| !self.constraints.is_indexed(*n) && self.keyframes.get(*n).is_some())
+            .filter(|n| {
+                !self.constraints.is_indexed(*n)
+                    && !self.constraints.revisits.contains(n)
+                    && self.keyframes.get(*n).is_some()
+            })
             .collect();
         let graph = match map {
             None => &self.active,
@@ -514,11 +587,24 @@ impl<B: BackupStore> Atlas<B> {
                 None => return,
             },
         };
+        // Revisits of the active graph's mapped places are left out (`revisit_spacing_m`).
+        let spacing_m = self.params.loops.revisit_spacing_m;
+        let pose_of = |node: NodeId| {
+            map.is_none()
+                .then(|| graph.vertex(node).map(|v| v.pose))
+                .flatten()
+        };
+        let (revisits, fresh): (Vec<NodeId>, Vec<NodeId>) = fresh
+            .into_iter()
+            .partition(|n| map.is_none() && self.constraints.revisits(graph, *n, spacing_m));
+        self.constraints.info.revisits_not_indexed += revisits.len();
+        self.constraints.revisits.extend(revisits);
         let descriptors = self.describe(graph, &fresh);
         for (node, descriptor) in descriptors {
             if let Some(points) = self.keyframes.get(node).cloned() {
+                let active_pose = pose_of(node).map(|pose| (pose, spacing_m));
                 self.constraints
-                    .index_keyframe(node, &points, descriptor, submap);
+                    .index_keyframe(node, &points, descriptor, submap, active_pose);
             }
         }
     }
@@ -1435,6 +1521,11 @@ impl Validate for LoopClosureParams {
                 "submap_targets_mb",
                 self.submap_targets_mb,
                 Real::within(0.0, 1e6),
+            )
+            .real(
+                "revisit_spacing_m",
+                self.revisit_spacing_m,
+                Real::within(0.0, 100.0),
             )
             .reals(
                 "window_linear",

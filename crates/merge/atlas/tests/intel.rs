@@ -189,3 +189,43 @@ fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
     assert_eq!(loops, kept_loops);
     assert_eq!(poses, kept_poses);
 }
+
+/// Revisits of mapped places stay out of the place index (`loops.revisit_spacing_m`): on the
+/// first 600 scans of intel, which pass the same corridors more than once, a fifth or more of
+/// the keyframes are left out, and the loops and poses are those of indexing every keyframe.
+#[test]
+fn revisits_stay_out_of_the_place_index_and_the_loops_are_the_same() {
+    let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+        return;
+    };
+    let log = mapmerge_io::read_carmen(&path).unwrap();
+    let run = |spacing_m: f64| {
+        let mut params = AtlasParams::default();
+        params.loops.revisit_spacing_m = spacing_m;
+        let mut atlas = Atlas::new(params).unwrap();
+        let (scan_of, _, _) = map_scans(&mut atlas, &log, 0..600, false);
+        let poses: Vec<(NodeId, Se2)> = atlas
+            .active()
+            .vertices()
+            .map(|(n, v)| (n, v.pose))
+            .collect();
+        (
+            scan_of.len(),
+            poses,
+            atlas.loops().to_vec(),
+            atlas.constraint_info(),
+        )
+    };
+    let (keyframes, all_poses, all_loops, all) = run(0.0);
+    let (_, poses, loops, culled) = run(1.0);
+    eprintln!(
+        "{keyframes} keyframes, {} left out, {} loops",
+        culled.revisits_not_indexed,
+        loops.len()
+    );
+    assert_eq!(all.revisits_not_indexed, 0);
+    assert!(5 * culled.revisits_not_indexed >= keyframes, "{culled:?}");
+    assert!(all.local_loops >= 10, "{all:?}");
+    assert_eq!(loops, all_loops);
+    assert_eq!(poses, all_poses);
+}
