@@ -155,6 +155,32 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
 /// Finished submaps that release their match targets (`loops.submap_targets_mb`) and rebuild
 /// them from their scans when searched again close the same loops: the graph is the same to
 /// the bit, while the targets held at once stay a fraction of keeping them all.
+/// Intel's first 600 scans mapped in one epoch with `params`: keyframes made, the active
+/// graph's poses, the loops and the constraint builder's counters.
+fn map_intel_600(
+    log: &LaserLog,
+    params: AtlasParams,
+) -> (
+    usize,
+    Vec<(NodeId, Se2)>,
+    Vec<mapmerge_atlas::LoopRecord>,
+    mapmerge_atlas::ConstraintInfo,
+) {
+    let mut atlas = Atlas::new(params).unwrap();
+    let (scan_of, _, _) = map_scans(&mut atlas, log, 0..600, false);
+    let poses = atlas
+        .active()
+        .vertices()
+        .map(|(n, v)| (n, v.pose))
+        .collect();
+    (
+        scan_of.len(),
+        poses,
+        atlas.loops().to_vec(),
+        atlas.constraint_info(),
+    )
+}
+
 #[test]
 fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
     let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
@@ -164,17 +190,10 @@ fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
     let run = |budget_mb: f64| {
         let mut params = AtlasParams::default();
         params.loops.submap_targets_mb = budget_mb;
-        let mut atlas = Atlas::new(params).unwrap();
-        map_scans(&mut atlas, &log, 0..600, false);
-        let poses: Vec<(NodeId, Se2)> = atlas
-            .active()
-            .vertices()
-            .map(|(n, v)| (n, v.pose))
-            .collect();
-        (poses, atlas.loops().to_vec(), atlas.constraint_info())
+        map_intel_600(&log, params)
     };
-    let (kept_poses, kept_loops, kept) = run(1e6);
-    let (poses, loops, released) = run(0.0);
+    let (_, kept_poses, kept_loops, kept) = run(1e6);
+    let (_, poses, loops, released) = run(0.0);
     eprintln!(
         "all kept: {} loops, peak {:.1} MB; released: {} rebuilds, peak {:.1} MB",
         kept_loops.len(),
@@ -202,19 +221,7 @@ fn revisits_stay_out_of_the_place_index_and_the_loops_are_the_same() {
     let run = |spacing_m: f64| {
         let mut params = AtlasParams::default();
         params.loops.revisit_spacing_m = spacing_m;
-        let mut atlas = Atlas::new(params).unwrap();
-        let (scan_of, _, _) = map_scans(&mut atlas, &log, 0..600, false);
-        let poses: Vec<(NodeId, Se2)> = atlas
-            .active()
-            .vertices()
-            .map(|(n, v)| (n, v.pose))
-            .collect();
-        (
-            scan_of.len(),
-            poses,
-            atlas.loops().to_vec(),
-            atlas.constraint_info(),
-        )
+        map_intel_600(&log, params)
     };
     let (keyframes, all_poses, all_loops, all) = run(0.0);
     let (_, poses, loops, culled) = run(1.0);
