@@ -57,12 +57,17 @@ fn map_scans(
     (scan_of, None, scans.end)
 }
 
+/// The corrected Intel log from the shared data (`None` without it, and the test skips).
+fn intel_log() -> Option<LaserLog> {
+    let path = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz")?;
+    Some(mapmerge_io::read_carmen(&path).unwrap())
+}
+
 #[test]
 fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
-    let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+    let Some(log) = intel_log() else {
         return;
     };
-    let log = mapmerge_io::read_carmen(&path).unwrap();
     let corrected: Vec<Se2> = log
         .scans
         .iter()
@@ -183,10 +188,9 @@ fn map_intel_600(
 
 #[test]
 fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
-    let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+    let Some(log) = intel_log() else {
         return;
     };
-    let log = mapmerge_io::read_carmen(&path).unwrap();
     let run = |budget_mb: f64| {
         let mut params = AtlasParams::default();
         params.loops.submap_targets_mb = budget_mb;
@@ -214,10 +218,9 @@ fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
 /// the keyframes are left out, and the loops and poses are those of indexing every keyframe.
 #[test]
 fn revisits_stay_out_of_the_place_index_and_the_loops_are_the_same() {
-    let Some(path) = mapmerge_testkit::shared_data("carmen/intel-corrected.log.xz") else {
+    let Some(log) = intel_log() else {
         return;
     };
-    let log = mapmerge_io::read_carmen(&path).unwrap();
     let run = |spacing_m: f64| {
         let mut params = AtlasParams::default();
         params.loops.revisit_spacing_m = spacing_m;
