@@ -1612,7 +1612,9 @@ fn merge_edges_of(hypothesis: &Hypothesis<ObservedEdge>) -> Vec<LoopEdge> {
 }
 
 /// The merged map as the detectors see it (see [`Engine::merged_map_scans`]): `graph`'s
-/// keyframes with the atlas's points.
+/// keyframes with the atlas's points, the other epochs' without their revisits of places
+/// they mapped already ([`Atlas::is_revisit`]), so what the detectors hold follows the
+/// mapped area.
 fn merged_map_scans(atlas: &Atlas, graph: &PoseGraph2) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
     let current_epoch = atlas.current_epoch().0;
     let (mut current, mut other) = (Vec::new(), Vec::new());
@@ -1628,7 +1630,7 @@ fn merged_map_scans(atlas: &Atlas, graph: &PoseGraph2) -> (Vec<DetectorScan>, Ve
         };
         if vertex.meta.session.0 == current_epoch {
             current.push(scan);
-        } else {
+        } else if !atlas.is_revisit(node) {
             other.push(scan);
         }
     }

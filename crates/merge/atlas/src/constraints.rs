@@ -15,7 +15,7 @@
 //! when its epoch ends or its graph is imported — and each search filters the candidates by
 //! the graph they belong to.
 
-use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -65,12 +65,13 @@ pub struct LoopClosureParams {
     /// about 20 MB, so memory follows the submaps in use, not the submaps made.
     pub submap_targets_mb: f64,
     /// A keyframe of the active graph joins the place index only when no indexed keyframe of
-    /// its epoch at least `REVISIT_MIN_VERTICES` vertices older lies within this distance (m)
-    /// and `REVISIT_MAX_TURN_RAD` of it (current poses): a revisit of a mapped place adds no
-    /// descriptor, so the index grows with the mapped area, not with the time spent in it
-    /// (default: 1; 0 indexes every keyframe). Loops still reach the revisited place through
-    /// the older keyframe: on the 13 public logs `slam` closed the same loops on 12 and one
-    /// fewer on infinite-corridor.
+    /// the graph (its epoch's or a merged one's) at least `REVISIT_MIN_VERTICES` vertices
+    /// older lies within this distance (m) and `REVISIT_MAX_TURN_RAD` of it (current poses):
+    /// a revisit of a mapped place adds no descriptor, and the invalid-merge detectors judge
+    /// the merged epochs without their revisits, so both grow with the mapped area, not with
+    /// the time spent in it (default: 1; 0 indexes every keyframe). Loops still reach the
+    /// revisited place through the older keyframe: on the 13 public logs `slam` closed the
+    /// same loops on 12 and one fewer on infinite-corridor.
     pub revisit_spacing_m: f64,
     /// Translation half-width of the local search: `min + per_m · d`, not searched beyond
     /// `max`, with `d` the path since the submap or since the last long loop, whichever is
@@ -296,12 +297,13 @@ pub(crate) struct ConstraintBuilder {
     indexed: Vec<IndexedKeyframe>,
     ordinal_of: HashMap<KeyframeId, usize>,
     /// Indexed keyframes of the active graph by the cell (`loops.revisit_spacing_m`) of their
-    /// pose when indexed, to find revisits without a scan of the whole index. A keyframe
-    /// moved to another cell by later corrections may be missed: then a revisit is indexed,
-    /// which costs memory only.
+    /// pose when indexed or last merged, to find revisits without a scan of the whole index.
+    /// A keyframe moved to another cell by later corrections may be missed: then a revisit
+    /// is indexed, which costs memory only.
     revisit_cells: HashMap<(i64, i64), Vec<NodeId>>,
-    /// Keyframes left out of the index as revisits (not checked again).
-    revisits: HashSet<NodeId>,
+    /// Keyframes left out of the index as revisits, with the indexed keyframe each revisits
+    /// (not checked again unless an undo takes that one away).
+    revisits: HashMap<NodeId, NodeId>,
     /// The current epoch's finished submaps, by anchor node (creation order).
     submaps: BTreeMap<NodeId, Submap>,
     /// The finished submaps holding their match target, least recently searched first, with
@@ -355,7 +357,7 @@ impl ConstraintBuilder {
             indexed: Vec::new(),
             ordinal_of: HashMap::new(),
             revisit_cells: HashMap::new(),
-            revisits: HashSet::new(),
+            revisits: HashMap::new(),
             submaps: BTreeMap::new(),
             held_targets: VecDeque::new(),
             travel_m: 0.0,
@@ -381,6 +383,7 @@ impl ConstraintBuilder {
         self.session_start = session_start;
         self.submaps.clear();
         self.held_targets.clear();
+        self.revisit_cells.clear();
         self.travel_m = 0.0;
         self.travel_at_last_loop_m = 0.0;
         self.pending_loops.clear();
@@ -400,30 +403,46 @@ impl ConstraintBuilder {
         )
     }
 
-    /// Whether `node` of the active graph `graph` revisits an indexed keyframe of its own
-    /// epoch (`loops.revisit_spacing_m`). Only its own epoch's: those stay in the graph when a
-    /// merge is undone.
-    fn revisits(&self, graph: &PoseGraph2, node: NodeId, spacing_m: f64) -> bool {
-        let Some(this) = graph.vertex(node) else {
-            return false;
-        };
-        let pose = this.pose;
+    /// The indexed keyframe of the active graph `graph` that `node` revisits, if any
+    /// (`loops.revisit_spacing_m`): at least `REVISIT_MIN_VERTICES` vertices older, of any
+    /// epoch in the graph. One of a merged epoch's may be taken from the graph by an undo;
+    /// [`Atlas::unmerge_all`] then indexes `node` after all.
+    fn revisited(&self, graph: &PoseGraph2, node: NodeId, spacing_m: f64) -> Option<NodeId> {
+        let pose = graph.vertex(node)?.pose;
         if !(spacing_m > 0.0 && pose.is_finite()) {
-            return false;
+            return None;
         }
         let (cx, cy) = Self::revisit_cell(&pose, spacing_m);
         (cx - 1..=cx + 1)
             .flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y)))
             .filter_map(|cell| self.revisit_cells.get(&cell))
             .flatten()
+            .copied()
             .filter(|older| older.0 + REVISIT_MIN_VERTICES <= node.0)
-            .filter_map(|older| graph.vertex(*older))
-            .any(|older| {
-                older.meta.session == this.meta.session
-                    && (older.pose.translation() - pose.translation()).norm() < spacing_m
-                    && wrap_angle_rad(older.pose.theta_rad - pose.theta_rad).abs()
-                        <= REVISIT_MAX_TURN_RAD
+            .find(|older| {
+                graph.vertex(*older).is_some_and(|older| {
+                    (older.pose.translation() - pose.translation()).norm() < spacing_m
+                        && wrap_angle_rad(older.pose.theta_rad - pose.theta_rad).abs()
+                            <= REVISIT_MAX_TURN_RAD
+                })
             })
+    }
+
+    /// The revisit lookup rebuilt from the current poses of the active graph `graph`'s
+    /// indexed keyframes (after a merge or an undo moved or removed some of them).
+    fn rebuild_revisit_lookup(&mut self, graph: &PoseGraph2, spacing_m: f64) {
+        self.revisit_cells.clear();
+        if spacing_m.is_nan() || spacing_m <= 0.0 {
+            return;
+        }
+        for (node, vertex) in graph.vertices() {
+            if vertex.pose.is_finite() && self.ordinal_of.contains_key(&KeyframeId(node.0)) {
+                self.revisit_cells
+                    .entry(Self::revisit_cell(&vertex.pose, spacing_m))
+                    .or_default()
+                    .push(node);
+            }
+        }
     }
 
     /// Indexes keyframe `node` (once) with its descriptor; `active_pose`, its pose when it
@@ -542,6 +561,12 @@ impl<B: BackupStore> Atlas<B> {
         self.constraints.loops()
     }
 
+    /// True when keyframe `node` was left out of the place index as a revisit of a place its
+    /// graph had mapped (`loops.revisit_spacing_m`).
+    pub fn is_revisit(&self, node: NodeId) -> bool {
+        self.constraints.revisits.contains_key(&node)
+    }
+
     /// Counters of the constraint builder.
     pub fn constraint_info(&self) -> ConstraintInfo {
         self.constraints.info
@@ -576,7 +601,7 @@ impl<B: BackupStore> Atlas<B> {
             .copied()
             .filter(|n| {
                 !self.constraints.is_indexed(*n)
-                    && !self.constraints.revisits.contains(n)
+                    && !self.constraints.revisits.contains_key(n)
                     && self.keyframes.get(*n).is_some()
             })
             .collect();
@@ -594,9 +619,18 @@ impl<B: BackupStore> Atlas<B> {
                 .then(|| graph.vertex(node).map(|v| v.pose))
                 .flatten()
         };
-        let (revisits, fresh): (Vec<NodeId>, Vec<NodeId>) = fresh
+        let mut revisits = Vec::new();
+        let fresh: Vec<NodeId> = fresh
             .into_iter()
-            .partition(|n| map.is_none() && self.constraints.revisits(graph, *n, spacing_m));
+            .filter(|n| {
+                let revisited = map
+                    .is_none()
+                    .then(|| self.constraints.revisited(graph, *n, spacing_m))
+                    .flatten();
+                revisits.extend(revisited.map(|older| (*n, older)));
+                revisited.is_none()
+            })
+            .collect();
         self.constraints.info.revisits_not_indexed += revisits.len();
         self.constraints.revisits.extend(revisits);
         let descriptors = self.describe(graph, &fresh);
@@ -606,6 +640,37 @@ impl<B: BackupStore> Atlas<B> {
                 self.constraints
                     .index_keyframe(node, &points, descriptor, submap, active_pose);
             }
+        }
+    }
+
+    /// The revisit lookup after a merge moved another graph's keyframes into the active graph
+    /// or an undo took them away. After an undo, the keyframes left out for one no longer in
+    /// the active graph are indexed after all (or left out for one of their own epoch).
+    pub(crate) fn revisits_after_merge_or_undo(&mut self) {
+        let spacing_m = self.params.loops.revisit_spacing_m;
+        self.constraints
+            .rebuild_revisit_lookup(&self.active, spacing_m);
+        let active = &self.active;
+        let mut uncovered: Vec<NodeId> = self
+            .constraints
+            .revisits
+            .iter()
+            .filter(|(node, older)| {
+                active.contains_vertex(**node) && !active.contains_vertex(**older)
+            })
+            .map(|(node, _)| *node)
+            .collect();
+        uncovered.sort_unstable();
+        for node in uncovered {
+            self.constraints.revisits.remove(&node);
+            let info = &mut self.constraints.info;
+            info.revisits_not_indexed = info.revisits_not_indexed.saturating_sub(1);
+            let submap = self
+                .keyframes
+                .record(node)
+                .and_then(|k| k.submap)
+                .filter(|s| self.constraints.submaps.contains_key(s));
+            self.index_nodes_of(None, &[node], submap);
         }
     }
 
