@@ -26,13 +26,13 @@ mod epochs;
 mod reports;
 mod trajectories;
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeSet, HashSet};
 use std::sync::Arc;
 
 use mapmerge_atlas::{
-    Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo, ConstraintSearch,
-    LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason, MergeRequest,
-    UnmergeReason,
+    revisits_among, Atlas, AtlasError, AtlasEvent, AtlasParams, AtlasSnapshot, ConstraintInfo,
+    ConstraintSearch, LoopEdge, LoopRecord, MaintenanceReport, MapId, MemoryBackups, MergeReason,
+    MergeRequest, UnmergeReason,
 };
 use mapmerge_geometry::{wrap_angle_rad, LieGroup, Se2};
 use mapmerge_hypothesis::{
@@ -247,6 +247,10 @@ pub struct Engine {
     verifier: ScanMatchVerifier,
     /// `None`: merges are never checked (detector `none`).
     detector: Option<Box<dyn InvalidMergeDetector>>,
+    /// The merged epochs' keyframes the detector does not judge, fixed at each merge: the
+    /// revisits among them (`atlas.loops.revisit_spacing_m`), so what the detectors hold
+    /// follows the mapped area, not the time spent in it.
+    detector_revisits: HashSet<NodeId>,
     /// Merges undone in this epoch: (inactive map, its transform), not to be made again.
     refused: Vec<(MapId, Se2)>,
     scans: usize,
@@ -352,6 +356,7 @@ impl Engine {
             params,
             verifier,
             detector,
+            detector_revisits: HashSet::new(),
             refused: Vec::new(),
             scans: 0,
             travel_before_epoch_m: 0.0,
@@ -1359,12 +1364,19 @@ impl Engine {
     /// The merged map as the detectors see it: the current-epoch and other-epoch keyframes
     /// of [`Engine::map_graph`] at their poses, with their points.
     pub fn merged_map_scans(&self) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
-        merged_map_scans(&self.atlas, self.map_graph())
+        merged_map_scans(&self.atlas, self.map_graph(), &self.detector_revisits)
     }
 
-    /// Starts the detector over on the map it now judges (G' or the merged graph).
+    /// Starts the detector over on the map it now judges (G' or the merged graph), without
+    /// the merged epochs' revisits of places they mapped.
     fn restart_detector(&mut self) {
-        let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
+        let (current, mut other) = merged_map_scans(&self.atlas, self.map_graph(), &HashSet::new());
+        let mut poses: Vec<(NodeId, Se2)> =
+            other.iter().map(|s| (s.node, s.map_from_robot)).collect();
+        poses.sort_by_key(|(node, _)| *node);
+        let spacing_m = self.atlas.params().loops.revisit_spacing_m;
+        self.detector_revisits = revisits_among(&poses, spacing_m);
+        other.retain(|s| !self.detector_revisits.contains(&s.node));
         if let Some(detector) = self.detector.as_mut() {
             if !other.is_empty() {
                 detector.on_merge(&MergedMap {
@@ -1402,7 +1414,8 @@ impl Engine {
                 return Ok(());
             }
         }
-        let (current, other) = merged_map_scans(&self.atlas, self.map_graph());
+        let (current, other) =
+            merged_map_scans(&self.atlas, self.map_graph(), &self.detector_revisits);
         let Some(detector) = self.detector.as_mut() else {
             return Ok(());
         };
@@ -1612,10 +1625,12 @@ fn merge_edges_of(hypothesis: &Hypothesis<ObservedEdge>) -> Vec<LoopEdge> {
 }
 
 /// The merged map as the detectors see it (see [`Engine::merged_map_scans`]): `graph`'s
-/// keyframes with the atlas's points, the other epochs' without their revisits of places
-/// they mapped already ([`Atlas::is_revisit`]), so what the detectors hold follows the
-/// mapped area.
-fn merged_map_scans(atlas: &Atlas, graph: &PoseGraph2) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
+/// keyframes with the atlas's points, the other epochs' without those in `left_out`.
+fn merged_map_scans(
+    atlas: &Atlas,
+    graph: &PoseGraph2,
+    left_out: &HashSet<NodeId>,
+) -> (Vec<DetectorScan>, Vec<DetectorScan>) {
     let current_epoch = atlas.current_epoch().0;
     let (mut current, mut other) = (Vec::new(), Vec::new());
     for (node, vertex) in graph.vertices() {
@@ -1630,7 +1645,7 @@ fn merged_map_scans(atlas: &Atlas, graph: &PoseGraph2) -> (Vec<DetectorScan>, Ve
         };
         if vertex.meta.session.0 == current_epoch {
             current.push(scan);
-        } else if !atlas.is_revisit(node) {
+        } else if !left_out.contains(&node) {
             other.push(scan);
         }
     }

@@ -15,7 +15,7 @@
 //! when its epoch ends or its graph is imported — and each search filters the candidates by
 //! the graph they belong to.
 
-use std::collections::{BTreeMap, HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -65,13 +65,14 @@ pub struct LoopClosureParams {
     /// about 20 MB, so memory follows the submaps in use, not the submaps made.
     pub submap_targets_mb: f64,
     /// A keyframe of the active graph joins the place index only when no indexed keyframe of
-    /// the graph (its epoch's or a merged one's) at least `REVISIT_MIN_VERTICES` vertices
-    /// older lies within this distance (m) and `REVISIT_MAX_TURN_RAD` of it (current poses):
-    /// a revisit of a mapped place adds no descriptor, and the invalid-merge detectors judge
-    /// the merged epochs without their revisits, so both grow with the mapped area, not with
-    /// the time spent in it (default: 1; 0 indexes every keyframe). Loops still reach the
-    /// revisited place through the older keyframe: on the 13 public logs `slam` closed the
-    /// same loops on 12 and one fewer on infinite-corridor.
+    /// its epoch at least `REVISIT_MIN_VERTICES` vertices older lies within this distance (m)
+    /// and `REVISIT_MAX_TURN_RAD` of it (current poses): a revisit of a mapped place adds no
+    /// descriptor, so the index grows with the mapped area, not with the time spent in it
+    /// (default: 1; 0 indexes every keyframe). Loops still reach the revisited place through
+    /// the older keyframe: on the 13 public logs `slam` closed the same loops on 12 and one
+    /// fewer on infinite-corridor. Merged epochs' keyframes do not count (a later epoch's
+    /// merges were found fewer on the tuning logs when they did); the invalid-merge detectors
+    /// judge the merged epochs without their revisits among themselves ([`revisits_among`]).
     pub revisit_spacing_m: f64,
     /// Translation half-width of the local search: `min + per_m · d`, not searched beyond
     /// `max`, with `d` the path since the submap or since the last long loop, whichever is
@@ -255,6 +256,54 @@ const REVISIT_MIN_VERTICES: u64 = 50;
 /// ... and when turned by at most this much (rad): a 180° laser sees another scene turned.
 const REVISIT_MAX_TURN_RAD: f64 = 0.5;
 
+/// The cell of `pose` in a revisit lookup (`spacing_m` > 0).
+fn revisit_cell(pose: &Se2, spacing_m: f64) -> (i64, i64) {
+    (
+        (pose.x_m / spacing_m).floor() as i64,
+        (pose.y_m / spacing_m).floor() as i64,
+    )
+}
+
+/// `cell` and its eight neighbours.
+fn neighbour_cells((cx, cy): (i64, i64)) -> impl Iterator<Item = (i64, i64)> {
+    (cx - 1..=cx + 1).flat_map(move |x| (cy - 1..=cy + 1).map(move |y| (x, y)))
+}
+
+/// The revisit rule (`loops.revisit_spacing_m`): keyframe `node` at `pose` revisits `older`
+/// when that one is at least `REVISIT_MIN_VERTICES` vertices older, within `spacing_m` and
+/// `REVISIT_MAX_TURN_RAD` of it.
+fn revisits_older(older: (NodeId, &Se2), (node, pose): (NodeId, &Se2), spacing_m: f64) -> bool {
+    let (older, older_pose) = older;
+    older.0 + REVISIT_MIN_VERTICES <= node.0
+        && (older_pose.translation() - pose.translation()).norm() < spacing_m
+        && wrap_angle_rad(older_pose.theta_rad - pose.theta_rad).abs() <= REVISIT_MAX_TURN_RAD
+}
+
+/// The keyframes of `poses` (ascending node order, one frame) that revisit an earlier one of
+/// them not itself left out, by the place index's rule with `spacing_m` (none when 0).
+pub fn revisits_among(poses: &[(NodeId, Se2)], spacing_m: f64) -> HashSet<NodeId> {
+    let mut revisits = HashSet::new();
+    if spacing_m.is_nan() || spacing_m <= 0.0 {
+        return revisits;
+    }
+    let mut kept: HashMap<(i64, i64), Vec<(NodeId, Se2)>> = HashMap::new();
+    for (node, pose) in poses.iter().filter(|(_, pose)| pose.is_finite()) {
+        let cell = revisit_cell(pose, spacing_m);
+        let revisit = neighbour_cells(cell)
+            .filter_map(|c| kept.get(&c))
+            .flatten()
+            .any(|(older, older_pose)| {
+                revisits_older((*older, older_pose), (*node, pose), spacing_m)
+            });
+        if revisit {
+            revisits.insert(*node);
+        } else {
+            kept.entry(cell).or_default().push((*node, *pose));
+        }
+    }
+    revisits
+}
+
 /// What one keyframe's constraint search found (see the module docs).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ConstraintSearch {
@@ -297,13 +346,12 @@ pub(crate) struct ConstraintBuilder {
     indexed: Vec<IndexedKeyframe>,
     ordinal_of: HashMap<KeyframeId, usize>,
     /// Indexed keyframes of the active graph by the cell (`loops.revisit_spacing_m`) of their
-    /// pose when indexed or last merged, to find revisits without a scan of the whole index.
-    /// A keyframe moved to another cell by later corrections may be missed: then a revisit
-    /// is indexed, which costs memory only.
+    /// pose when indexed, to find revisits without a scan of the whole index. A keyframe
+    /// moved to another cell by later corrections may be missed: then a revisit is indexed,
+    /// which costs memory only.
     revisit_cells: HashMap<(i64, i64), Vec<NodeId>>,
-    /// Keyframes left out of the index as revisits, with the indexed keyframe each revisits
-    /// (not checked again unless an undo takes that one away).
-    revisits: HashMap<NodeId, NodeId>,
+    /// Keyframes left out of the index as revisits (not checked again).
+    revisits: HashSet<NodeId>,
     /// The current epoch's finished submaps, by anchor node (creation order).
     submaps: BTreeMap<NodeId, Submap>,
     /// The finished submaps holding their match target, least recently searched first, with
@@ -357,7 +405,7 @@ impl ConstraintBuilder {
             indexed: Vec::new(),
             ordinal_of: HashMap::new(),
             revisit_cells: HashMap::new(),
-            revisits: HashMap::new(),
+            revisits: HashSet::new(),
             submaps: BTreeMap::new(),
             held_targets: VecDeque::new(),
             travel_m: 0.0,
@@ -383,7 +431,6 @@ impl ConstraintBuilder {
         self.session_start = session_start;
         self.submaps.clear();
         self.held_targets.clear();
-        self.revisit_cells.clear();
         self.travel_m = 0.0;
         self.travel_at_last_loop_m = 0.0;
         self.pending_loops.clear();
@@ -395,54 +442,25 @@ impl ConstraintBuilder {
         self.keyframes_since_merge_search = 0;
     }
 
-    /// The cell of `pose` in the revisit lookup (`spacing_m` > 0).
-    fn revisit_cell(pose: &Se2, spacing_m: f64) -> (i64, i64) {
-        (
-            (pose.x_m / spacing_m).floor() as i64,
-            (pose.y_m / spacing_m).floor() as i64,
-        )
-    }
-
-    /// The indexed keyframe of the active graph `graph` that `node` revisits, if any
-    /// (`loops.revisit_spacing_m`): at least `REVISIT_MIN_VERTICES` vertices older, of any
-    /// epoch in the graph. One of a merged epoch's may be taken from the graph by an undo;
-    /// [`Atlas::unmerge_all`] then indexes `node` after all.
-    fn revisited(&self, graph: &PoseGraph2, node: NodeId, spacing_m: f64) -> Option<NodeId> {
-        let pose = graph.vertex(node)?.pose;
+    /// Whether `node` of the active graph `graph` revisits an indexed keyframe of its own
+    /// epoch (`loops.revisit_spacing_m`). Only its own epoch's: those stay in the graph when a
+    /// merge is undone.
+    fn revisits(&self, graph: &PoseGraph2, node: NodeId, spacing_m: f64) -> bool {
+        let Some(this) = graph.vertex(node) else {
+            return false;
+        };
+        let pose = this.pose;
         if !(spacing_m > 0.0 && pose.is_finite()) {
-            return None;
+            return false;
         }
-        let (cx, cy) = Self::revisit_cell(&pose, spacing_m);
-        (cx - 1..=cx + 1)
-            .flat_map(|x| (cy - 1..=cy + 1).map(move |y| (x, y)))
+        neighbour_cells(revisit_cell(&pose, spacing_m))
             .filter_map(|cell| self.revisit_cells.get(&cell))
             .flatten()
-            .copied()
-            .filter(|older| older.0 + REVISIT_MIN_VERTICES <= node.0)
-            .find(|older| {
-                graph.vertex(*older).is_some_and(|older| {
-                    (older.pose.translation() - pose.translation()).norm() < spacing_m
-                        && wrap_angle_rad(older.pose.theta_rad - pose.theta_rad).abs()
-                            <= REVISIT_MAX_TURN_RAD
-                })
+            .filter_map(|older| Some((*older, graph.vertex(*older)?)))
+            .any(|(older, v)| {
+                v.meta.session == this.meta.session
+                    && revisits_older((older, &v.pose), (node, &pose), spacing_m)
             })
-    }
-
-    /// The revisit lookup rebuilt from the current poses of the active graph `graph`'s
-    /// indexed keyframes (after a merge or an undo moved or removed some of them).
-    fn rebuild_revisit_lookup(&mut self, graph: &PoseGraph2, spacing_m: f64) {
-        self.revisit_cells.clear();
-        if spacing_m.is_nan() || spacing_m <= 0.0 {
-            return;
-        }
-        for (node, vertex) in graph.vertices() {
-            if vertex.pose.is_finite() && self.ordinal_of.contains_key(&KeyframeId(node.0)) {
-                self.revisit_cells
-                    .entry(Self::revisit_cell(&vertex.pose, spacing_m))
-                    .or_default()
-                    .push(node);
-            }
-        }
     }
 
     /// Indexes keyframe `node` (once) with its descriptor; `active_pose`, its pose when it
@@ -461,7 +479,7 @@ impl ConstraintBuilder {
         }
         if let Some((pose, spacing_m)) = active_pose.filter(|(p, m)| *m > 0.0 && p.is_finite()) {
             self.revisit_cells
-                .entry(Self::revisit_cell(&pose, spacing_m))
+                .entry(revisit_cell(&pose, spacing_m))
                 .or_default()
                 .push(node);
         }
@@ -561,12 +579,6 @@ impl<B: BackupStore> Atlas<B> {
         self.constraints.loops()
     }
 
-    /// True when keyframe `node` was left out of the place index as a revisit of a place its
-    /// graph had mapped (`loops.revisit_spacing_m`).
-    pub fn is_revisit(&self, node: NodeId) -> bool {
-        self.constraints.revisits.contains_key(&node)
-    }
-
     /// Counters of the constraint builder.
     pub fn constraint_info(&self) -> ConstraintInfo {
         self.constraints.info
@@ -601,7 +613,7 @@ impl<B: BackupStore> Atlas<B> {
             .copied()
             .filter(|n| {
                 !self.constraints.is_indexed(*n)
-                    && !self.constraints.revisits.contains_key(n)
+                    && !self.constraints.revisits.contains(n)
                     && self.keyframes.get(*n).is_some()
             })
             .collect();
@@ -619,18 +631,9 @@ impl<B: BackupStore> Atlas<B> {
                 .then(|| graph.vertex(node).map(|v| v.pose))
                 .flatten()
         };
-        let mut revisits = Vec::new();
-        let fresh: Vec<NodeId> = fresh
+        let (revisits, fresh): (Vec<NodeId>, Vec<NodeId>) = fresh
             .into_iter()
-            .filter(|n| {
-                let revisited = map
-                    .is_none()
-                    .then(|| self.constraints.revisited(graph, *n, spacing_m))
-                    .flatten();
-                revisits.extend(revisited.map(|older| (*n, older)));
-                revisited.is_none()
-            })
-            .collect();
+            .partition(|n| map.is_none() && self.constraints.revisits(graph, *n, spacing_m));
         self.constraints.info.revisits_not_indexed += revisits.len();
         self.constraints.revisits.extend(revisits);
         let descriptors = self.describe(graph, &fresh);
@@ -640,37 +643,6 @@ impl<B: BackupStore> Atlas<B> {
                 self.constraints
                     .index_keyframe(node, &points, descriptor, submap, active_pose);
             }
-        }
-    }
-
-    /// The revisit lookup after a merge moved another graph's keyframes into the active graph
-    /// or an undo took them away. After an undo, the keyframes left out for one no longer in
-    /// the active graph are indexed after all (or left out for one of their own epoch).
-    pub(crate) fn revisits_after_merge_or_undo(&mut self) {
-        let spacing_m = self.params.loops.revisit_spacing_m;
-        self.constraints
-            .rebuild_revisit_lookup(&self.active, spacing_m);
-        let active = &self.active;
-        let mut uncovered: Vec<NodeId> = self
-            .constraints
-            .revisits
-            .iter()
-            .filter(|(node, older)| {
-                active.contains_vertex(**node) && !active.contains_vertex(**older)
-            })
-            .map(|(node, _)| *node)
-            .collect();
-        uncovered.sort_unstable();
-        for node in uncovered {
-            self.constraints.revisits.remove(&node);
-            let info = &mut self.constraints.info;
-            info.revisits_not_indexed = info.revisits_not_indexed.saturating_sub(1);
-            let submap = self
-                .keyframes
-                .record(node)
-                .and_then(|k| k.submap)
-                .filter(|s| self.constraints.submaps.contains_key(s));
-            self.index_nodes_of(None, &[node], submap);
         }
     }
 
@@ -1688,5 +1660,34 @@ mod tests {
         // The heading window is clamped, not a reason to stop.
         let window = params.local_window(100.0).map(|w| w.angular_rad);
         assert_eq!(window, Some(params.window_angular.2));
+    }
+
+    /// Two passes along one corridor, 0.5 m apart, the second 0.3 m to the side: the second
+    /// pass's keyframes revisit the first's, unless turned around; keyframes of one pass
+    /// never count against each other, and spacing 0 leaves nothing out.
+    #[test]
+    fn the_second_pass_along_a_corridor_revisits_the_first() {
+        let pass = |first: u64, y_m: f64, theta_rad: f64| -> Vec<(NodeId, Se2)> {
+            (0..60u64)
+                .map(|k| (NodeId(first + k), Se2::new(0.5 * k as f64, y_m, theta_rad)))
+                .collect()
+        };
+        let first = pass(0, 0.0, 0.0);
+        let mut poses = first.clone();
+        poses.extend(pass(100, 0.3, 0.1));
+        let revisits = revisits_among(&poses, 1.0);
+        assert_eq!(revisits.len(), 60);
+        assert!(revisits.iter().all(|n| n.0 >= 100));
+        assert!(revisits_among(&first, 1.0).is_empty());
+        assert!(revisits_among(&poses, 0.0).is_empty());
+        let mut turned = first;
+        turned.extend(pass(100, 0.3, std::f64::consts::PI));
+        assert!(revisits_among(&turned, 1.0).is_empty());
+        // Beside the first pass's last keyframe but only 40 vertices after it: no revisit;
+        // beside its first keyframe, 100 vertices after it: a revisit.
+        let mut soon = pass(0, 0.0, 0.0);
+        soon.push((NodeId(99), Se2::new(29.5, 0.2, 0.0)));
+        soon.push((NodeId(100), Se2::new(0.0, 0.2, 0.0)));
+        assert_eq!(revisits_among(&soon, 1.0), HashSet::from([NodeId(100)]));
     }
 }

@@ -61,7 +61,7 @@ mod snapshot;
 pub use atlas::{epochs_of, AppliedMerge, Atlas, AtlasParams};
 pub use backup::{BackupStore, DiskBackups, MemoryBackups};
 pub use constraints::{
-    ConstraintInfo, ConstraintSearch, LoopClosureParams, LoopRecord, LoopSource,
+    revisits_among, ConstraintInfo, ConstraintSearch, LoopClosureParams, LoopRecord, LoopSource,
 };
 pub use error::AtlasError;
 pub use events::{

@@ -266,7 +266,6 @@ impl<B: BackupStore> Atlas<B> {
             chi2: preview.chi2,
         };
         self.events.push(AtlasEvent::Merged(event.clone()));
-        self.revisits_after_merge_or_undo();
         Ok(event)
     }
 
@@ -707,7 +706,6 @@ impl<B: BackupStore> Atlas<B> {
             reason,
         };
         self.events.push(AtlasEvent::Unmerged(event.clone()));
-        self.revisits_after_merge_or_undo();
         Ok(Some(event))
     }
 }
@@ -901,36 +899,6 @@ mod tests {
                 covariance: Matrix3::identity() * 1e-4,
             })
         }
-    }
-
-    /// A keyframe revisiting a place a merged epoch mapped stays out of the place index while
-    /// merged, and joins it when the merge is undone (the place is then only the other map's).
-    #[test]
-    fn revisits_of_a_merged_place_join_the_index_when_the_merge_is_undone() {
-        let mut atlas = Atlas::new(AtlasParams::default()).unwrap();
-        let step = Se2::new(0.5, 0.0, 0.0);
-        path_with(&mut atlas, Se2::identity(), 60, step);
-        atlas.end_epoch(EpochEndReason::Kidnap);
-        let current = path_with(&mut atlas, Se2::new(0.1, 0.0, 0.0), 10, step);
-        let request = MergeRequest::forced(MapId(0), Se2::identity(), "t");
-        atlas.merge(request, None).unwrap();
-        atlas.index_active_graph();
-        let indexed = |atlas: &Atlas| {
-            current
-                .iter()
-                .filter(|n| atlas.constraints.is_indexed(**n))
-                .count()
-        };
-        assert_eq!(indexed(&atlas), 0);
-        assert!(current.iter().all(|n| atlas.is_revisit(*n)));
-        assert_eq!(atlas.constraint_info().revisits_not_indexed, current.len());
-        let note = "t".to_owned();
-        atlas
-            .unmerge_all(UnmergeReason::Requested { note })
-            .unwrap();
-        assert_eq!(indexed(&atlas), current.len());
-        assert!(!current.iter().any(|n| atlas.is_revisit(*n)));
-        assert_eq!(atlas.constraint_info().revisits_not_indexed, 0);
     }
 
     fn overlapping() -> Atlas {
