@@ -31,9 +31,9 @@ use mapmerge_scan::LaserLog;
 
 pub use clouds::{cloud_points, read_cloud_session, read_point_clouds, CloudSession, StampedCloud};
 pub use messages::{
-    decode, encode, Header, LaserScanMessage, OdometryMessage, PointCloud2Message, PointField,
-    Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3, LASER_SCAN_TYPE,
-    ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE,
+    decode, encode, Header, LaserScanMessage, MapMetaData, OccupancyGridMessage, OdometryMessage,
+    PointCloud2Message, PointField, Pose, Quaternion, TfMessage, Time, Transform, TransformStamped,
+    Vector3, LASER_SCAN_TYPE, OCCUPANCY_GRID_TYPE, ODOMETRY_TYPE, POINT_CLOUD2_TYPE, TF_TYPE,
 };
 pub use msgdefs::definition as message_definition;
 pub use session::{

@@ -14,6 +14,8 @@ pub const ODOMETRY_TYPE: &str = "nav_msgs/msg/Odometry";
 pub const TF_TYPE: &str = "tf2_msgs/msg/TFMessage";
 /// `sensor_msgs/msg/PointCloud2`.
 pub const POINT_CLOUD2_TYPE: &str = "sensor_msgs/msg/PointCloud2";
+/// `nav_msgs/msg/OccupancyGrid`, on `/map`.
+pub const OCCUPANCY_GRID_TYPE: &str = "nav_msgs/msg/OccupancyGrid";
 
 /// `builtin_interfaces/msg/Time`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
@@ -322,6 +324,48 @@ pub struct PointCloud2Message {
     pub is_dense: bool,
 }
 
+/// `nav_msgs/msg/MapMetaData`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct MapMetaData {
+    /// When the map was loaded (or made).
+    pub map_load_time: Time,
+    /// Cell side (m).
+    pub resolution: f32,
+    /// Cells per row.
+    pub width: u32,
+    /// Rows.
+    pub height: u32,
+    /// Pose of cell (0, 0)'s lower-left corner in the map frame.
+    pub origin: Pose,
+}
+
+/// `nav_msgs/msg/OccupancyGrid`: `info.height` rows of `info.width` cells, row 0 at the
+/// origin, each an `int8` occupancy probability in percent or −1 for unknown. The cells are
+/// kept as their bytes (−1 is 0xFF; `int8[]` and `uint8[]` share the CDR layout), so a large
+/// map encodes as one copy.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct OccupancyGridMessage {
+    /// Stamp and map frame.
+    pub header: Header,
+    /// Resolution, size and origin.
+    pub info: MapMetaData,
+    /// Row-major cells, each an `int8` as its byte.
+    pub data: serde_bytes::ByteBuf,
+}
+
+impl OccupancyGridMessage {
+    /// Cell (`column`, `row`): −1 unknown, else 0–100; `None` outside the grid or its data.
+    pub fn cell(&self, column: u32, row: u32) -> Option<i8> {
+        if column >= self.info.width || row >= self.info.height {
+            return None;
+        }
+        let index =
+            usize::try_from(u64::from(row) * u64::from(self.info.width) + u64::from(column))
+                .ok()?;
+        self.data.get(index).map(|b| i8::from_le_bytes([*b]))
+    }
+}
+
 /// The CDR encapsulation identifiers ROS 2 writes: plain CDR, big- and little-endian.
 const CDR_BIG_ENDIAN: [u8; 2] = [0x00, 0x00];
 const CDR_LITTLE_ENDIAN: [u8; 2] = [0x00, 0x01];
@@ -392,6 +436,39 @@ mod tests {
         assert_eq!(scan.ranges, vec![1.0, 2.0, f32::INFINITY]);
         assert_eq!((scan.angle_min, scan.range_max), (-1.5, 30.0));
         assert_eq!(encode(&scan).unwrap(), bytes);
+    }
+
+    /// An OccupancyGrid serialized by hand from the CDR rules: the origin's doubles align to
+    /// 8 after the four-byte fields, and the cells follow as a length and their bytes.
+    #[test]
+    fn occupancy_grid_bytes_match_the_cdr_layout() {
+        let mut bytes = vec![0u8, 1, 0, 0];
+        bytes.extend(3i32.to_le_bytes()); // header.stamp.sec
+        bytes.extend(0u32.to_le_bytes()); // header.stamp.nanosec
+        bytes.extend(4u32.to_le_bytes()); // frame_id length with its NUL
+        bytes.extend(b"map\0"); // payload offset 16
+        bytes.extend(3i32.to_le_bytes()); // info.map_load_time
+        bytes.extend(0u32.to_le_bytes());
+        bytes.extend(0.05f32.to_le_bytes()); // resolution
+        bytes.extend(3u32.to_le_bytes()); // width
+        bytes.extend(2u32.to_le_bytes()); // height; payload offset 36
+        bytes.extend([0, 0, 0, 0]); // pad to 40 for the origin's first f64
+        for value in [-1.5f64, 2.0, 0.0, 0.0, 0.0, 0.0, 1.0] {
+            bytes.extend(value.to_le_bytes());
+        }
+        bytes.extend(6u32.to_le_bytes());
+        bytes.extend([0xFF, 0, 100, 50, 0xFF, 0]);
+        let grid: OccupancyGridMessage = decode(&bytes).unwrap();
+        assert_eq!(grid.header.frame_id, "map");
+        assert_eq!((grid.info.width, grid.info.height), (3, 2));
+        assert_eq!(grid.info.origin.position.x, -1.5);
+        assert_eq!(grid.info.origin.orientation.w, 1.0);
+        assert_eq!(grid.cell(0, 0), Some(-1));
+        assert_eq!(grid.cell(2, 0), Some(100));
+        assert_eq!(grid.cell(1, 1), Some(-1));
+        assert_eq!(grid.cell(3, 0), None);
+        assert_eq!(grid.cell(0, 2), None);
+        assert_eq!(encode(&grid).unwrap(), bytes);
     }
 
     /// Odometry has 8-byte fields after a string: the payload aligns them relative to its own
