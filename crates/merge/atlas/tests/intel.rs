@@ -157,20 +157,20 @@ fn intel_two_sessions_merge_by_recognition_and_unmerge_exactly() {
     assert_eq!(atlas.active().num_edges(), current_edges);
 }
 
-/// Finished submaps that release their match targets (`loops.submap_targets_mb`) and rebuild
-/// them from their scans when searched again close the same loops: the graph is the same to
-/// the bit, while the targets held at once stay a fraction of keeping them all.
-/// Intel's first 600 scans mapped in one epoch with `params`: keyframes made, the active
-/// graph's poses, the loops and the constraint builder's counters.
+/// Intel's first 600 scans mapped in one epoch with the default parameters as `edit` leaves
+/// them: keyframes made, the active graph's poses, the loops and the constraint builder's
+/// counters.
 fn map_intel_600(
     log: &LaserLog,
-    params: AtlasParams,
+    edit: impl FnOnce(&mut AtlasParams),
 ) -> (
     usize,
     Vec<(NodeId, Se2)>,
     Vec<mapmerge_atlas::LoopRecord>,
     mapmerge_atlas::ConstraintInfo,
 ) {
+    let mut params = AtlasParams::default();
+    edit(&mut params);
     let mut atlas = Atlas::new(params).unwrap();
     let (scan_of, _, _) = map_scans(&mut atlas, log, 0..600, false);
     let poses = atlas
@@ -186,16 +186,15 @@ fn map_intel_600(
     )
 }
 
+/// Finished submaps that release their match targets (`loops.submap_targets_mb`) and rebuild
+/// them from their scans when searched again close the same loops: the graph is the same to
+/// the bit, while the targets held at once stay a fraction of keeping them all.
 #[test]
 fn released_submap_targets_are_rebuilt_to_the_same_loops_and_graph() {
     let Some(log) = intel_log() else {
         return;
     };
-    let run = |budget_mb: f64| {
-        let mut params = AtlasParams::default();
-        params.loops.submap_targets_mb = budget_mb;
-        map_intel_600(&log, params)
-    };
+    let run = |budget_mb: f64| map_intel_600(&log, |p| p.loops.submap_targets_mb = budget_mb);
     let (_, kept_poses, kept_loops, kept) = run(1e6);
     let (_, poses, loops, released) = run(0.0);
     eprintln!(
@@ -221,11 +220,7 @@ fn revisits_stay_out_of_the_place_index_and_the_loops_are_the_same() {
     let Some(log) = intel_log() else {
         return;
     };
-    let run = |spacing_m: f64| {
-        let mut params = AtlasParams::default();
-        params.loops.revisit_spacing_m = spacing_m;
-        map_intel_600(&log, params)
-    };
+    let run = |spacing_m: f64| map_intel_600(&log, |p| p.loops.revisit_spacing_m = spacing_m);
     let (keyframes, all_poses, all_loops, all) = run(0.0);
     let (_, poses, loops, culled) = run(1.0);
     eprintln!(
