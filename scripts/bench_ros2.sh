@@ -7,20 +7,24 @@
 # --json report (pose latency from scan in to map → odom out, map publication time) and the
 # peer's (end-to-end latency, the last /map). --resolution R makes the maps finer (0.0175 m
 # gives intel a map of over 2000 × 2000 cells, issue 69's publication target).
-# Usage: scripts/bench_ros2.sh [--log NAME]... [--rate R] [--seed S] [--resolution R]
+# Usage: scripts/bench_ros2.sh [--log NAME]... [--rate R | --scan-hz H] [--seed S]
+# [--resolution R]. --rate plays at R times real time (1 by default); --scan-hz H at the
+# rate that makes the scans come H times a second on average (the public logs are thinned
+# to 0.3–5 s per scan; a laser gives 10–40).
 # Needs a Python with cyclonedds and mcap-ros2-support: $MAPMERGE_ROS2_PYTHON, else
 # target/bag-venv (made by .ci/run). Writes bench-out/ros2/*.json and bench-out/ros2.md.
 # MAPMERGE_BIN=PATH runs another build (it must have the `ros2` feature).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-logs=(); rate=1; seed=7; resolution=0.05
+logs=(); pace=(--rate 1); seed=7; resolution=0.05
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --log) logs+=("$2"); shift 2 ;;
-    --rate) rate="$2"; shift 2 ;;
+    --rate) pace=(--rate "$2"); shift 2 ;;
+    --scan-hz) pace=(--scan-hz "$2"); shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
     --resolution) resolution="$2"; shift 2 ;;
-    *) echo "usage: $0 [--log NAME]... [--rate R] [--seed S] [--resolution R]" >&2; exit 2 ;;
+    *) echo "usage: $0 [--log NAME]... [--rate R | --scan-hz H] [--seed S] [--resolution R]" >&2; exit 2 ;;
   esac
 done
 [[ ${#logs[@]} -gt 0 ]] || logs=(intel freiburg-079)
@@ -43,7 +47,7 @@ for log in "${logs[@]}"; do
     > "$work/node.json" 2> "$work/node.log" &
   node=$!
   "${peer_core[@]}" "$python" scripts/ros2_peer.py --domain "$domain" play "$work/$log.mcap" \
-    --rate "$rate" --linger 120 --played "$work/played" --map-out "$work/live.yaml" \
+    "${pace[@]}" --linger 120 --played "$work/played" --map-out "$work/live.yaml" \
     --report "$work/peer.json" 2> "$work/peer.log" &
   peer=$!
   # Once every message is out (and the node had 2 s for the last), SIGINT: the node commits,
@@ -61,8 +65,8 @@ done
 "$python" - "$out" "${logs[@]}" > "$out.md" <<'PY'
 import json, pathlib, sys
 out = pathlib.Path(sys.argv[1])
-print("| log | scans heard / mapped | epochs started / merges | pose out p50 / p99 / max (ms, node) | scan → pose p99 (ms, peer) | maps | largest map (cells) | publication p50 / max (ms) | live /map agrees with `slam`'s |")
-print("|---|---|---|---|---|---|---|---|---|")
+print("| log | played at | scans heard / mapped | epochs started / merges | pose out p50 / p99 / max (ms, node) | scan → pose p99 (ms, peer) | maps | largest map (cells) | publication p50 / max (ms) | live /map agrees with `slam`'s |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 for log in sys.argv[2:]:
     node = json.loads((out / log / "node.json").read_text())
     peer = json.loads((out / log / "peer.json").read_text())
@@ -70,6 +74,6 @@ for log in sys.argv[2:]:
     p99 = lat[max(0, -(-len(lat) * 99 // 100) - 1)] if lat else float("nan")
     pl, mp = node["pose_latency"], node["map_publish"]
     agreement = json.loads((out / log / "agreement.json").read_text())
-    print(f"| {log} | {node['scans_heard']} / {node['scans_mapped']} | {node['epochs_started']} / {node['merges']} | {pl['median_ms']:.1f} / {pl['p99_ms']:.1f} / {pl['max_ms']:.1f} | {p99:.1f} | {node['maps_published']} | {node['largest_map_cells']} | {mp['median_ms']:.1f} / {mp['max_ms']:.1f} | {100 * agreement['fraction']:.2f} % of {agreement['cells']} |")
+    print(f"| {log} | {peer['rate']:.2f}× | {node['scans_heard']} / {node['scans_mapped']} | {node['epochs_started']} / {node['merges']} | {pl['median_ms']:.1f} / {pl['p99_ms']:.1f} / {pl['max_ms']:.1f} | {p99:.1f} | {node['maps_published']} | {node['largest_map_cells']} | {mp['median_ms']:.1f} / {mp['max_ms']:.1f} | {100 * agreement['fraction']:.2f} % of {agreement['cells']} |")
 PY
 cat "$out.md"

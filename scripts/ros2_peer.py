@@ -313,6 +313,11 @@ def play(args):
         print("no node subscribed to /scan and /odom", file=sys.stderr)
         return 1
     messages = list(read_ros2_messages(args.bag))
+    rate = args.rate
+    if args.scan_hz:
+        stamps = [m.log_time_ns / 1e9 for m in messages if m.channel.topic == "/scan"]
+        if len(stamps) > 1 and stamps[-1] > stamps[0]:
+            rate = args.scan_hz * (stamps[-1] - stamps[0]) / (len(stamps) - 1)
     published_at = {}
     arrived = {}
     maps = []
@@ -332,7 +337,7 @@ def play(args):
     for message in messages:
         stamp = message.log_time_ns / 1e9
         start_log = stamp if start_log is None else start_log
-        due = start_wall + (stamp - start_log) / args.rate
+        due = start_wall + (stamp - start_log) / rate
         while True:
             listen()
             wait = due - time.monotonic()
@@ -368,6 +373,7 @@ def play(args):
         "latency_ms": sorted(latencies),
         "maps_received": len(maps),
         "play_seconds": played - start_wall,
+        "rate": rate,
     }
     if maps:
         save_map(maps[-1][1], args.map_out)
@@ -409,7 +415,8 @@ def main():
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("play")
     p.add_argument("bag")
-    p.add_argument("--rate", type=float, default=1.0)
+    p.add_argument("--rate", type=float, default=1.0, help="times real time")
+    p.add_argument("--scan-hz", type=float, help="instead of --rate: scans this often on average")
     p.add_argument("--wait", type=float, default=30.0, help="seconds to wait for the node")
     p.add_argument("--linger", type=float, default=60.0, help="seconds to wait for the last map")
     p.add_argument("--played", help="a file touched once every message is out")
