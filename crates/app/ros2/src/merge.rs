@@ -249,11 +249,13 @@ pub fn run_merge_node(
         // 2. Their newest maps.
         let mut heard = false;
         for robot in robots.values_mut() {
-            let Some(message) = take_all(&robot.subscription, &mut bad_messages).pop() else {
+            let mut taken = take_all(&robot.subscription, &mut bad_messages);
+            robot.report.maps_received += taken.len();
+            // Only the newest map of a robot counts.
+            let Some(message) = taken.pop() else {
                 continue;
             };
             heard = true;
-            robot.report.maps_received += 1;
             match ros_map_of_message(&message).and_then(|map| {
                 map.to_grid()
                     .map(|grid| (map, grid))

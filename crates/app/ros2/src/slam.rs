@@ -426,15 +426,13 @@ pub fn run_slam_node(
             std::thread::sleep(IDLE);
         }
     }
-    // The end: waiting loops closed (and the session committed with a store), then the final
-    // map, drawn and published before the node leaves.
+    // The end: waiting loops closed, the session's last map drawn from the poses as mapped,
+    // then (with a store) maintenance and the commit, which thin the stored atlas but do not
+    // change what was mapped.
     let scans_mapped = job.engine().scans() - scans_before;
-    let committed = if scans_mapped == 0 {
-        say("no scan was mapped: nothing to commit");
-        None
-    } else {
-        job.commit(&options.session, session)?
-    };
+    job.engine_mut()
+        .finish()
+        .map_err(|e| JobError::failed(&e))?;
     let final_job = MapJob {
         posed: active_scans(job.engine(), &kept_scans),
         stamp_s: now_s(),
@@ -444,6 +442,12 @@ pub fn run_slam_node(
         let _ = map_thread_jobs.send(final_job);
     }
     drop(map_thread_jobs);
+    let committed = if scans_mapped == 0 {
+        say("no scan was mapped: nothing to commit");
+        None
+    } else {
+        job.commit(&options.session, session)?
+    };
     let (maps_published, publish_ms, largest_map_cells, last_grid) = map_thread
         .handle
         .join()

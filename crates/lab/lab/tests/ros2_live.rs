@@ -50,7 +50,8 @@ fn run_peer(python: &Path, domain: u16, args: &[&str]) -> std::process::Child {
 }
 
 /// The first 600 scans of intel with seeded noisy odometry, as a bag: played live by the
-/// peer, and mapped offline by `slam` (the bag read back, so both see the same messages).
+/// peer to the node with a store, and mapped offline by `slam` (the bag read back, so both
+/// see the same messages). The session is committed when the node stops.
 #[test]
 fn the_live_map_agrees_with_the_offline_slam_map_of_the_same_bag() {
     let Some(python) = python() else { return };
@@ -82,6 +83,7 @@ fn the_live_map_agrees_with_the_offline_slam_map_of_the_same_bag() {
         quiet_s: Some(2.0),
         duration_s: Some(600.0),
         map_period_s: 2.0,
+        store: Some(dir.path().join("site.mapmerge")),
         ..Default::default()
     };
     let stop = AtomicBool::new(false);
@@ -111,6 +113,16 @@ fn the_live_map_agrees_with_the_offline_slam_map_of_the_same_bag() {
     );
     assert_eq!(report.scans_heard, 600, "{report:?}");
     assert_eq!(report.scans_mapped, 600, "{report:?}");
+    // The session was committed to the store at the end.
+    let versions = mapmerge_jobs::open_store(&dir.path().join("site.mapmerge"))
+        .unwrap()
+        .versions()
+        .unwrap();
+    assert_eq!(versions.len(), 1, "{report:?}");
+    assert_eq!(
+        report.committed.as_ref().map(|c| c.version.version),
+        Some(versions[0].version)
+    );
     let peer: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&peer_report).unwrap()).unwrap();
     assert_eq!(peer["poses_received"], 600, "{peer}");
@@ -134,13 +146,17 @@ fn the_live_map_agrees_with_the_offline_slam_map_of_the_same_bag() {
     assert!(node_agreement.fraction >= 0.99, "{node_agreement:?}");
 }
 
-/// Two robots' maps: a building map, and its copy turned by 37°, moved and at twice the cell
-/// size (as `grid-merge`'s own test). The node, hearing them as `/robot1/map` and
-/// `/robot2/map`, must place robot2 where `grid-merge` of the two files does.
+/// Three robots' maps: a building map, its copy turned by 37°, moved and at twice the cell
+/// size (as `grid-merge`'s own test), and another building. The node, hearing them as
+/// `/robot1/map`, `/robot2/map` and `/robot3/map`, must place robot2 where `grid-merge` of the
+/// two files does, and say why robot3 is not merged.
 #[test]
-fn two_robots_merged_live_give_grid_merges_transform() {
+fn robots_merged_live_give_grid_merges_transform_and_say_why_not() {
     let Some(python) = python() else { return };
-    let Some(yaml) = mapmerge_testkit::shared_data("gridmaps/intel-bwi/intel.yaml") else {
+    let (Some(yaml), Some(other_building)) = (
+        mapmerge_testkit::shared_data("gridmaps/intel-bwi/intel.yaml"),
+        mapmerge_testkit::shared_data("gridmaps/utexas-gdc-1s/1s.yaml"),
+    ) else {
         return;
     };
     let dir = tempfile::tempdir().unwrap();
@@ -171,6 +187,7 @@ fn two_robots_merged_live_give_grid_merges_transform() {
             "maps",
             &format!("robot1={}", yaml.display()),
             &format!("robot2={}", b_yaml.display()),
+            &format!("robot3={}", other_building.display()),
             "--seconds",
             "40",
             "--map-out",
@@ -201,6 +218,16 @@ fn two_robots_merged_live_give_grid_merges_transform() {
     eprintln!("live robot2 {live:?}, grid-merge {expected:?}, error {error:?}");
     assert!(error.translation().norm() <= 0.05, "{error:?}");
     assert!(error.theta_rad.abs() <= 1f64.to_radians(), "{error:?}");
+    // robot3 maps another building: not merged, and the report says why.
+    let robot3 = report.robots.iter().find(|r| r.robot == "robot3").unwrap();
+    assert_eq!(robot3.state, RobotState::NotMerged, "{said:?}");
+    let reason = robot3.reason.as_deref().unwrap();
+    assert!(reason.starts_with("against robot"), "{reason}");
+    assert!(
+        said.iter()
+            .any(|line| line.starts_with("robot robot3: not merged")),
+        "{said:?}"
+    );
     // What the peer heard: the merged map, and each robot's state as events.
     let peer: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&peer_report).unwrap()).unwrap();
