@@ -8,15 +8,16 @@
 # peer's (end-to-end latency, the last /map). --resolution R makes the maps finer (0.0175 m
 # gives intel a map of over 2000 × 2000 cells, issue 69's publication target).
 # Usage: scripts/bench_ros2.sh [--log NAME]... [--rate R | --scan-hz H] [--seed S]
-# [--resolution R]. --rate plays at R times real time (1 by default); --scan-hz H at the
+# [--resolution R] [--config ENGINE.json]. --rate plays at R times real time (1 by default); --scan-hz H at the
 # rate that makes the scans come H times a second on average (the public logs are thinned
 # to 0.3–5 s per scan; a laser gives 10–40).
 # Needs a Python with cyclonedds and mcap-ros2-support: $MAPMERGE_ROS2_PYTHON, else
 # target/bag-venv (made by .ci/run). Writes bench-out/ros2/*.json and bench-out/ros2.md.
-# MAPMERGE_BIN=PATH runs another build (it must have the `ros2` feature).
+# `--config` gives the node engine parameters (`scripts/ros2_as_slam.json`: the engine as
+# `slam` runs it, one epoch, for a like-for-like map). MAPMERGE_BIN=PATH runs another build (it must have the `ros2` feature).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-logs=(); pace=(--rate 1); seed=7; resolution=0.05
+logs=(); pace=(--rate 1); seed=7; resolution=0.05; config=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --log) logs+=("$2"); shift 2 ;;
@@ -24,7 +25,8 @@ while [[ $# -gt 0 ]]; do
     --scan-hz) pace=(--scan-hz "$2"); shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
     --resolution) resolution="$2"; shift 2 ;;
-    *) echo "usage: $0 [--log NAME]... [--rate R | --scan-hz H] [--seed S] [--resolution R]" >&2; exit 2 ;;
+    --config) config=(--config "$(realpath "$2")"); shift 2 ;;
+    *) echo "usage: $0 [--log NAME]... [--rate R | --scan-hz H] [--seed S] [--resolution R] [--config F]" >&2; exit 2 ;;
   esac
 done
 [[ ${#logs[@]} -gt 0 ]] || logs=(intel freiburg-079)
@@ -43,7 +45,7 @@ for log in "${logs[@]}"; do
     --seed "$seed" -o "$work/split" > /dev/null
   "$bin" convert "$work/split/${log}_00.log" -o "$work/$log.mcap" > /dev/null
   ROS_DOMAIN_ID=$domain "${node_core[@]}" "$bin" ros2 slam --qos reliable --map-period 5 \
-    --resolution "$resolution" --store "$work/site.db" --session "$log" --json \
+    --resolution "$resolution" "${config[@]}" --store "$work/site.db" --session "$log" --json \
     > "$work/node.json" 2> "$work/node.log" &
   node=$!
   "${peer_core[@]}" "$python" scripts/ros2_peer.py --domain "$domain" play "$work/$log.mcap" \
