@@ -312,6 +312,10 @@ def play(args):
     if not wait_for_readers([scan_w, odom_w], args.wait):
         print("no node subscribed to /scan and /odom", file=sys.stderr)
         return 1
+    # Matched here is not yet matched there: the node's readers may still be taking in this
+    # participant's writers, and a volatile sample before that is lost (the first odometry,
+    # once, on freiburg-campus).
+    time.sleep(1.0)
     messages = list(read_ros2_messages(args.bag))
     rate = args.rate
     if args.scan_hz:

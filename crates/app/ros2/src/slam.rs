@@ -293,6 +293,7 @@ pub fn run_slam_node(
     let mut last_map = Instant::now();
     let mut last_problem: Option<String> = None;
     let mut announced_mount = false;
+    let mut last_drops = assembler.drops();
     loop {
         let quiet = options
             .quiet_s
@@ -331,7 +332,10 @@ pub fn run_slam_node(
             last_scan = Some(now);
             assembler.scan(message, now);
         }
-        while let Some((record, heard_when)) = assembler.next_record(Instant::now()) {
+        // Waits are timed to this read of the topics, not to when a scan is processed: a
+        // scan behind a slow one must not time out on odometry still unread.
+        let read_at = Instant::now();
+        while let Some((record, heard_when)) = assembler.next_record(read_at) {
             if !announced_mount {
                 if let Some(mount) = assembler.mount() {
                     announced_mount = true;
@@ -407,6 +411,10 @@ pub fn run_slam_node(
                 latencies_ms.push(1e3 * heard_when.elapsed().as_secs_f64());
             }
             kept_scans.push(Arc::new(record.scan));
+        }
+        if assembler.drops() != last_drops {
+            last_drops = assembler.drops();
+            say(&format!("scans left out so far: {last_drops:?}"));
         }
         if let Some(problem) = assembler.mount_problem() {
             if last_problem.as_deref() != Some(problem) {

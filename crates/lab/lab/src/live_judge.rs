@@ -67,14 +67,14 @@ pub fn grid_agreement(
         }
     };
     let (mut cells, mut agreeing) = (0, 0);
+    // Cells known in A (B may not know them).
     for (_, p, l) in a.cells() {
         let here = thresholds.classify(l);
-        let there = class_at(b, &p);
-        if here == CellClass::Unknown && there == CellClass::Unknown {
+        if here == CellClass::Unknown {
             continue;
         }
         cells += 1;
-        agreeing += usize::from(here == there);
+        agreeing += usize::from(class_at(b, &p) == here);
     }
     // Cells known in B alone (outside A, or unknown in A).
     for (_, p, l) in b.cells() {
