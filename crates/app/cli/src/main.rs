@@ -15,6 +15,8 @@ mod grid;
 mod grid_merge;
 mod optimize;
 mod render;
+#[cfg(feature = "ros2")]
+mod ros2;
 mod slam;
 mod store;
 
@@ -70,6 +72,10 @@ enum Command {
     Split(mapmerge_lab::split::SplitArgs),
     /// Inspect, check and roll back a lifelong store (a SQLite file of map versions).
     Store(store::StoreArgs),
+    /// Live ROS 2 nodes without a ROS install: `slam` (the lifelong engine on a robot's
+    /// topics) and `merge` (m-explore's map_merge topics). Built with `--features ros2`.
+    #[cfg(feature = "ros2")]
+    Ros2(ros2::Ros2Args),
 }
 
 pub use mapmerge_jobs::cli::*;
@@ -113,6 +119,8 @@ fn main() -> ExitCode {
         Command::Slam(args) => slam::run(args),
         Command::Split(args) => mapmerge_lab::split::run(args),
         Command::Store(args) => store::run(args),
+        #[cfg(feature = "ros2")]
+        Command::Ros2(args) => ros2::run(args),
     };
     match result {
         Ok(code) => code,

@@ -91,11 +91,14 @@ pub struct GridMerged {
     pub report: GridMergeReport,
     /// The fused grid.
     pub merged: Option<OccupancyGrid>,
+    /// The best hypothesis (accepted or not) between the grids as read: B's grid in A's
+    /// (the report's transform is between the maps' frames).
+    pub a_grid_from_b_grid: Option<Se2>,
 }
 
 /// A map's frame from its grid's: `map_server` places the grid's lower-left corner at the
 /// YAML origin turned by its yaw; the grid itself is read axis-aligned at that origin.
-fn map_from_grid(map: &RosMap) -> Se2 {
+pub fn map_from_grid(map: &RosMap) -> Se2 {
     let origin = Se2::new(map.origin_x_m, map.origin_y_m, 0.0);
     origin
         .compose(&Se2::new(0.0, 0.0, map.origin_yaw_rad))
@@ -132,12 +135,33 @@ pub fn grid_merge(
     hypotheses: usize,
     output: Option<&Path>,
 ) -> Result<GridMerged, JobError> {
-    let started = Instant::now();
     params
         .validate()
         .map_err(|e| JobError::bad_input(format!("matching parameters: {e}")))?;
     let (map_a, grid_a) = load_map(a)?;
     let (map_b, grid_b) = load_map(b)?;
+    merge_loaded(
+        (&map_a, &grid_a),
+        (&map_b, &grid_b),
+        params,
+        hypotheses,
+        output,
+    )
+}
+
+/// [`grid_merge`] on maps already read (each with its grid, [`RosMap::to_grid`]): a live
+/// node's received maps, or files.
+pub fn merge_loaded(
+    (map_a, grid_a): (&RosMap, &OccupancyGrid),
+    (map_b, grid_b): (&RosMap, &OccupancyGrid),
+    params: &GridMatchParams,
+    hypotheses: usize,
+    output: Option<&Path>,
+) -> Result<GridMerged, JobError> {
+    let started = Instant::now();
+    params
+        .validate()
+        .map_err(|e| JobError::bad_input(format!("matching parameters: {e}")))?;
     let mut report = GridMergeReport {
         accepted: false,
         reason: None,
@@ -154,14 +178,20 @@ pub fn grid_merge(
         merged: None,
         png: None,
     };
-    let finish = |mut report: GridMergeReport, merged: Option<OccupancyGrid>| {
+    let finish = |mut report: GridMergeReport,
+                  merged: Option<OccupancyGrid>,
+                  a_grid_from_b_grid: Option<Se2>| {
         report.seconds = started.elapsed().as_secs_f64();
-        Ok(GridMerged { report, merged })
+        Ok(GridMerged {
+            report,
+            merged,
+            a_grid_from_b_grid,
+        })
     };
     // 1. Whether and how (Andersone Sec. 2.1).
     let request = GridMergeRequest {
-        a: metadata(&map_a),
-        b: metadata(&map_b),
+        a: metadata(map_a),
+        b: metadata(map_b),
         a_from_b: None,
     };
     let fusion = match DecisionTable::default().decide(&request) {
@@ -171,21 +201,21 @@ pub fn grid_merge(
         }
         GridMergeDecision::Reject(rejection) => {
             report.reason = Some(format!("decision table: {}", rejection.message));
-            return finish(report, None);
+            return finish(report, None, None);
         }
     };
     // 2. Matching without a guess, on the grids as read (axis-aligned at their origins).
     let match_started = Instant::now();
-    let matched = match match_grids(&grid_a, &grid_b, params) {
+    let matched = match match_grids(grid_a, grid_b, params) {
         Ok(m) => m,
         Err(e) => {
             report.reason = Some(format!("matching failed: {e}"));
             report.match_seconds = match_started.elapsed().as_secs_f64();
-            return finish(report, None);
+            return finish(report, None, None);
         }
     };
     report.match_seconds = match_started.elapsed().as_secs_f64();
-    let (a_map_from_grid, b_map_from_grid) = (map_from_grid(&map_a), map_from_grid(&map_b));
+    let (a_map_from_grid, b_map_from_grid) = (map_from_grid(map_a), map_from_grid(map_b));
     let in_map_frames = |h: &MatchHypothesis| {
         let t = a_map_from_grid
             .compose(&h.a_from_b)
@@ -214,7 +244,7 @@ pub fn grid_merge(
     let Some(best) = matched.hypotheses.first() else {
         report.reason =
             Some("no hypothesis: the maps share no rotation or translation peak".into());
-        return finish(report, None);
+        return finish(report, None, None);
     };
     let shown = in_map_frames(best);
     report.transform = Some(shown.transform);
@@ -226,8 +256,8 @@ pub fn grid_merge(
     if let Some(output) = output {
         let png = output.with_extension("png");
         Picture::of_grid_pair(
-            &grid_a,
-            &grid_b,
+            grid_a,
+            grid_b,
             &best.a_from_b,
             &thresholds,
             &PairStyle::default(),
@@ -241,10 +271,10 @@ pub fn grid_merge(
             Some(r) => format!("not accepted: {r}"),
             None => "not accepted".into(),
         });
-        return finish(report, None);
+        return finish(report, None, Some(best.a_from_b));
     }
     // 3. Fusion in A's grid frame and resolution (Andersone Sec. 4.1).
-    let fused = fuse(&grid_a, &grid_b, &best.a_from_b, &fusion)
+    let fused = fuse(grid_a, grid_b, &best.a_from_b, &fusion)
         .map_err(|e| JobError::context("fusing the maps", &e))?;
     if let Some(output) = output {
         let mut merged = RosMap::from_grid(&fused.merged, MapMode::Trinary, &thresholds);
@@ -253,5 +283,5 @@ pub fn grid_merge(
         report.merged = Some(output.to_path_buf());
     }
     report.accepted = true;
-    finish(report, Some(fused.merged))
+    finish(report, Some(fused.merged), Some(best.a_from_b))
 }

@@ -52,13 +52,13 @@ pub use atlas::{draw_graph, write_atlas};
 pub use convert::{convert, is_kitti_folder, ConvertReport};
 pub use error::{error_chain, JobError};
 pub use grid_merge::{
-    grid_merge, load_map, GridMergeReport, GridMerged, HypothesisReport, TransformReport,
-    DEFAULT_HYPOTHESES,
+    grid_merge, load_map, map_from_grid, merge_loaded, GridMergeReport, GridMerged,
+    HypothesisReport, TransformReport, DEFAULT_HYPOTHESES,
 };
 pub use lifelong::{
     kidnaps_per_log, log_sessions, AtlasJob, AtlasOptions, AtlasProgress, AtlasReport, AtlasRun,
     AtlasSession, CommittedSession, MapEpoch, MapReport, MergeReport, RejoinReport,
-    SelfSimilarityReport, SiteMap, StoreRunReport, UnmergeReport,
+    SelfSimilarityReport, SessionStart, SiteMap, StoreRunReport, UnmergeReport,
 };
 pub use mapmerge_store::DEFAULT_KEEP_VERSIONS;
 pub use optimize::{

@@ -442,6 +442,13 @@ pub struct AtlasRun {
     pub report: AtlasReport,
 }
 
+/// Where a session began: the events and nodes after it are the session's.
+#[derive(Clone, Copy, Debug)]
+pub struct SessionStart {
+    events_before: usize,
+    first_node: NodeId,
+}
+
 /// The atlas job between [`AtlasJob::open`] and [`AtlasJob::run`].
 pub struct AtlasJob {
     options: AtlasOptions,
@@ -515,6 +522,56 @@ impl AtlasJob {
         self.resumed_from
     }
 
+    /// Starts a session: a restart ends the epoch, unless this is the run's first session
+    /// on a new atlas or the last session ended it (a store).
+    pub fn begin_session(&mut self, first_of_run: bool) -> Result<SessionStart, JobError> {
+        let start = SessionStart {
+            events_before: self.engine.events().len(),
+            first_node: self.engine.atlas().next_node_id(),
+        };
+        if (!first_of_run || self.resumed_from.is_some())
+            && self.engine.atlas().active().num_vertices() > 0
+        {
+            self.engine
+                .end_epoch(EpochEndReason::Restart)
+                .map_err(|e| JobError::failed(&e))?;
+        }
+        Ok(start)
+    }
+
+    /// Ends the session begun at `start`: with a store, closes waiting loops, maintains and
+    /// commits it as one version; without, closes waiting loops only.
+    pub fn commit(
+        &mut self,
+        session: &str,
+        start: SessionStart,
+    ) -> Result<Option<CommittedSession>, JobError> {
+        let Some(store) = self.store.as_mut() else {
+            self.engine.finish().map_err(|e| JobError::failed(&e))?;
+            return Ok(None);
+        };
+        commit_session(
+            store,
+            &mut self.engine,
+            session,
+            start.events_before,
+            start.first_node,
+            &self.reference_of_node,
+        )
+        .map(Some)
+    }
+
+    /// The engine, to feed scans one at a time between [`AtlasJob::begin_session`] and
+    /// [`AtlasJob::commit`] (a live robot).
+    pub fn engine_mut(&mut self) -> &mut Engine {
+        &mut self.engine
+    }
+
+    /// The engine.
+    pub fn engine(&self) -> &Engine {
+        &self.engine
+    }
+
     /// Feeds every session in order (a new session ends the epoch as a restart; a kidnap
     /// ends it too), commits each with a store, and writes the events, the atlas and the
     /// pictures.
@@ -551,26 +608,10 @@ impl AtlasJob {
         for (s, session) in sessions.iter().enumerate() {
             progress(AtlasProgress::Session(&session.name));
             session_starts.push(self.engine.scans());
-            let events_before = self.engine.events().len();
-            let first_node = self.engine.atlas().next_node_id();
-            // A restart ends the epoch, unless the last session ended it (a store).
-            if (s > 0 || self.resumed_from.is_some())
-                && self.engine.atlas().active().num_vertices() > 0
-            {
-                self.engine
-                    .end_epoch(EpochEndReason::Restart)
-                    .map_err(|e| JobError::failed(&e))?;
-            }
+            let start = self.begin_session(s == 0)?;
             self.feed(session, &mut pictures, &mut progress)?;
-            if let Some(store) = self.store.as_mut() {
-                committed.push(commit_session(
-                    store,
-                    &mut self.engine,
-                    &session.name,
-                    events_before,
-                    first_node,
-                    &self.reference_of_node,
-                )?);
+            if let Some(done) = self.commit(&session.name, start)? {
+                committed.push(done);
             }
         }
         // Loops still waiting are closed before anything is written (a store's commit did).

@@ -12,12 +12,16 @@
 //!   [`read_cloud_session`]: with the sensor's pose from odometry (interpolated on SE(3)) and
 //!   tf, for the 3D path;
 //! - [`write_bag`]: a [`LaserLog`] → `.mcap` or `.db3`; [`write_cloud_bag`]: clouds and poses;
-//! - [`list_topics`]: what a bag holds.
+//! - [`list_topics`]: what a bag holds;
+//! - [`ScanAssembler`]: the same session assembled live, message by message (a robot's
+//!   topics rather than a bag).
 //!
 //! Nothing here panics on input; every problem is an [`IoError`] naming the file and, for a
 //! message, its topic and index.
 
 mod clouds;
+mod live;
+mod maps;
 mod messages;
 mod msgdefs;
 mod session;
@@ -30,6 +34,8 @@ use mapmerge_io::IoError;
 use mapmerge_scan::LaserLog;
 
 pub use clouds::{cloud_points, read_cloud_session, read_point_clouds, CloudSession, StampedCloud};
+pub use live::{LiveDrops, LiveMount, ScanAssembler, LIVE_QUEUE_MAX, LIVE_WAIT};
+pub use maps::{occupancy_grid_message, ros_map_of_message, MAP_CELLS_MAX};
 pub use messages::{
     decode, encode, Header, LaserScanMessage, MapMetaData, OccupancyGridMessage, OdometryMessage,
     PointCloud2Message, PointField, Pose, Quaternion, TfMessage, Time, Transform, TransformStamped,

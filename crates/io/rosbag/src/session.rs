@@ -249,12 +249,17 @@ pub(crate) struct Tf {
 impl Tf {
     /// Takes one message of `topic` (a TFMessage topic; `…tf_static` is static).
     pub(crate) fn take(&mut self, topic: &Topic, data: &[u8]) -> Result<(), String> {
-        self.any = true;
         let tf: TfMessage = decode(data)?;
-        if topic.name.ends_with("tf_static") {
-            self.static_tree.insert_first(&tf)
+        self.insert(&tf, topic.name.ends_with("tf_static"))
+    }
+
+    /// Takes one decoded message, from `/tf_static` when `is_static`.
+    pub(crate) fn insert(&mut self, tf: &TfMessage, is_static: bool) -> Result<(), String> {
+        self.any = true;
+        if is_static {
+            self.static_tree.insert_first(tf)
         } else {
-            self.dynamic_tree.insert_first(&tf)
+            self.dynamic_tree.insert_first(tf)
         }
     }
 
@@ -280,7 +285,7 @@ impl Tf {
 }
 
 /// `base_from_laser` on the plane, and whether the laser is upside down.
-fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
+pub(crate) fn planar_mount(base_from_laser: &Se3) -> Result<(Se2, bool), String> {
     let rotation = base_from_laser.rotation.to_rotation_matrix();
     let up = rotation[(2, 2)];
     let tilt_deg = up.abs().clamp(-1.0, 1.0).acos().to_degrees();
@@ -317,6 +322,56 @@ pub(crate) fn pose_at<const D: usize, G: LieGroup<D>>(
     }
     let fraction = (stamp_secs - stamps_secs[before]) / (stamps_secs[after] - stamps_secs[before]);
     Some(poses[before].interpolate(&poses[after], fraction))
+}
+
+/// The robot's pose in an odometry message's frame, on the plane (NaN yaw for a zero
+/// quaternion).
+pub(crate) fn odom_pose(odometry: &OdometryMessage) -> Se2 {
+    let p = &odometry.pose.pose;
+    let yaw = rotation_of(&p.orientation).map_or(f64::NAN, |_| p.orientation.yaw());
+    Se2::new(p.position.x, p.position.y, yaw)
+}
+
+/// A laser's angles as recovered by [`angle_rad_of`], each distinct stored value once (the
+/// scans of one laser share them).
+#[derive(Default)]
+pub(crate) struct Angles {
+    recovered: HashMap<u32, f64>,
+}
+
+impl Angles {
+    fn angle(&mut self, stored: f32) -> f64 {
+        *self
+            .recovered
+            .entry(stored.to_bits())
+            .or_insert_with(|| angle_rad_of(stored))
+    }
+
+    /// The scan record of `message` at `stamp_secs`, with its odometry pose and the laser's
+    /// planar mount (its beams mirrored when it is upside down).
+    pub(crate) fn record(
+        &mut self,
+        message: LaserScanMessage,
+        stamp_secs: f64,
+        odom_from_robot: Option<Se2>,
+        robot_from_sensor: Se2,
+        upside_down: bool,
+    ) -> ScanRecord {
+        let mirror = if upside_down { -1.0 } else { 1.0 };
+        ScanRecord {
+            stamp_secs,
+            scan: LaserScan {
+                angle_min_rad: mirror * self.angle(message.angle_min),
+                angle_increment_rad: mirror * self.angle(message.angle_increment),
+                range_min_m: message.range_min,
+                range_max_m: message.range_max,
+                ranges_m: message.ranges,
+                robot_from_sensor,
+            },
+            odom_from_robot,
+            source_tag: "LaserScan".to_owned(),
+        }
+    }
 }
 
 /// Largest denominator tried by [`angle_rad_of`]: π/2880 is 1/16 of a degree.
@@ -442,14 +497,7 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
     if let Some(odom) = odom_topic {
         check_monotonic(&odom_stamps, &topics[odom].name)?;
     }
-    let odom_poses: Vec<Se2> = odometry
-        .iter()
-        .map(|o| {
-            let p = &o.pose.pose;
-            let yaw = rotation_of(&p.orientation).map_or(f64::NAN, |_| p.orientation.yaw());
-            Se2::new(p.position.x, p.position.y, yaw)
-        })
-        .collect();
+    let odom_poses: Vec<Se2> = odometry.iter().map(odom_pose).collect();
     if let Some(bad) = odom_poses.iter().position(|p| !p.is_finite()) {
         return Err(format!(
             "odometry message {}: the pose is not finite or its quaternion is zero",
@@ -471,14 +519,7 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
         ..Default::default()
     };
     let mut scans_without_odometry = 0;
-    let mirror = if upside_down { -1.0 } else { 1.0 };
-    // Scans of one laser share their angles: recover each distinct value once.
-    let mut angles: HashMap<u32, f64> = HashMap::new();
-    let mut angle_of = |stored: f32| {
-        *angles
-            .entry(stored.to_bits())
-            .or_insert_with(|| angle_rad_of(stored))
-    };
+    let mut angles = Angles::default();
     for (message, stamp_secs) in scans.into_iter().zip(scan_stamps) {
         let odom_from_robot = match odom_topic {
             Some(_) => match pose_at(&odom_stamps, &odom_poses, stamp_secs) {
@@ -490,19 +531,13 @@ pub(crate) fn session_of(raw: RawBag, choice: &TopicChoice) -> Result<BagSession
             },
             None => None,
         };
-        log.scans.push(ScanRecord {
+        log.scans.push(angles.record(
+            message,
             stamp_secs,
-            scan: LaserScan {
-                angle_min_rad: mirror * angle_of(message.angle_min),
-                angle_increment_rad: mirror * angle_of(message.angle_increment),
-                range_min_m: message.range_min,
-                range_max_m: message.range_max,
-                ranges_m: message.ranges,
-                robot_from_sensor,
-            },
             odom_from_robot,
-            source_tag: "LaserScan".to_owned(),
-        });
+            robot_from_sensor,
+            upside_down,
+        ));
     }
     if log.scans.is_empty() {
         return Err(format!(

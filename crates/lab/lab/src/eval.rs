@@ -88,6 +88,9 @@ enum EvalCommand {
     /// noisy odometry recorded them (seeded), and simulated worlds, judged from each run's
     /// per-map trajectories (merged and placed, misplaced, where lost, relocalization).
     Lifelong(crate::lifelong_eval::LifelongEvalArgs),
+    /// How two maps of one resolution agree, cell by cell by place (a live node's `/map`
+    /// against `slam`'s map of the same data): cells known in either, and of the same class.
+    MapAgreement(crate::live_judge::MapAgreementArgs),
 }
 
 /// Arguments of `mapmerge eval add-noise`.
@@ -191,6 +194,7 @@ pub fn run(args: &EvalArgs) -> anyhow::Result<ExitCode> {
         EvalCommand::Doors(a) => crate::door_eval::run(a),
         EvalCommand::Areas(a) => crate::areas_eval::run(a),
         EvalCommand::Lifelong(a) => crate::lifelong_eval::run(a),
+        EvalCommand::MapAgreement(a) => crate::live_judge::map_agreement(a),
     }
     .map(|()| ExitCode::SUCCESS)
 }

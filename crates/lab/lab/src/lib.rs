@@ -38,6 +38,7 @@ mod eval;
 mod grid_merge_eval;
 pub mod invalid_merge_eval;
 mod lifelong_eval;
+pub mod live_judge;
 pub mod map_judge;
 mod protrusion_eval;
 pub mod sim;

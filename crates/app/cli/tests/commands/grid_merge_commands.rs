@@ -28,25 +28,8 @@ fn a_turned_coarser_copy_of_a_building_map_is_found_where_it_was_put() {
     let a = mapmerge_io::read_ros_map(&yaml).unwrap().to_grid().unwrap();
     // B: A's content in a frame turned by 37° and moved, at twice A's cell size.
     let a_from_b = Se2::new(3.2, -1.7, 37f64.to_radians());
-    let b_from_a = a_from_b.inverse();
-    let (lo, hi) = a.geometry().bounds_m();
-    let corners = [
-        Point2::new(lo.x, lo.y),
-        Point2::new(hi.x, lo.y),
-        Point2::new(lo.x, hi.y),
-        Point2::new(hi.x, hi.y),
-    ]
-    .map(|c| b_from_a.transform_point(&c));
-    let min = corners.iter().fold(corners[0], |m, c| m.inf(c));
-    let max = corners.iter().fold(corners[0], |m, c| m.sup(c));
-    let resolution_m = 2.0 * a.resolution_m();
-    let geometry = GridGeometry {
-        resolution_m,
-        origin_m: min,
-        width: ((max.x - min.x) / resolution_m).ceil() as usize,
-        height: ((max.y - min.y) / resolution_m).ceil() as usize,
-    };
-    let b = mapmerge_gridmerge::resample_into(&a, &b_from_a, &geometry).unwrap();
+    let b = mapmerge_lab::live_judge::turned_copy(&a, &a_from_b, 2.0).unwrap();
+    let resolution_m = b.resolution_m();
     let b_yaml = write_map(
         &dir,
         "b",
