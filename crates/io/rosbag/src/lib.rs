@@ -34,7 +34,9 @@ use mapmerge_io::IoError;
 use mapmerge_scan::LaserLog;
 
 pub use clouds::{cloud_points, read_cloud_session, read_point_clouds, CloudSession, StampedCloud};
-pub use live::{LiveDrops, LiveMount, ScanAssembler, LIVE_QUEUE_MAX, LIVE_WAIT};
+pub use live::{
+    LiveDrops, LiveMount, ScanAssembler, LIVE_ODOMETRY_WAIT, LIVE_QUEUE_MAX, LIVE_WAIT,
+};
 pub use maps::{occupancy_grid_message, ros_map_of_message, MAP_CELLS_MAX};
 pub use messages::{
     decode, encode, Header, LaserScanMessage, MapMetaData, OccupancyGridMessage, OdometryMessage,

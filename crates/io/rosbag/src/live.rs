@@ -12,10 +12,14 @@ use mapmerge_scan::ScanRecord;
 use crate::messages::{LaserScanMessage, OdometryMessage, TfMessage};
 use crate::session::{odom_pose, planar_mount, pose_at, Angles, MountSource, Tf};
 
-/// A scan waits at most this long after it was heard for the odometry that brackets it, or
-/// for tf to link the laser to the robot (wall time: messages of different topics travel
+/// A scan waits at most this long after it was heard for tf to link the laser to the robot,
+/// and for odometry before any was heard (wall time: messages of different topics travel
 /// separately, and a busy network or host delays one topic more than another).
 pub const LIVE_WAIT: Duration = Duration::from_millis(500);
+
+/// Once odometry has been heard, a scan waits this long for the odometry after its stamp: a
+/// loaded host delays the pose rather than leaving the scan out.
+pub const LIVE_ODOMETRY_WAIT: Duration = Duration::from_secs(5);
 
 /// Scans waiting at most (a robot without odometry or tf would otherwise grow the queue).
 pub const LIVE_QUEUE_MAX: usize = 256;
@@ -71,6 +75,8 @@ pub struct ScanAssembler {
     drops: LiveDrops,
     /// Why scans were last left out for want of a mount.
     mount_problem: Option<String>,
+    /// Whether any odometry was taken.
+    odometry_heard: bool,
 }
 
 impl ScanAssembler {
@@ -113,6 +119,7 @@ impl ScanAssembler {
                 self.base_frame = Some(child.to_owned());
             }
         }
+        self.odometry_heard = true;
         self.odom_stamps_s.push_back(stamp_s);
         self.odom_poses.push_back(pose);
         if self.odom_stamps_s.len() > ODOMETRY_KEPT_MAX {
@@ -143,13 +150,15 @@ impl ScanAssembler {
     }
 
     /// The next scan whose odometry and mount are known at `now`, in stamp order, with when
-    /// it was heard; scans that waited [`LIVE_WAIT`] for either are taken with what is known
+    /// it was heard; scans that waited [`LIVE_WAIT`] for the mount, or for odometry
+    /// ([`LIVE_ODOMETRY_WAIT`] once some was heard), are taken with what is known
     /// (the odometry held for [`crate::ODOMETRY_HOLD_S`] past its last message) or left out
     /// (counted in [`ScanAssembler::drops`]).
     pub fn next_record(&mut self, now: Instant) -> Option<(ScanRecord, Instant)> {
         while let Some((front, heard)) = self.waiting.front() {
             let stamp_s = front.header.stamp.seconds();
-            let timed_out = now.saturating_duration_since(*heard) > LIVE_WAIT;
+            let waited = now.saturating_duration_since(*heard);
+            let timed_out = waited > LIVE_WAIT;
             let laser_frame = front.header.frame_id.clone();
             if self.mount.is_none() && !self.find_mount(&laser_frame, timed_out) {
                 if !timed_out {
@@ -163,7 +172,12 @@ impl ScanAssembler {
                 .odom_stamps_s
                 .back()
                 .is_some_and(|&last| last >= stamp_s);
-            if !covered && !timed_out {
+            let odometry_wait = if self.odometry_heard {
+                LIVE_ODOMETRY_WAIT
+            } else {
+                LIVE_WAIT
+            };
+            if !covered && waited <= odometry_wait {
                 return None;
             }
             let (scan, heard) = self.waiting.pop_front()?;
@@ -346,11 +360,13 @@ mod tests {
         assert_eq!(live.drops().out_of_order, 1);
         live.scan(scan_at(1.02), t0); // goes back too
         live.scan(scan_at(2.6), after(t0, 300));
+        // Odometry was heard: a scan waits 5 s for the odometry after it, not 0.5 s.
         assert!(
-            live.next_record(after(t0, 400)).is_none(),
+            live.next_record(after(t0, 600)).is_none(),
             "within the wait"
         );
-        assert!(live.next_record(after(t0, 600)).is_none());
+        assert_eq!(live.drops().without_odometry, 0);
+        assert!(live.next_record(after(t0, 5100)).is_none());
         assert_eq!(
             live.drops().without_odometry,
             1,
@@ -359,7 +375,7 @@ mod tests {
         assert_eq!(live.waiting(), 1);
         // The 2.6 s scan, 0.03 s after odometry at 2.57 s, takes it held once its wait is over.
         live.odometry(&odom_at(2.57, 2.0)).unwrap();
-        let (held, _) = live.next_record(after(t0, 900)).unwrap();
+        let (held, _) = live.next_record(after(t0, 5400)).unwrap();
         assert_eq!(held.odom_from_robot.unwrap().x_m, 2.0);
         assert_eq!(live.drops().odometry_held, 1);
         let mut bad = odom_at(3.0, 0.0);
